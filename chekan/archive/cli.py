@@ -1,0 +1,248 @@
+"""Command-line registrars of the archive layer (cheap to import: no NumPy, no JAX).
+
+``add_parsers(subparsers)`` registers all three; ``chekan/cli.py`` calls it. Standalone:
+``python -m chekan.archive archive|reanalyze|history …``.
+
+    chekan archive add RESULT.json… [--db PATH]
+    chekan archive list [--serial S] [--db PATH]
+    chekan archive show ID [--json] [--db PATH]
+    chekan archive export out.csv [--serial S] [--db PATH]
+    chekan reanalyze DIR --method classical|map|bayes [--jobs N] [--executor local|dask]
+                     [--scheduler ADDR] [--results-dir D] [--db PATH]
+    chekan history SERIAL [--param b1 b2 a] [--method M] [--at DATE] [--tolerance-ppm X]
+                   [--plot history.png] [--json out.json] [--db PATH]
+
+Exit status: 0; 1 when some input/result failed (``reanalyze``, ``archive add``); 2 on an
+error; 4 when ``history`` raised an ALARM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+DB_HELP = "archive database (default $CHEKAN_ARCHIVE, else ~/.local/share/chekan/archive.sqlite)"
+
+
+def _db_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--db", help=DB_HELP)
+
+
+# ----------------------------------------------------------------------------- archive
+def _cmd_add(args: argparse.Namespace) -> int:
+    from chekan.archive.db import Archive
+    from chekan.errors import ChekanError
+    from chekan.result import read_result
+
+    bad = 0
+    with Archive(args.db) as a:
+        for path in args.results:
+            try:
+                sid = a.add_result(read_result(path), path)
+            except ChekanError as e:
+                print(f"chekan: error: {e}", file=sys.stderr)
+                bad += 1
+                continue
+            print(f"{path}: session {sid}")
+    return 1 if bad else 0
+
+
+def _cmd_list(args: argparse.Namespace) -> int:
+    from chekan.archive.db import Archive
+
+    with Archive(args.db) as a:
+        rows = a.list_sessions(args.serial)
+        params = {
+            r["session_id"]: r for r in a.parameter_rows(args.serial) if r["parameter"] == "b1"
+        }
+    print(f"{'id':>5}  {'serial':<10} {'date':<10}  {'method':<9} {'version':<8} {'b1':>11}  input")
+    for r in rows:
+        b1 = params.get(r["id"])
+        b1s = f"{b1['mean']:11.6f}" if b1 else " " * 11
+        print(
+            f"{r['id']:>5}  {r['serial']:<10} {r['calibrated_on'] or '?':<10}  {r['method']:<9} "
+            f"{r['software_version']:<8} {b1s}  {r['input_path']}"
+        )
+    print(f"{len(rows)} session(s) in {a.path}")
+    return 0
+
+
+def _cmd_show(args: argparse.Namespace) -> int:
+    from chekan.archive.db import Archive
+
+    with Archive(args.db) as a:
+        s = a.get_session(args.id)
+    if args.json:
+        print(json.dumps(s, indent=2, ensure_ascii=False))
+        return 0
+    from chekan.summary import format_summary
+
+    for k in (
+        "id",
+        "serial",
+        "calibrated_on",
+        "method",
+        "software_version",
+        "input_kind",
+        "input_path",
+        "input_sha256",
+        "created",
+        "added",
+        "result_path",
+        "netcdf_path",
+    ):
+        print(f"{k:>16}: {s[k] if s[k] is not None else ''}")
+    print()
+    print(format_summary(s["result"]))
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from chekan.archive.db import Archive
+
+    with Archive(args.db) as a:
+        n = a.export_csv(args.out, args.serial)
+    print(f"wrote {args.out} ({n} parameter rows)")
+    return 0
+
+
+def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
+    """``chekan archive add|list|show|export``."""
+    p = sub.add_parser("archive", help="the calibration archive: add, list, show, export")
+    asub = p.add_subparsers(dest="archive_command", required=True, metavar="ACTION")
+    q = asub.add_parser("add", help="add result JSON files (idempotent)")
+    q.add_argument("results", nargs="+", help="chekan-result/1 JSON files")
+    _db_arg(q)
+    q.set_defaults(func=_cmd_add)
+    q = asub.add_parser("list", help="list archived sessions")
+    q.add_argument("--serial", help="only this instrument")
+    _db_arg(q)
+    q.set_defaults(func=_cmd_list)
+    q = asub.add_parser("show", help="one session in full")
+    q.add_argument("id", type=int, help="session id (see 'archive list')")
+    q.add_argument("--json", action="store_true", help="print the stored session as JSON")
+    _db_arg(q)
+    q.set_defaults(func=_cmd_show)
+    q = asub.add_parser("export", help="parameters of every session as CSV (one row each)")
+    q.add_argument("out", help="CSV file to write")
+    q.add_argument("--serial", help="only this instrument")
+    _db_arg(q)
+    q.set_defaults(func=_cmd_export)
+    return p
+
+
+# ----------------------------------------------------------------------------- reanalyze
+def _cmd_reanalyze(args: argparse.Namespace) -> int:
+    from chekan.archive.reanalyze import reanalyze
+
+    rep = reanalyze(
+        args.dir,
+        args.method,
+        db=args.db,
+        jobs=args.jobs,
+        executor=args.executor,
+        scheduler=args.scheduler,
+        results_dir=args.results_dir,
+        options={"quick": True} if args.quick else None,
+        progress=not args.no_progress,
+    )
+    print(rep.summary())
+    return 1 if rep.failed else 0
+
+
+def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
+    """``chekan reanalyze DIR --method …``."""
+    p = sub.add_parser(
+        "reanalyze", help="analyse every record/protocol under a folder into the archive"
+    )
+    p.add_argument("dir", help="folder searched recursively for chekan-record/1 and -protocol/1")
+    p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
+    p.add_argument("--jobs", type=int, help="worker processes (default: the CPUs available)")
+    p.add_argument("--executor", choices=("local", "dask"), default="local")
+    p.add_argument("--scheduler", help="dask: scheduler address (default: a LocalCluster)")
+    p.add_argument("--results-dir", help="where result JSONs go (default <archive dir>/results)")
+    p.add_argument("--quick", action="store_true", help="bayes: smaller ESS target")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _db_arg(p)
+    p.set_defaults(func=_cmd_reanalyze)
+    return p
+
+
+# ----------------------------------------------------------------------------- history
+def _cmd_history(args: argparse.Namespace) -> int:
+    from chekan.archive.db import Archive
+    from chekan.archive.history import (
+        format_history,
+        plot_history,
+        stability_history,
+        write_history_json,
+    )
+
+    with Archive(args.db) as a:
+        hist = stability_history(
+            a,
+            args.serial,
+            params=tuple(args.param),
+            method=args.method,
+            at=args.at,
+            tolerance_ppm=args.tolerance_ppm,
+            extra_error=not args.no_extra_error,
+        )
+    print(format_history(hist))
+    if args.plot:
+        print(f"wrote {plot_history(hist, args.plot)}")
+    if args.json:
+        print(f"wrote {write_history_json(args.json, hist)}")
+    return 4 if any(x["level"] == "ALARM" for x in hist["alarms"]) else 0
+
+
+def add_history_parser(sub: Any) -> argparse.ArgumentParser:
+    """``chekan history SERIAL …``."""
+    p = sub.add_parser("history", help="scale-factor stability of one instrument over the years")
+    p.add_argument("serial", help="gravimeter serial number")
+    p.add_argument("--param", nargs="+", default=["b1", "b2", "a"], help="parameters (b1 b2 a)")
+    p.add_argument(
+        "--method",
+        choices=("classical", "map", "bayes"),
+        help="only this method (default per session: bayes > map > classical)",
+    )
+    p.add_argument("--at", help="date of the prediction, YYYY-MM-DD (default today)")
+    p.add_argument(
+        "--tolerance-ppm",
+        type=float,
+        default=500.0,
+        help="alarm threshold for scale-factor changes, ppm (default 500)",
+    )
+    p.add_argument(
+        "--no-extra-error",
+        action="store_true",
+        help="model no extra per-session error beyond the reported sd",
+    )
+    p.add_argument("--plot", help="write the history plot (PNG, PDF, SVG)")
+    p.add_argument("--json", help="write the history as JSON")
+    _db_arg(p)
+    p.set_defaults(func=_cmd_history)
+    return p
+
+
+def add_parsers(sub: Any) -> None:
+    """Register ``archive``, ``reanalyze`` and ``history`` on ``chekan``'s subparsers."""
+    add_archive_parser(sub)
+    add_reanalyze_parser(sub)
+    add_history_parser(sub)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m chekan.archive``: the three commands without the rest of ``chekan``."""
+    from chekan.errors import ChekanError
+
+    ap = argparse.ArgumentParser(prog="python -m chekan.archive")
+    add_parsers(ap.add_subparsers(dest="command", required=True, metavar="COMMAND"))
+    args = ap.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ChekanError as e:
+        print(f"chekan: error: {e}", file=sys.stderr)
+        return 2

@@ -1,0 +1,173 @@
+"""The ``chekan`` command line. Every subcommand has ``--help``.
+
+    chekan simulate --out rec.csv [--seed N] [--truth truth.json]
+    chekan calibrate REC_OR_PROTOCOL --method classical|map|bayes --json result.json
+    chekan program [FILE]
+    chekan emulate …      chekan acquire …      (hardware layer)
+    chekan demo --out DIR (the main job end to end on the built-in emulator)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+from chekan import __version__
+from chekan.errors import ChekanError
+
+
+def _cmd_simulate(args) -> int:
+    import numpy as np
+
+    from chekan.program import default_program, load_program
+    from chekan.records import write_record
+    from chekan.simulate import Truth, random_truth, simulate_session, write_truth
+
+    program = load_program(args.program) if args.program else default_program()
+    truth = (
+        random_truth(np.random.default_rng(args.seed + 10_000), serial=args.serial)
+        if args.random_truth
+        else Truth(serial=args.serial)
+    )
+    rec, truth = simulate_session(program, truth, seed=args.seed)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_record(out, rec)
+    print(f"wrote {out} ({rec.t_s.size} samples, {program.describe()})")
+    if args.truth:
+        write_truth(args.truth, truth)
+        print(f"wrote {args.truth} (true parameters)")
+    return 0
+
+
+def _cmd_calibrate(args) -> int:
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.result import write_result
+    from chekan.summary import format_summary
+
+    opts = CalibrationOptions(
+        method=args.method,
+        hdi_prob=args.hdi_prob,
+        settle_s=args.settle_s,
+        a_fixed=args.a_fixed,
+        seed=args.seed,
+        progress=not args.quiet,
+        encoder_error=args.encoder_error,
+        quick=args.quick,
+    )
+    json_path = Path(args.json) if args.json else None
+    if args.method == "bayes":
+        nc = args.netcdf or (json_path.with_suffix(".nc") if json_path else None)
+        opts.netcdf = nc
+    res = calibrate_file(args.input, opts)
+    if not args.quiet:
+        print(format_summary(res))
+    if json_path:
+        write_result(json_path, res)
+        print(f"wrote {json_path}")
+    if res.get("posterior_netcdf"):
+        print(f"wrote {res['posterior_netcdf']}")
+    if args.report:
+        from chekan.report import render_report
+
+        written = render_report(res, args.report, lang=args.lang)
+        print(f"wrote {written}")
+    conv = res.get("diagnostics", {}).get("converged", True)
+    return 0 if conv or not args.strict else 3
+
+
+def _cmd_program(args) -> int:
+    from chekan.program import default_program, load_program
+
+    p = load_program(args.file) if args.file else default_program()
+    print(p.describe())
+    for s in p.steps:
+        print(f"{s.index:3d}  round {s.round}  {s.label():>9}  dwell {s.dwell_s:g} s (settle {s.settle_s:g} s)")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from chekan.demo import run_demo
+
+    return run_demo(args.out, quick=args.quick, use_emulator=not args.no_emulator)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="chekan",
+        description="Tilt-method calibration of the Chekan-AM gravimeter.",
+    )
+    ap.add_argument("--version", action="version", version=f"chekan {__version__}")
+    sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("simulate", help="write a simulated 1 Hz record of a whole tilt program")
+    p.add_argument("--out", required=True, help="record to write (chekan-record/1 CSV)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--truth", help="also write the true parameters to this JSON file")
+    p.add_argument("--program", help="tilt program TOML (default: the paper's program, 9 h)")
+    p.add_argument("--serial", default="SIM-1", help="serial number written into the record")
+    p.add_argument(
+        "--random-truth", action="store_true", help="draw the instrument's parameters at random"
+    )
+    p.set_defaults(func=_cmd_simulate)
+
+    p = sub.add_parser("calibrate", help="estimate b1, b2, a, … from a record or legacy protocol")
+    p.add_argument("input", help="chekan-record/1 or chekan-protocol/1 file")
+    p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
+    p.add_argument("--json", help="write the chekan-result/1 JSON here")
+    p.add_argument("--netcdf", help="bayes: ArviZ posterior NetCDF (default: beside the JSON)")
+    p.add_argument("--report", help="also render the certificate (PDF, or .html)")
+    p.add_argument("--lang", choices=("ru", "en"), default="en", help="certificate language")
+    p.add_argument("--hdi-prob", type=float, default=0.95, help="interval probability (0.95)")
+    p.add_argument("--settle-s", type=float, help="settling time excluded from dwell means")
+    p.add_argument("--a-fixed", type=float, help="fix a (mGal/pix², record convention)")
+    p.add_argument("--encoder-error", action="store_true",
+                   help="bayes/map: also model a smooth systematic angle error of the encoder")
+    p.add_argument("--seed", type=int, default=0, help="sampler seed")
+    p.add_argument("--quick", action="store_true", help="bayes: smaller ESS target (demos)")
+    p.add_argument("--strict", action="store_true", help="exit 3 when the sampler did not converge")
+    p.add_argument("--quiet", action="store_true", help="print only what was written")
+    p.set_defaults(func=_cmd_calibrate)
+
+    p = sub.add_parser("program", help="show a tilt program (default: the paper's)")
+    p.add_argument("file", nargs="?", help="program TOML file")
+    p.set_defaults(func=_cmd_program)
+
+    p = sub.add_parser("demo", help="the main job end to end on the built-in emulator")
+    p.add_argument("--out", default="demo", help="output folder (default ./demo)")
+    p.add_argument("--quick", action="store_true", help="short program (minutes → seconds)")
+    p.add_argument("--no-emulator", action="store_true", help="simulate the record directly")
+    p.set_defaults(func=_cmd_demo)
+
+    _add_optional(sub)
+    return ap
+
+
+def _add_optional(sub) -> None:
+    """Subcommands of other layers, registered when their modules are present."""
+    try:
+        from hw import cli as hwcli
+    except ImportError:
+        return
+    hwcli.add_emulate_parser(sub)
+    hwcli.add_acquire_parser(sub)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            return int(args.func(args) or 0)
+    except ChekanError as e:
+        print(f"chekan: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("chekan: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,299 @@
+"""Differentiable forward model of both quartz torsion systems (JAX, float64).
+
+Geometry (``record-format.md``): with platform angles ``tx`` (about X) and ``ty``
+(about Y) the unit up-vector in the platform frame is
+
+    u_p = (−sin ty · cos tx,  sin tx,  cos ty · cos tx).
+
+The sensor is turned in azimuth by γ from the ideal tilt plane,
+``u_s = R_z(γ) u_p`` (passive rotation: x' = x cos γ + y sin γ, y' = −x sin γ + y cos γ).
+The torsion axis of system j is inclined by εⱼ in the sensor frame,
+``u_j = R_y(εⱼ) u_s`` (x' = x cos ε + z sin ε, z' = −x sin ε + z cos ε), and system 2
+is turned 180° about the vertical (x, y → −x, −y). With this sign of ε the paper's
+eq. (17), ε_θ = −(m₊ − m₋)/(m₊ + m₋ − 2m_h)·|θ|/2, returns +εⱼ for either system.
+
+Pendulum j is in torsion equilibrium (eq. 6 with the attitude of the system)
+
+    λⱼ (Φⱼ + φ) = g (u_z cos φ + u_y sin φ),
+
+and the CCD reading is mⱼ = m₀ + K φⱼ (eqs. 1–4). We never subtract two ~10⁶ mGal
+numbers: with the level state φ_h (reading m_h) and u_zh = cos εⱼ, the equation is
+solved for δ = φ − φ_h in deviation form
+
+    λ δ = g [Δu_z cos φ + u_zh (cos φ − cos φ_h) + u_y sin φ],
+    Δu_z = u_z − u_zh  (built from 1 − cos t = 2 sin²(t/2)),
+
+by a fixed count of Newton steps under ``stop_gradient`` and one differentiable Newton
+step, which gives exact implicit derivatives (∂δ/∂p = −F_p/F_δ at the root).
+
+Calibration parameterisation: instead of (λ, Φ) we use the scale factor at the level
+reading b = dG/dm|_{m_h} and the level reading m_h itself, where the "felt gravity"
+of the characteristic is G(φ) = λ(Φ + φ)/cos φ (eq. 6). Then
+
+    b = (λ/cos φ_h + G_h tan φ_h)/K  ⇒  λ = bK cos φ_h − G_h sin φ_h,
+    a(m) = G''(φ)/(2K²) ≈ g/(2K²)  (eq. 10),   b₀ = b + 2a(m₀ − m_h)  (eq. 24).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import chekan.jaxconfig  # noqa: F401  (x64 before any array)
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+NEWTON_STEPS = 4
+SECONDS_PER_HOUR = 3600.0
+
+
+class SensorParams(NamedTuple):
+    """Static parameters of the double quartz system (a JAX pytree).
+
+    Attributes:
+        g_mgal: gravity at the site, mGal.
+        K_pix_per_rad: optical conversion K = 2nF/δ (eq. 4), shared by both systems.
+        m0_pix: CCD centre (reading of a horizontal pendulum).
+        b_mgal_per_pix: (2,) scale factors at the level readings.
+        m_level_pix: (2,) readings with the platform level (m_h).
+        eps_rad: (2,) torsion-axis inclinations ε₁, ε₂ (sensor frame).
+        gamma_rad: azimuth turn γ of the sensor from the ideal tilt plane.
+    """
+
+    g_mgal: jax.Array
+    K_pix_per_rad: jax.Array
+    m0_pix: jax.Array
+    b_mgal_per_pix: jax.Array
+    m_level_pix: jax.Array
+    eps_rad: jax.Array
+    gamma_rad: jax.Array
+
+
+def make_params(
+    *,
+    g_mgal: float,
+    K_pix_per_rad: float,
+    b_mgal_per_pix,
+    m_level_pix,
+    eps_rad=(0.0, 0.0),
+    gamma_rad: float = 0.0,
+    m0_pix: float = 1024.0,
+) -> SensorParams:
+    """Build :class:`SensorParams` from plain numbers (float64 arrays)."""
+    f = lambda x: jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
+    return SensorParams(
+        f(g_mgal),
+        f(K_pix_per_rad),
+        f(m0_pix),
+        f(b_mgal_per_pix),
+        f(m_level_pix),
+        f(eps_rad),
+        f(gamma_rad),
+    )
+
+
+def K_from_a(a_mgal_per_pix2, g_mgal):
+    """Invert eq. (10), a = g/(2K²): K = sqrt(g/(2a))."""
+    return jnp.sqrt(g_mgal / (2.0 * a_mgal_per_pix2))
+
+
+def _hav2(t):
+    """1 − cos t = 2 sin²(t/2), exact near zero."""
+    s = jnp.sin(0.5 * t)
+    return 2.0 * s * s
+
+
+def up_vector_deviation(tx_rad, ty_rad, gamma_rad, eps_rad):
+    """Up-vector in the frame of each system, as (Δu_z, u_y, u_zh) with shape (..., 2).
+
+    Δu_z = u_z − u_zh is the change of the vertical component from the level
+    attitude (u_zh = cos εⱼ), computed without cancellation.
+    """
+    tx = jnp.asarray(tx_rad)[..., None]
+    ty = jnp.asarray(ty_rad)[..., None]
+    eps = jnp.asarray(eps_rad)
+    # deviation of u_p from (0, 0, 1)
+    dx = -jnp.sin(ty) * jnp.cos(tx)
+    dy = jnp.sin(tx)
+    dz = -_hav2(ty) - _hav2(tx) + _hav2(ty) * _hav2(tx)
+    cg, sg = jnp.cos(gamma_rad), jnp.sin(gamma_rad)
+    sx = dx * cg + dy * sg  # sensor frame (level part (0,0,1) is invariant under R_z)
+    sy = -dx * sg + dy * cg
+    ce, se = jnp.cos(eps), jnp.sin(eps)
+    # R_y(ε) is linear: u_z = −sx·sin ε + (1 + dz)·cos ε  ⇒  Δu_z = −sx·sin ε + dz·cos ε
+    du_z = -sx * se + dz * ce
+    sign_y = jnp.array([1.0, -1.0])  # system 2 turned 180° about the vertical
+    u_y = sy * sign_y
+    u_zh = jnp.broadcast_to(ce, du_z.shape)
+    return du_z, u_y, u_zh
+
+
+def level_state(params: SensorParams):
+    """Level pendulum angle φ_h, stiffness λ and felt gravity G_h of each system (2,)."""
+    phi_h = (params.m_level_pix - params.m0_pix) / params.K_pix_per_rad
+    G_h = params.g_mgal * jnp.cos(params.eps_rad)
+    lam = params.b_mgal_per_pix * params.K_pix_per_rad * jnp.cos(phi_h) - G_h * jnp.sin(phi_h)
+    return phi_h, lam, G_h
+
+
+MAX_PENDULUM_ANGLE_RAD = 0.1  # the CCD spans ±0.017 rad; beyond 0.1 rad the series below is inexact
+
+
+def _sin_small(x):
+    """sin x for |x| ≤ 0.1 by its Taylor series to x⁹ (error < 3e-19): float64 trig
+    costs ~10–20 ns, and the Newton loop runs on thousands of points per evaluation."""
+    x2 = x * x
+    return x * (1 - x2 / 6 * (1 - x2 / 20 * (1 - x2 / 42 * (1 - x2 / 72))))
+
+
+def _cos_small(x):
+    """cos x for |x| ≤ 0.1 by its Taylor series to x¹⁰ (error < 3e-22)."""
+    x2 = x * x
+    return 1 - x2 / 2 * (1 - x2 / 12 * (1 - x2 / 30 * (1 - x2 / 56 * (1 - x2 / 90))))
+
+
+def _residual(delta, du_z, u_y, u_zh, phi_h, lam, g):
+    """F(δ) = λδ − g[Δu_z cos φ + u_zh (cos φ − cos φ_h) + u_y sin φ], φ = φ_h + δ."""
+    phi = phi_h + delta
+    dcos = -2.0 * _sin_small(phi_h + 0.5 * delta) * _sin_small(0.5 * delta)
+    return lam * delta - g * (du_z * _cos_small(phi) + u_zh * dcos + u_y * _sin_small(phi))
+
+
+def _residual_derivative(delta, du_z, u_y, u_zh, phi_h, lam, g):
+    phi = phi_h + delta
+    u_z = u_zh + du_z
+    return lam + g * (u_z * _sin_small(phi) - u_y * _cos_small(phi))
+
+
+def solve_deflection(du_z, u_y, u_zh, phi_h, lam, g, newton_steps: int = NEWTON_STEPS):
+    """Solve the torsion equilibrium for δ = φ − φ_h (elementwise, broadcasting).
+
+    Newton from the linear estimate δ₀ = gΔu_z/λ; the last step is differentiable, the
+    earlier ones are under ``stop_gradient``: same value, exact implicit derivatives.
+    """
+    args = (du_z, u_y, u_zh, phi_h, lam, g)
+    sargs = jax.tree_util.tree_map(jax.lax.stop_gradient, args)
+    delta = g * sargs[0] / sargs[4] + 0.0 * sargs[1]
+    for _ in range(newton_steps):
+        delta = delta - _residual(delta, *sargs) / _residual_derivative(delta, *sargs)
+    delta = jax.lax.stop_gradient(delta)
+    return delta - _residual(delta, *args) / _residual_derivative(delta, *args)
+
+
+def equilibrium_readings(params: SensorParams, tx_rad, ty_rad):
+    """Equilibrium readings (…, 2) of both systems at platform attitude (tx, ty), pixels."""
+    phi_h, lam, _ = level_state(params)
+    du_z, u_y, u_zh = up_vector_deviation(tx_rad, ty_rad, params.gamma_rad, params.eps_rad)
+    delta = solve_deflection(du_z, u_y, u_zh, phi_h, lam, params.g_mgal)
+    return params.m_level_pix + params.K_pix_per_rad * delta
+
+
+def reading_sensitivity_to_tilt(params: SensorParams, tx_rad, ty_rad):
+    """∂m/∂ty (…, 2) in pixels per radian, by forward-mode autodiff."""
+
+    def f(ty):
+        return equilibrium_readings(params, tx_rad, ty)
+
+    return jax.jvp(f, (jnp.asarray(ty_rad, dtype=jnp.float64),), (jnp.ones_like(ty_rad),))[1]
+
+
+# ---------------------------------------------------------------- characteristic G(m)
+
+
+def felt_gravity_derivatives(params: SensorParams, m_pix):
+    """G(φ) − G_h, G'(φ), G''(φ) of each system at reading(s) m (…, 2), φ = (m − m₀)/K.
+
+    G(φ) = λ(Φ + φ)/cos φ with λΦ = G_h cos φ_h − λφ_h (level equilibrium):
+    G' = λ/cos φ + G tan φ,  G'' = λ sin φ/cos²φ + G' tan φ + G/cos²φ.
+    """
+    phi_h, lam, G_h = level_state(params)
+    phi = (jnp.asarray(m_pix) - params.m0_pix) / params.K_pix_per_rad
+    delta = phi - phi_h
+    dcos = -2.0 * jnp.sin(phi_h + 0.5 * delta) * jnp.sin(0.5 * delta)
+    c = jnp.cos(phi)
+    # G − G_h = [λδ + G_h cos φ_h − G_h cos φ]/cos φ = [λδ − G_h (cos φ − cos φ_h)]/cos φ
+    dG = (lam * delta - G_h * dcos) / c
+    G = G_h + dG
+    G1 = lam / c + G * jnp.tan(phi)
+    G2 = lam * jnp.sin(phi) / c**2 + G1 * jnp.tan(phi) + G / c**2
+    return dG, G1, G2
+
+
+def scale_factor(params: SensorParams, m_pix):
+    """Local scale factor b(m) = dG/dm = G'(φ)/K of each system, mGal/pix."""
+    _, G1, _ = felt_gravity_derivatives(params, m_pix)
+    return G1 / params.K_pix_per_rad
+
+
+def quadratic_coefficient(params: SensorParams, m_pix):
+    """Local quadratic coefficient a(m) = G''(φ)/(2K²) of each system, mGal/pix² (eq. 10)."""
+    _, _, G2 = felt_gravity_derivatives(params, m_pix)
+    return G2 / (2.0 * params.K_pix_per_rad**2)
+
+
+def scale_factor_at_centre(params: SensorParams):
+    """b₀ = b + 2a(m₀ − m_h) (eq. 24), with a taken at the level reading."""
+    a = quadratic_coefficient(params, params.m_level_pix)
+    return params.b_mgal_per_pix + 2.0 * a * (params.m0_pix - params.m_level_pix)
+
+
+def characteristic(params: SensorParams, m_pix):
+    """Exact gravity change G(m) − G(m_h) that a reading m stands for (…, 2), mGal."""
+    dG, _, _ = felt_gravity_derivatives(params, m_pix)
+    return dG
+
+
+# ---------------------------------------------------------------- time: drift and damping lag
+
+
+def drift_pix(coeffs_pix, t_s, t_ref_s: float = 0.0):
+    """Polynomial drift Σₖ cₖ ((t − t_ref)/3600)^(k+1), k = 0…; coeffs (…, 2, deg), pixels.
+
+    No constant term: the constant is the level reading m_h.
+    """
+    h = (jnp.asarray(t_s) - t_ref_s) / SECONDS_PER_HOUR
+    deg = coeffs_pix.shape[-1]
+    powers = h[..., None] ** jnp.arange(1, deg + 1)  # (..., deg)
+    return jnp.einsum("...k,jk->...j", powers, coeffs_pix)
+
+
+def lag_filter(x, dt_s, tau_s, y0=None):
+    """First-order damping lag τ ẏ = x − y with x held over each interval (exact ZOH).
+
+    ``x`` has shape (n, …); ``dt_s`` (n,) is the time since the previous sample
+    (the first entry is ignored). y₀ defaults to x₀ (settled start).
+    """
+    x = jnp.asarray(x)
+    alpha = jnp.exp(-jnp.asarray(dt_s) / tau_s)
+    y0 = x[0] if y0 is None else y0
+
+    def step(y, inp):
+        xi, ai = inp
+        y = xi + (y - xi) * ai
+        return y, y
+
+    alpha_b = jnp.reshape(alpha, alpha.shape + (1,) * (x.ndim - 1))
+    _, ys = jax.lax.scan(step, y0, (x[1:], alpha_b[1:]))
+    return jnp.concatenate([y0[None], ys], axis=0)
+
+
+def lag_filter_np(x: np.ndarray, dt_s: np.ndarray, tau_s: float) -> np.ndarray:
+    """NumPy twin of :func:`lag_filter` for long simulations (vectorised with lfilter when
+    the sampling is uniform, an explicit loop over gaps otherwise)."""
+    from scipy.signal import lfilter
+
+    x = np.asarray(x, dtype=float)
+    dt = np.asarray(dt_s, dtype=float)
+    if x.shape[0] == 0:
+        return x.copy()
+    if np.allclose(dt[1:], dt[1] if len(dt) > 1 else 1.0):
+        a = np.exp(-(dt[1] if len(dt) > 1 else 1.0) / tau_s)
+        zi = (a * x[0])[None] if x.ndim > 1 else np.array([a * x[0]])
+        y, _ = lfilter([1.0 - a], [1.0, -a], x, axis=0, zi=zi)
+        return y
+    alpha = np.exp(-dt / tau_s)
+    y = np.empty_like(x)
+    y[0] = x[0]
+    for i in range(1, len(x)):
+        y[i] = x[i] + (y[i - 1] - x[i]) * alpha[i]
+    return y

@@ -1,0 +1,141 @@
+"""The calibration certificate: the protocol of Calibr.exe (paper, Fig. 6, items а)–е)),
+with every number's uncertainty, the Bayesian budget and diagnostics when present,
+figures, and a verdict — as PDF (typst) or one self-contained HTML page, in English
+or Russian.
+
+    from chekan.report import render_report
+    render_report(result_dict_or_json_path, "calibr_46.pdf", lang="ru")
+
+    chekan report result.json --lang ru --out calibr_46.pdf
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from chekan.errors import ChekanError, FormatError
+from chekan.report.cli import add_report_parser
+from chekan.report.content import build_report, verdict_of
+from chekan.report.document import Report
+from chekan.report.i18n import LANGS, check_lang
+
+__all__ = [
+    "FORMATS",
+    "LANGS",
+    "Report",
+    "add_report_parser",
+    "build_report",
+    "render_report",
+    "verdict_of",
+]
+
+FORMATS = {".pdf": "pdf", ".html": "html", ".htm": "html"}
+
+
+def output_format(out: Path, fmt: str | None) -> str:
+    """``fmt`` if given (checked), else from the suffix of ``out``."""
+    if fmt is not None:
+        if fmt not in ("pdf", "html"):
+            raise ChekanError(f"unknown report format {fmt!r}; choose pdf or html")
+        return fmt
+    try:
+        return FORMATS[out.suffix.lower()]
+    except KeyError:
+        raise ChekanError(
+            f"{out}: cannot tell the report format from the suffix {out.suffix!r}; "
+            "use .pdf or .html, or give the format (--format pdf|html)"
+        ) from None
+
+
+def _open_output(out: Path):
+    """A temporary file beside ``out`` (so a failure to write shows before the work)."""
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        return tempfile.NamedTemporaryFile(
+            dir=out.parent, prefix=f".{out.name}.", suffix=".tmp", delete=False
+        )
+    except OSError as e:
+        raise ChekanError(f"{out}: cannot write the certificate there: {e.strerror or e}") from None
+
+
+def render_report(
+    result: Mapping[str, Any] | str | Path,
+    out: str | Path,
+    *,
+    lang: str = "en",
+    fmt: str | None = None,
+    tolerance_percent: float = 0.05,
+    record_path: str | Path | None = None,
+    netcdf_path: str | Path | None = None,
+    source: str | Path | None = None,
+    keep_figures: str | Path | None = None,
+) -> Path:
+    """Render the certificate of ``result`` (a result dict, or the path of its JSON) to ``out``.
+
+    ``fmt``: ``"pdf"`` or ``"html"`` (default: from the suffix of ``out``).
+    ``tolerance_percent``: the verdict's tolerance for the reduced error and |instability|.
+    ``record_path`` / ``netcdf_path``: the record and posterior NetCDF, when not where the
+    result says (relative paths are also tried beside ``source``, the result file).
+    ``keep_figures``: also write the figure PNGs into this folder.
+    Returns the path written. Bad input raises :class:`~chekan.errors.ChekanError`.
+    """
+    from chekan.result import check_result, read_result
+
+    check_lang(lang)
+    out = Path(out)
+    if out.is_dir():
+        raise ChekanError(f"{out}: is a folder; give the certificate's file name")
+    kind = output_format(out, fmt)
+    if not (
+        isinstance(tolerance_percent, int | float)
+        and math.isfinite(tolerance_percent)
+        and tolerance_percent > 0
+    ):
+        raise ChekanError(f"tolerance_percent must be a positive number, not {tolerance_percent!r}")
+    if isinstance(result, str | Path):
+        source = source or result
+        result = read_result(result)
+    elif isinstance(result, Mapping):
+        check_result(dict(result), source or "<result>")
+    else:
+        raise FormatError(source, None, "a result must be a JSON object (dict)")
+    tmp = _open_output(out)
+    try:
+        with tmp:
+            rep = build_report(
+                result,
+                lang=lang,
+                tolerance_percent=float(tolerance_percent),
+                record_path=record_path,
+                netcdf_path=netcdf_path,
+                source=source,
+            )
+            if kind == "pdf":
+                from chekan.report.typst_pdf import render_pdf
+
+                data = render_pdf(rep)
+            else:
+                from chekan.report.html_page import render_html
+
+                data = render_html(rep)
+            tmp.write(data)
+        if keep_figures is not None:
+            folder = Path(keep_figures)
+            folder.mkdir(parents=True, exist_ok=True)
+            for i, f in enumerate(rep.figures, start=1):
+                (folder / f"fig{i}-{f.name}.png").write_bytes(f.png)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp.name, 0o666 & ~umask)
+        os.replace(tmp.name, out)
+    except OSError as e:
+        raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
+    finally:
+        if os.path.exists(tmp.name):
+            os.unlink(tmp.name)
+    return out

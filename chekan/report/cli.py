@@ -1,0 +1,66 @@
+"""``chekan report RESULT.json --out calibr_<serial>.pdf [--lang ru|en] [--format pdf|html]``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from chekan.report.i18n import LANGS
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from chekan.report import render_report
+    from chekan.result import read_result
+
+    res = read_result(args.result)
+    out = args.out
+    if out is None:
+        suffix = ".html" if args.format == "html" else ".pdf"
+        out = Path(args.result).with_name(f"calibr_{_safe(str(res['serial']))}{suffix}")
+    written = render_report(
+        res,
+        out,
+        lang=args.lang,
+        fmt=args.format,
+        tolerance_percent=args.tolerance_percent,
+        record_path=args.record,
+        netcdf_path=args.netcdf,
+        source=args.result,
+        keep_figures=args.figures,
+    )
+    print(f"wrote {written}")
+    return 0
+
+
+def _safe(serial: str) -> str:
+    """A serial number usable in a file name."""
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in serial) or "unknown"
+
+
+def add_report_parser(subparsers) -> argparse.ArgumentParser:
+    """Register ``chekan report`` on an ``add_subparsers()`` object; returns the parser."""
+    p = subparsers.add_parser(
+        "report",
+        help="render the calibration certificate (PDF or HTML) from a result JSON",
+        description="Render the calibration certificate of a chekan-result/1 JSON: the "
+        "protocol of Calibr.exe (items a–f of the paper) with uncertainties, figures and a "
+        "verdict.",
+    )
+    p.add_argument("result", help="chekan-result/1 JSON written by 'chekan calibrate --json'")
+    p.add_argument(
+        "--out",
+        help="certificate to write, .pdf or .html (default: calibr_<serial>.pdf beside the result)",
+    )
+    p.add_argument("--lang", choices=LANGS, default="en", help="language (default en)")
+    p.add_argument("--format", choices=("pdf", "html"), help="output format (default: from --out)")
+    p.add_argument(
+        "--tolerance-percent",
+        type=float,
+        default=0.05,
+        help="verdict tolerance for the reduced error and |instability of b|, %% (default 0.05)",
+    )
+    p.add_argument("--record", help="the record, when not at the path the result names")
+    p.add_argument("--netcdf", help="the posterior NetCDF, when not at the path the result names")
+    p.add_argument("--figures", help="also write the figure PNGs into this folder")
+    p.set_defaults(func=_cmd_report)
+    return p

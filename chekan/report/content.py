@@ -1,0 +1,775 @@
+"""From a ``chekan-result/1`` dict to the certificate's blocks (language-neutral model).
+
+Sections follow the paper's protocol (Fig. 6, items а)–е)), then the uncertainty
+budget and the diagnostics of the Bayesian method when present, and the verdict.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from chekan.errors import ChekanError, FormatError
+from chekan.report import figures as figs
+from chekan.report.document import Cell, Figure, Heading, KeyValue, Para, Report, Table
+from chekan.report.i18n import param_name, tr, unit_name, value_name
+from chekan.report.numbers import (
+    DASH,
+    fixed,
+    general,
+    is_num,
+    plain,
+    sci,
+    statement,
+    unc,
+    value_unc,
+)
+
+FULL_RANGE_MGAL = 5000.0  # Δ₀ = 5 Gal
+PARAM_ORDER = (
+    "b1",
+    "b2",
+    "a",
+    "b1_0",
+    "b2_0",
+    "eps1_arcmin",
+    "eps2_arcmin",
+    "dgamma_arcmin",
+    "tau_s",
+    "drift1_pix_per_h",
+    "drift2_pix_per_h",
+    "sigma_theta_arcsec",
+    "sigma_hold_pix",
+)
+BUDGET_ORDER = ("angle_readout", "noise", "drift", "a")
+_COL_RE = re.compile(r"^r(\d+)_s(\d+)$")
+
+Translator = Callable[..., str]
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _fail(src: str, problem: str) -> FormatError:
+    return FormatError(src, None, problem)
+
+
+def _need_list(obj: Any, where: str, src: str, n: int | None = None) -> list:
+    if not isinstance(obj, list):
+        raise _fail(src, f"{where} must be a list")
+    if n is not None and len(obj) != n:
+        raise _fail(src, f"{where} has {len(obj)} values, expected {n} (one per angle)")
+    return obj
+
+
+def _need_dict(obj: Any, where: str, src: str) -> dict:
+    if not isinstance(obj, dict):
+        raise _fail(src, f"{where} must be an object")
+    return obj
+
+
+def validate(result: Mapping[str, Any], src: str) -> None:
+    """Check the optional parts the certificate reads; raise :class:`FormatError` naming them."""
+    for name, e in result["parameters"].items():
+        if not is_num(e.get("mean")):
+            raise _fail(src, f"parameters.{name}.mean is not a number")
+    rs = result.get("residuals_mgal")
+    if rs is not None:
+        _need_dict(rs, "residuals_mgal", src)
+        for k in ("angle_label", "columns", "da_ref_mgal", "dg_mgal", "delta_g_mgal"):
+            if k not in rs:
+                raise _fail(src, f"residuals_mgal.{k} is missing")
+        n = len(_need_list(rs["angle_label"], "residuals_mgal.angle_label", src))
+        _need_list(rs["da_ref_mgal"], "residuals_mgal.da_ref_mgal", src, n)
+        if "mean_delta_g_mgal" in rs:
+            _need_list(rs["mean_delta_g_mgal"], "residuals_mgal.mean_delta_g_mgal", src, n)
+        for c in _need_list(rs["columns"], "residuals_mgal.columns", src):
+            for k in ("dg_mgal", "delta_g_mgal"):
+                d = _need_dict(rs[k], f"residuals_mgal.{k}", src)
+                if c not in d:
+                    raise _fail(src, f"residuals_mgal.{k} has no column {c!r}")
+                _need_list(d[c], f"residuals_mgal.{k}.{c}", src, n)
+    for i, r in enumerate(_need_list(result.get("rounds", []), "rounds", src)):
+        _need_dict(r, f"rounds[{i}]", src)
+        for s in ("b1", "b2"):
+            if not isinstance(r.get(s), dict) or "mean" not in r[s]:
+                raise _fail(src, f"rounds[{i}].{s}.mean is missing")
+    bud = result.get("uncertainty_budget")
+    if bud is not None:
+        for s, comp in _need_dict(bud, "uncertainty_budget", src).items():
+            for k, v in _need_dict(comp, f"uncertainty_budget.{s}", src).items():
+                if v is not None and not is_num(v):
+                    raise _fail(src, f"uncertainty_budget.{s}.{k} is not a number")
+    dc = result.get("drift_curve")
+    if dc is not None:
+        _need_dict(dc, "drift_curve", src)
+        if "t_h" not in dc:
+            raise _fail(src, "drift_curve.t_h is missing")
+        n = len(_need_list(dc["t_h"], "drift_curve.t_h", src))
+        for k, v in dc.items():
+            if len(_need_list(v, f"drift_curve.{k}", src)) != n:
+                raise _fail(src, f"drift_curve.{k} has {len(v)} values, t_h has {n}")
+    pp = result.get("posterior_predictive_mgal")
+    if pp is not None:
+        _need_dict(pp, "posterior_predictive_mgal", src)
+        for k in ("delta_g_low", "delta_g_high"):
+            _need_dict(pp.get(k), f"posterior_predictive_mgal.{k}", src)
+    for key in ("range_margin_gal", "instability_percent", "diagnostics", "metadata"):
+        if result.get(key) is not None:
+            _need_dict(result[key], key, src)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _cols_by_round(cols: list[str]) -> list[tuple[str, list[tuple[str, str]]]]:
+    """Group ``r1_s1``-style columns by round: ``[(round, [(system, col), …]), …]``."""
+    groups: dict[str, list[tuple[str, str]]] = {}
+    for c in cols:
+        m = _COL_RE.match(c)
+        r, s = (m.group(1), m.group(2)) if m else ("", c)
+        groups.setdefault(r, []).append((s, c))
+    return list(groups.items())
+
+
+def _col_header(cols: list[str], t: Translator) -> tuple[list[Cell], list[Cell]]:
+    top: list[Cell] = []
+    sub: list[Cell] = []
+    for r, items in _cols_by_round(cols):
+        top.append(Cell(t("round_n", n=r) if r else "", colspan=len(items), bold=True))
+        sub.extend(Cell(t("sys_n", n=s) if r else s) for s, _ in items)
+    return top, sub
+
+
+def _param_cells(name: str, e: Mapping[str, Any]) -> tuple[str, str, str, str]:
+    """(estimate, u, low, high) with matched decimals."""
+    mean, sd = e.get("mean"), e.get("sd")
+    lo, hi = e.get("hdi_low"), e.get("hdi_high")
+    if re.fullmatch(r"b\d(_0)?", name):
+        return fixed(mean, 6), unc(sd), fixed(lo, 6), fixed(hi, 6)
+    ms, us = value_unc(mean, sd)
+    if "·10" in ms:
+        exp = int(ms.split("·10")[1].translate(str.maketrans("⁰¹²³⁴⁵⁶⁷⁸⁹⁻", "0123456789-")))
+        nd = len(ms.split("·")[0].split(".")[1]) if "." in ms.split("·")[0] else 0
+        return ms, us, sci(lo, nd + 1, exp=exp), sci(hi, nd + 1, exp=exp)
+    nd = len(ms.split(".")[1]) if "." in ms else 0
+    return ms, us, fixed(lo, nd), fixed(hi, nd)
+
+
+def _b_uncertainty(result: Mapping[str, Any], name: str) -> tuple[float | None, bool]:
+    """Standard uncertainty of b1/b2: the budget's total when present (True), else the sd."""
+    bud = (result.get("uncertainty_budget") or {}).get(name) or {}
+    if is_num(bud.get("total")):
+        return float(bud["total"]), True
+    sd = result["parameters"].get(name, {}).get("sd")
+    return (float(sd), False) if is_num(sd) else (None, False)
+
+
+def _a_value(result: Mapping[str, Any]) -> tuple[float | None, bool]:
+    """``(a, fixed?)`` from the parameters or the fixed values."""
+    p = result["parameters"]
+    if "a" in p:
+        return float(p["a"]["mean"]), False
+    fx = (result.get("fixed") or {}).get("a")
+    return (float(fx), True) if is_num(fx) else (None, False)
+
+
+def _resolve(path: str | Path | None, source: str | Path | None) -> Path | None:
+    """An existing file: ``path`` as given, else relative to the result file's folder."""
+    if not path:
+        return None
+    p = Path(path)
+    if p.is_file():
+        return p
+    if source is not None and not p.is_absolute():
+        q = Path(source).resolve().parent / p
+        if q.is_file():
+            return q
+    return None
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) -> None:
+    meta = result.get("metadata") or {}
+    inst = value_name(str(meta.get("instrument", "Chekan-AM")), lang)
+    rows: list[tuple[str, str, bool]] = []
+    model = meta.get("model")
+    rows.append(
+        (
+            t("instrument"),
+            t("model_fmt", instrument=inst, model=value_name(str(model), lang)) if model else inst,
+            False,
+        )
+    )
+    rows.append((t("serial"), str(result["serial"]), False))
+    if meta.get("platform_serial"):
+        rows.append((t("platform_serial"), str(meta["platform_serial"]), False))
+    if meta.get("site"):
+        rows.append((t("site"), value_name(str(meta["site"]), lang), False))
+    coords = []
+    from chekan.units import format_dms
+
+    for key, lab in (("latitude_deg", "lat"), ("longitude_deg", "lon")):
+        try:
+            coords.append(f"{t(lab)} {format_dms(float(meta[key]), seconds=True, sign='always')}")
+        except (KeyError, ValueError, TypeError):
+            pass
+    if meta.get("height_m"):
+        coords.append(t("height", h=meta["height_m"]))
+    if coords:
+        rows.append((t("coords"), ", ".join(coords), False))
+    rows.append((t("g_local"), f"{fixed(result['g_local_mgal'], 2)} {t('mgal')}", False))
+    date = result.get("date") or meta.get("date") or str(meta.get("started", ""))[:10]
+    if date:
+        rows.append((t("date"), str(date), False))
+    if meta.get("started"):
+        rows.append((t("started"), str(meta["started"]), False))
+    if meta.get("operator"):
+        rows.append((t("operator"), str(meta["operator"]), False))
+    if meta.get("program"):
+        rows.append((t("program"), str(meta["program"]), False))
+    method = result["method"]
+    rows.append((t("method"), f"{t('method_' + method)} [{method}]", False))
+    kind = result.get("input_kind")
+    rec = str(result["record"])
+    rows.append(
+        (
+            t("input"),
+            rec + (f" — {t('input_' + kind)}" if kind in ("record", "protocol") else ""),
+            False,
+        )
+    )
+    if result.get("record_sha256"):
+        rows.append((t("sha"), str(result["record_sha256"]), True))
+    sw = result.get("software") or {}
+    rows.append((t("software"), f"{sw.get('name', 'chekan')} {sw.get('version', '?')}", False))
+    if result.get("created"):
+        rows.append((t("created"), str(result["created"]), False))
+    lv = result.get("level_reading_pix")
+    if isinstance(lv, dict) and lv:
+        rows.append(
+            (
+                t("level"),
+                f"m₁ = {fixed(lv.get('m1'), 3)} {t('pix')}, m₂ = {fixed(lv.get('m2'), 3)} "
+                f"{t('pix')}",
+                False,
+            )
+        )
+    if is_num(result.get("ccd_center_pix")):
+        rows.append((t("ccd_center"), f"{plain(result['ccd_center_pix'])} {t('pix')}", False))
+    if is_num(result.get("hdi_prob")):
+        rows.append((t("interval_prob"), plain(result["hdi_prob"]), False))
+    rep.add(Heading(t("sec_header")), KeyValue(rows))
+
+
+def _statements(result: Mapping[str, Any], t: Translator, lang: str) -> list[Para]:
+    """The result lines "b₁ = … , U = … (k = 2)" for b1, b2, b1_0, b2_0."""
+    out: list[Para] = [Para(t("statement_title"), "strong")]
+    params = result["parameters"]
+    budget_used = False
+    for name in ("b1", "b2", "b1_0", "b2_0"):
+        if name not in params:
+            continue
+        if name in ("b1", "b2"):
+            u, from_budget = _b_uncertainty(result, name)
+            budget_used |= from_budget
+            bud = (result.get("uncertainty_budget") or {}).get(name) or {}
+            big_u = (
+                bud.get("expanded_k2")
+                if from_budget and is_num(bud.get("expanded_k2"))
+                else (2 * u if u is not None else None)
+            )
+        else:
+            sd = params[name].get("sd")
+            big_u = 2 * sd if is_num(sd) else None
+        out.append(
+            Para(
+                statement(
+                    param_name(name, lang), params[name]["mean"], big_u, unit_name("mGal/pix", lang)
+                ),
+                "strong",
+            )
+        )
+    out.append(Para(t("statement_budget") if budget_used else t("statement_typeA"), "note"))
+    return out
+
+
+def _verdict(
+    result: Mapping[str, Any], t: Translator, tol: float
+) -> tuple[bool | None, list[Para]]:
+    crit: list[str] = []
+    ok = True
+    tol_s = plain(tol)
+    rerr = result.get("reduced_error_percent")
+    if not is_num(rerr):
+        return None, [Para(t("verdict_none"), "warn")]
+    passed = rerr <= tol
+    ok &= passed
+    crit.append(t("crit_reduced", v=fixed(rerr, 3), op="≤" if passed else ">", tol=tol_s))
+    inst = result.get("instability_percent") or {}
+    have_inst = False
+    for name in ("b1", "b2"):
+        v = inst.get(name)
+        if is_num(v):
+            have_inst = True
+            passed = abs(v) <= tol
+            ok &= passed
+            crit.append(
+                t(
+                    "crit_instab",
+                    name=param_name(name, "en"),
+                    v=fixed(abs(v), 3),
+                    op="≤" if passed else ">",
+                    tol=tol_s,
+                )
+            )
+    is_bayes = result["method"] == "bayes"
+    conv = (result.get("diagnostics") or {}).get("converged")
+    if is_bayes or conv is False:
+        if conv is False:
+            ok = False
+            crit.append(t("crit_noconv"))
+        elif conv is True:
+            crit.append(t("crit_conv"))
+    line = t("verdict_pass" if ok else "verdict_fail", tol=tol_s, crit="; ".join(crit))
+    paras = [Para(line, "pass" if ok else "fail")]
+    paras.append(
+        Para(t("verdict_criteria", conv=t("verdict_conv_clause") if is_bayes else ""), "note")
+    )
+    if not have_inst:
+        paras.append(Para(t("verdict_no_instab"), "note"))
+    return ok, paras
+
+
+def verdict_of(
+    result: Mapping[str, Any], tolerance_percent: float = 0.05, lang: str = "en"
+) -> tuple[bool | None, str]:
+    """``(passed, verdict line)``; ``passed`` is None when there is nothing to judge."""
+    ok, paras = _verdict(result, tr(lang), tolerance_percent)
+    return ok, paras[0].text
+
+
+def _items(
+    rep: Report,
+    result: Mapping[str, Any],
+    t: Translator,
+    lang: str,
+    tol: float,
+    cos_fig: Figure | None,
+    figures: bool = True,
+) -> None:
+    rs = result.get("residuals_mgal")
+    pp = result.get("posterior_predictive_mgal")
+    # а) increments
+    rep.add(Heading(t("sec_a")), Para(t("sec_a_text")))
+    if cos_fig is not None:
+        rep.add(cos_fig)
+    if rs:
+        cols = list(rs["columns"])
+        top, sub = _col_header(cols, t)
+        rows = []
+        for i, lab in enumerate(rs["angle_label"]):
+            rows.append(
+                [Cell(str(lab)), Cell(fixed(rs["da_ref_mgal"][i], 2))]
+                + [Cell(fixed(rs["dg_mgal"][c][i], 2)) for c in cols]
+            )
+        rep.add(
+            Table(
+                [
+                    [Cell(t("angle"), bold=True), Cell(t("da_ref"), bold=True), *top],
+                    [Cell(""), Cell(""), *sub],
+                ],
+                rows,
+                "lr" + "r" * len(cols),
+                t("cap_a"),
+            )
+        )
+        # б) deviations
+        rep.add(Heading(t("sec_b")), Para(t("sec_b_text")))
+        rows = []
+        mean_dg = rs.get("mean_delta_g_mgal") or [None] * len(rs["angle_label"])
+        for i, lab in enumerate(rs["angle_label"]):
+            rows.append(
+                [Cell(str(lab))]
+                + [Cell(fixed(rs["delta_g_mgal"][c][i], 2)) for c in cols]
+                + [Cell(fixed(mean_dg[i], 2), bold=True)]
+            )
+        rms = rs.get("rms_mgal") or {}
+        rows.append(
+            [Cell(t("rms_row"), bold=True)]
+            + [Cell(fixed(rms.get(c), 2)) for c in cols]
+            + [Cell("")]
+        )
+        rep.add(
+            Table(
+                [
+                    [Cell(t("angle"), bold=True), *top, Cell(t("mean_dg"), bold=True)],
+                    [Cell(""), *sub, Cell("")],
+                ],
+                rows,
+                "l" + "r" * (len(cols) + 1),
+                t("cap_b"),
+                footer_rows=1,
+            )
+        )
+        tol_mgal = tol / 100.0 * FULL_RANGE_MGAL
+        cap = t("fig_resid", tol=plain(tol)) + (t("fig_resid_pp") if pp else "")
+        if figures:
+            png = figs.residual_figure(rs, t, tol_mgal=tol_mgal, band=pp)
+            rep.add(Figure("residuals", png, cap))
+    # в) reduced error
+    rerr = result.get("reduced_error_percent")
+    if is_num(rerr):
+        rep.add(Heading(t("sec_c")), Para(t("sec_c_text")))
+        m_s, ang = DASH, DASH
+        if rs and rs.get("mean_delta_g_mgal"):
+            vals = [abs(v) if is_num(v) else -1.0 for v in rs["mean_delta_g_mgal"]]
+            k = max(range(len(vals)), key=vals.__getitem__)
+            m_s, ang = fixed(rs["mean_delta_g_mgal"][k], 2), str(rs["angle_label"][k])
+        rep.add(Para(t("reduced_error", v=fixed(rerr, 3), m=m_s, angle=ang), "strong"))
+    # г) a, b1, b2
+    rep.add(Heading(t("sec_d")), Para(t("sec_d_text")))
+    rounds = result.get("rounds") or []
+    if rounds:
+        printed = any("b_printed" in r for r in rounds)
+        head = [
+            t("round"),
+            t("system"),
+            t("b_col"),
+            t("u_col"),
+            t("b0_col"),
+            t("mh_col"),
+            t("rms_col"),
+        ] + ([t("printed_col")] if printed else [])
+        rows = []
+        for r in rounds:
+            for s in (1, 2):
+                b = r[f"b{s}"]
+                lvl = r.get("level_reading_pix")
+                row = [
+                    Cell(str(r.get("round", ""))),
+                    Cell(t("sys_n", n=s)),
+                    Cell(fixed(b["mean"], 6), bold=True),
+                    Cell(unc(b.get("sd"))),
+                    Cell(fixed(r.get(f"b{s}_0"), 6)),
+                    Cell(fixed(lvl[s - 1], 3) if isinstance(lvl, list) and len(lvl) >= s else DASH),
+                    Cell(fixed((r.get("rms_mgal") or {}).get(f"s{s}"), 2)),
+                ]
+                if printed:
+                    bp = r.get("b_printed")
+                    row.append(
+                        Cell(fixed(bp[s - 1], 6) if isinstance(bp, list) and len(bp) >= s else DASH)
+                    )
+                rows.append(row)
+        rep.add(
+            Table(
+                [[Cell(h, bold=True) for h in head]],
+                rows,
+                "cc" + "r" * (len(head) - 2),
+                t("cap_rounds"),
+            )
+        )
+    _param_table(rep, result, t, lang)
+    if is_num(result.get("mean_b_mgal_per_pix")):
+        rep.add(Para(t("mean_b", v=fixed(result["mean_b_mgal_per_pix"], 6))))
+    if is_num(result.get("discrepancy_between_rounds_percent")):
+        rep.add(Para(t("discrepancy", v=fixed(result["discrepancy_between_rounds_percent"], 3))))
+    a, _ = _a_value(result)
+    if a is not None:
+        rep.add(Para(t("a_convention", v=sci(-a, 4) if a else "0"), "note"))
+    # д) instability
+    rep.add(Heading(t("sec_e")))
+    inst = result.get("instability_percent") or {}
+    prior = result.get("b_prior") or {}
+    any_inst = False
+    for name in ("b1", "b2"):
+        v = inst.get(name)
+        if not is_num(v):
+            continue
+        any_inst = True
+        u, _ = _b_uncertainty(result, name)
+        p = prior.get(name)
+        big_u = 200.0 * u / p if u is not None and is_num(p) and p else None
+        rep.add(
+            Para(
+                t(
+                    "instability",
+                    name=param_name(name, lang),
+                    v=fixed(v, 3, sign=True),
+                    u=unc(big_u) if big_u is not None else DASH,
+                    prior=fixed(p, 6) if is_num(p) else DASH,
+                )
+            )
+        )
+    if not any_inst:
+        rep.add(Para(t("no_prior"), "note"))
+    # е) range margin
+    rep.add(Heading(t("sec_f")))
+    rm = result.get("range_margin_gal")
+    if rm and is_num(rm.get("heavy")) and is_num(rm.get("light")):
+        meta = result.get("metadata") or {}
+        try:
+            from chekan.units import format_dms
+
+            lat = format_dms(float(meta["latitude_deg"]), seconds=True, sign="always")
+            rep.add(Para(t("margin_at", lat=lat)))
+        except (KeyError, ValueError, TypeError):
+            rep.add(Para(t("margin_plain")))
+        rep.add(
+            Para(t("margin_heavy", v=fixed(rm["heavy"], 1)), "strong"),
+            Para(t("margin_light", v=fixed(rm["light"], 1)), "strong"),
+        )
+        rng = result.get("ccd_range_pix")
+        if isinstance(rng, list) and len(rng) == 2:
+            rep.add(Para(t("margin_ccd", lo=plain(rng[0]), hi=plain(rng[1])), "note"))
+    else:
+        rep.add(Para(t("no_margin"), "note"))
+
+
+def _param_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) -> None:
+    params = result["parameters"]
+    names = [n for n in PARAM_ORDER if n in params] + sorted(
+        n for n in params if n not in PARAM_ORDER
+    )
+    diag = any("r_hat" in params[n] or "ess_bulk" in params[n] for n in names)
+    p = plain(round(100 * float(result.get("hdi_prob", 0.95)), 6))
+    bayes = result["method"] == "bayes"
+    head = [t("param"), t("mean"), t("sd"), t("hdi" if bayes else "interval", p=p), t("unit")]
+    if diag:
+        head += [t("rhat"), t("ess")]
+    rows = []
+    for n in names:
+        e = params[n]
+        m, u, lo, hi = _param_cells(n, e)
+        row = [
+            Cell(param_name(n, lang)),
+            Cell(m, bold=n in ("b1", "b2")),
+            Cell(u),
+            Cell(f"{lo} … {hi}" if lo != DASH else DASH),
+            Cell(unit_name(str(e.get("unit", "")), lang)),
+        ]
+        if diag:
+            row += [Cell(fixed(e.get("r_hat"), 3)), Cell(fixed(e.get("ess_bulk"), 0))]
+        rows.append(row)
+    for n, v in (result.get("fixed") or {}).items():
+        if n in params or not is_num(v):
+            continue
+        unit = "mGal/pix^2" if n == "a" else ""
+        row = [
+            Cell(param_name(n, lang)),
+            Cell(sci(v, 4) if abs(v) < 1e-3 else general(v)),
+            Cell(t("fixed")),
+            Cell(DASH),
+            Cell(unit_name(unit, lang)),
+        ]
+        if diag:
+            row += [Cell(""), Cell("")]
+        rows.append(row)
+    cap = t("cap_params_bayes", p=p) if bayes else t("cap_params")
+    rep.add(
+        Table([[Cell(h, bold=True) for h in head]], rows, "lrrcl" + ("rr" if diag else ""), cap)
+    )
+
+
+def _budget(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) -> None:
+    bud = result.get("uncertainty_budget")
+    if not bud:
+        return
+    systems = [s for s in ("b1", "b2") if s in bud] + sorted(
+        s for s in bud if s not in ("b1", "b2")
+    )
+    keys: list[str] = []
+    for s in systems:
+        for k in bud[s]:
+            if k not in keys:
+                keys.append(k)
+    order = [k for k in BUDGET_ORDER if k in keys]
+    order += [k for k in keys if k not in BUDGET_ORDER and k not in ("total", "expanded_k2")]
+    order += [k for k in ("total", "expanded_k2") if k in keys]
+    head = [Cell(t("source"), bold=True)]
+    for s in systems:
+        head += [Cell(f"u({param_name(s, lang)})", bold=True), Cell(t("ppm"), bold=True)]
+    rows = []
+    for k in order:
+        label = t(f"src_{k}") if f"src_{k}" in _known_sources() else k
+        row = [Cell(label, bold=k in ("total", "expanded_k2"))]
+        for s in systems:
+            v = bud[s].get(k)
+            b = result["parameters"].get(s, {}).get("mean")
+            ppm = 1e6 * v / b if is_num(v) and is_num(b) and b else None
+            row += [
+                Cell(unc(v), bold=k == "expanded_k2"),
+                Cell(unc(ppm) if ppm is not None else DASH),
+            ]
+        rows.append(row)
+    foot = sum(k in ("total", "expanded_k2") for k in order)
+    rep.add(
+        Heading(t("sec_budget")),
+        Para(t("budget_text")),
+        Table([head], rows, "l" + "rr" * len(systems), t("cap_budget"), footer_rows=foot),
+    )
+
+
+def _known_sources() -> set[str]:
+    from chekan.report.i18n import LABELS
+
+    return {k for k in LABELS if k.startswith("src_")}
+
+
+def _diagnostics(rep: Report, result: Mapping[str, Any], t: Translator) -> None:
+    d = result.get("diagnostics") or {}
+    if not d:
+        return
+    bayes = result["method"] in ("bayes",) or "r_hat_max" in d
+    rows: list[tuple[str, str, bool]] = []
+    if "converged" in d:
+        rows.append((t("converged"), t("yes") if d["converged"] else t("no"), False))
+    if is_num(d.get("r_hat_max")):
+        rows.append((t("rhat_max"), fixed(d["r_hat_max"], 3), False))
+    if is_num(d.get("ess_bulk_min")):
+        rows.append((t("ess_min"), fixed(d["ess_bulk_min"], 0), False))
+    if is_num(d.get("n_draws")):
+        rows.append((t("n_draws"), fixed(d["n_draws"], 0), False))
+    if is_num(d.get("seconds")):
+        rows.append((t("seconds"), fixed(d["seconds"], 1), False))
+    if is_num(d.get("sigma_mgal")):
+        rows.append((t("sigma_fit"), fixed(d["sigma_mgal"], 3), False))
+    rep.add(Heading(t("sec_diag" if bayes else "sec_diag_classical")), KeyValue(rows))
+    for msg in d.get("problems") or []:
+        rep.add(Para(f"{t('problem')}: {msg}", "warn"))
+    for msg in d.get("notes") or []:
+        rep.add(Para(f"{t('note')}: {msg}", "note"))
+
+
+# --------------------------------------------------------------------------- record, posterior
+
+
+def _record_figures(
+    result: Mapping[str, Any],
+    record_path: str | Path | None,
+    source: str | Path | None,
+    t: Translator,
+) -> tuple[list[Figure], Figure | None, list[Para]]:
+    """(figures of the record, the cosinusoid figure, notes) — figures omitted with a note."""
+    if result.get("input_kind") == "protocol" and record_path is None:
+        return [], None, [Para(t("no_record_protocol"), "note")]
+    given = record_path if record_path is not None else result.get("record")
+    path = _resolve(given, source)
+    if path is None:
+        return [], None, [Para(t("no_record_file", path=str(given)), "note")]
+    want = result.get("record_sha256")
+    if want:
+        from chekan.result import sha256_file
+
+        if sha256_file(path) != want:
+            return [], None, [Para(t("record_changed", path=str(path)), "warn")]
+    try:
+        from chekan.holds import segment_record
+        from chekan.inputs import read_input
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rec = read_input(path)
+            if hasattr(rec, "dg_mgal"):  # a protocol: no raw readings
+                return [], None, [Para(t("no_record_protocol"), "note")]
+            holds = segment_record(rec, settle_s=float(rec.meta.get("program_settle_s", 300.0)))
+    except (ChekanError, OSError, ValueError) as e:
+        return [], None, [Para(t("record_unreadable", path=str(path), err=str(e)), "warn")]
+    fig_rec = Figure("record", figs.record_figure(rec, holds, t), t("fig_record"))
+    fig_cos = Figure("cosinusoid", figs.cosinusoid_figure(holds, result, t), t("fig_cos"))
+    return [fig_rec], fig_cos, []
+
+
+def _posterior_figures(
+    rep: Report,
+    result: Mapping[str, Any],
+    netcdf_path: str | Path | None,
+    source: str | Path | None,
+    t: Translator,
+    lang: str,
+) -> None:
+    given = netcdf_path if netcdf_path is not None else result.get("posterior_netcdf")
+    if given:
+        path = _resolve(given, source)
+        if path is None:
+            rep.add(Para(t("no_netcdf", path=str(given)), "note"))
+        else:
+            try:
+                draws = figs.read_posterior(path)
+            except Exception as e:  # h5py/xarray raise many kinds; the certificate goes on
+                rep.add(
+                    Para(t("bad_netcdf", path=str(path), err=f"{type(e).__name__}: {e}"), "warn")
+                )
+            else:
+                draws = {k: v for k, v in draws.items() if v.size and math.isfinite(float(v.std()))}
+                if len(draws) >= 2:
+                    rep.add(Figure("pair", figs.pair_figure(draws, lang), t("fig_pair"), width=0.9))
+    dc = result.get("drift_curve")
+    if dc and dc.get("t_h"):
+        rep.add(Figure("drift", figs.drift_figure(dc, t), t("fig_drift")))
+
+
+# --------------------------------------------------------------------------- entry
+
+
+def build_report(
+    result: Mapping[str, Any],
+    *,
+    lang: str = "en",
+    tolerance_percent: float = 0.05,
+    record_path: str | Path | None = None,
+    netcdf_path: str | Path | None = None,
+    source: str | Path | None = None,
+    figures: bool = True,
+) -> Report:
+    """The certificate of ``result`` as blocks (figures as PNG unless ``figures=False``)."""
+    t = tr(lang)
+    src = str(source) if source is not None else "<result>"
+    validate(result, src)
+    meta = result.get("metadata") or {}
+    inst = value_name(str(meta.get("instrument", "Chekan-AM")), lang)
+    serial = str(result["serial"])
+    rep = Report(
+        lang=lang,
+        title=t("title"),
+        subtitle=t("subtitle", instrument=inst, serial=serial),
+        running_head=t("running_head", instrument=inst, serial=serial),
+    )
+    try:
+        _header(rep, result, t, lang)
+        rec_figs, cos_fig, notes = (
+            _record_figures(result, record_path, source, t) if figures else ([], None, [])
+        )
+        rep.add(*rec_figs, *notes)
+        _ok, verdict = _verdict(result, t, tolerance_percent)
+        rep.add(Heading(t("sec_summary")), *_statements(result, t, lang), verdict[0])
+        _items(rep, result, t, lang, tolerance_percent, cos_fig, figures)
+        _budget(rep, result, t, lang)
+        if figures and (
+            result["method"] == "bayes"
+            or result.get("posterior_netcdf")
+            or result.get("drift_curve")
+        ):
+            _posterior_figures(rep, result, netcdf_path, source, t, lang)
+        _diagnostics(rep, result, t)
+        rep.add(Heading(t("sec_verdict")), *verdict)
+        sw = result.get("software") or {}
+        rep.add(
+            Para(
+                t(
+                    "footer_note",
+                    version=sw.get("version", "?"),
+                    created=result.get("created", "?"),
+                ),
+                "note",
+            )
+        )
+    except (KeyError, TypeError, IndexError, AttributeError) as e:
+        raise FormatError(src, None, f"malformed result ({type(e).__name__}: {e})") from e
+    return rep

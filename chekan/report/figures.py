@@ -1,0 +1,323 @@
+"""The figures of the certificate (matplotlib, object API: no pyplot, no global state).
+
+Each function returns PNG bytes. ``t`` is the translator of :mod:`chekan.report.i18n`.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from chekan.report.i18n import param_name
+
+Translator = Callable[..., str]
+DPI = 200
+SYS_COLORS = ("#1f62b4", "#c8382c")
+ROUND_MARKERS = ("o", "s", "^", "D", "v", "P")
+RC = {
+    "font.size": 8,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "grid.linewidth": 0.5,
+    "axes.linewidth": 0.6,
+    "legend.fontsize": 7,
+    "legend.framealpha": 0.85,
+    "axes.formatter.useoffset": False,
+}
+PAIR_VARS = ("b1", "b2", "a", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin")
+
+
+def _new(figsize: tuple[float, float], *, constrained: bool = True):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize, layout="constrained" if constrained else None)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return buf.getvalue()
+
+
+def _rc():
+    import matplotlib
+
+    return matplotlib.rc_context(RC)
+
+
+def record_figure(record: Any, holds: Any, t: Translator) -> bytes:
+    """Readings of both systems and the platform tilt over time, with the holds shaded."""
+    th = np.asarray(record.t_s, dtype=float) / 3600.0
+    stride = max(1, th.size // 8000)
+    sl = slice(None, None, stride)
+    with _rc():
+        fig = _new((7.0, 4.4))
+        ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+        for s, m in enumerate((record.m1_pix, record.m2_pix)):
+            ax1.plot(
+                th[sl], np.asarray(m)[sl], lw=0.6, color=SYS_COLORS[s], label=t("lg_s", n=s + 1)
+            )
+        ax2.plot(
+            th[sl],
+            np.asarray(record.tilt_x_arcsec)[sl] / 3600.0,
+            lw=0.7,
+            color="#444444",
+            label=t("lg_tilt_x"),
+        )
+        ax2.plot(
+            th[sl],
+            np.asarray(record.tilt_y_arcsec)[sl] / 3600.0,
+            lw=0.7,
+            color="#2a9d4b",
+            label=t("lg_tilt_y"),
+        )
+        for i in range(holds.n):
+            t0, t1 = holds.t_start_s[i] / 3600.0, holds.t_end_s[i] / 3600.0
+            ts = min(t1, t0 + holds.settle_s / 3600.0)
+            color = "#4a7fd0" if holds.is_level[i] else "#f0a030"
+            for ax in (ax1, ax2):
+                ax.axvspan(t0, ts, color=color, alpha=0.07, lw=0)
+                ax.axvspan(ts, t1, color=color, alpha=0.2, lw=0)
+        ax1.set_ylabel(t("ax_reading"))
+        ax2.set_ylabel(t("ax_tilt"))
+        ax2.set_xlabel(t("ax_time_h"))
+        ax1.legend(loc="lower left", ncols=2)
+        ax2.legend(loc="lower left", ncols=2)
+        ax2.set_xlim(th[0], th[-1])
+        return _png(fig)
+
+
+def _characteristic_x(theta_c: np.ndarray, b: float, a: float) -> np.ndarray:
+    """m − m_h solving b x + a x² = −c (record convention), c = g(1 − cos θ) ≥ 0."""
+    disc = np.maximum(b * b - 4.0 * a * theta_c, 0.0)
+    return -2.0 * theta_c / (b + np.sqrt(disc))
+
+
+def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> bytes:
+    """Hold means against the signed tilt angle (Fig. 3 of the paper) and their residuals."""
+    g = float(result["g_local_mgal"])
+    params = result["parameters"]
+    a = params["a"]["mean"] if "a" in params else (result.get("fixed") or {}).get("a", 0.0)
+    lv = result.get("level_reading_pix") or {}
+    theta = np.rad2deg(np.asarray(holds.theta_rad, dtype=float))
+    one_minus_uz = 1.0 - np.cos(holds.tilt_x_rad) * np.cos(holds.tilt_y_rad)
+    lim = float(np.nanmax(np.abs(theta))) * 1.05 if theta.size else 6.0
+    grid = np.linspace(-lim, lim, 401)
+    rounds = np.asarray(holds.round)
+    with _rc():
+        fig = _new((7.0, 4.6))
+        ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1]})
+        for s in range(2):
+            m = np.asarray(holds.m_mean_pix[:, s], dtype=float)
+            mh = float(lv.get(f"m{s + 1}", np.nanmedian(m[holds.is_level])))
+            b = float(params[f"b{s + 1}"]["mean"])
+            col = SYS_COLORS[s]
+            ax1.plot(
+                grid,
+                mh + _characteristic_x(g * (1 - np.cos(np.deg2rad(grid))), b, a),
+                color=col,
+                lw=0.8,
+                alpha=0.7,
+            )
+            resid = m - (mh + _characteristic_x(g * one_minus_uz, b, a))
+            for r in np.unique(rounds):
+                sel = rounds == r
+                mk = "x" if r == 0 else ROUND_MARKERS[(r - 1) % len(ROUND_MARKERS)]
+                label = (
+                    t("lg_level") if r == 0 else t("lg_round", n=r)
+                ) + f", {t('lg_s', n=s + 1)}"
+                ax1.plot(
+                    theta[sel],
+                    m[sel],
+                    ls="none",
+                    marker=mk,
+                    ms=3.5,
+                    mfc="none",
+                    mew=0.8,
+                    color=col,
+                    label=label,
+                )
+                ax2.plot(
+                    theta[sel],
+                    resid[sel],
+                    ls="none",
+                    marker=mk,
+                    ms=3.5,
+                    mfc="none",
+                    mew=0.8,
+                    color=col,
+                )
+        ax1.plot([], [], color="0.3", lw=0.8, label=t("lg_fit"))
+        ax1.set_ylabel(t("ax_reading"))
+        ax2.set_ylabel(t("ax_resid_pix"))
+        ax2.set_xlabel(t("ax_angle"))
+        ax2.axhline(0.0, color="0.3", lw=0.6)
+        ax1.legend(loc="lower center", ncols=3, fontsize=6.5)
+        return _png(fig)
+
+
+def residual_figure(
+    residuals: Mapping[str, Any],
+    t: Translator,
+    *,
+    tol_mgal: float | None,
+    band: Mapping[str, Any] | None = None,
+) -> bytes:
+    """δg per angle for every column (round × system), their mean, bands and the tolerance."""
+    labels = list(residuals["angle_label"])
+    cols = list(residuals["columns"])
+    x = np.arange(len(labels), dtype=float)
+    offs = np.linspace(-0.27, 0.27, len(cols)) if len(cols) > 1 else np.zeros(1)
+    with _rc():
+        fig = _new((7.0, 3.4))
+        ax = fig.subplots()
+        for j, c in enumerate(cols):
+            s = 1 if c.endswith("s2") else 0
+            try:
+                r = int(c.split("_")[0].lstrip("r"))
+            except ValueError:
+                r = 1
+            mk = ROUND_MARKERS[(r - 1) % len(ROUND_MARKERS)]
+            y = np.asarray(residuals["delta_g_mgal"][c], dtype=float)
+            if band is not None and c in band.get("delta_g_low", {}):
+                lo = np.asarray(band["delta_g_low"][c], dtype=float)
+                hi = np.asarray(band["delta_g_high"][c], dtype=float)
+                ax.vlines(x + offs[j], lo, hi, color=SYS_COLORS[s], lw=4, alpha=0.25)
+                if c in band.get("delta_g_mean", {}):
+                    ax.plot(
+                        x + offs[j],
+                        band["delta_g_mean"][c],
+                        ls="none",
+                        marker="_",
+                        ms=7,
+                        color=SYS_COLORS[s],
+                        alpha=0.8,
+                    )
+            ax.plot(
+                x + offs[j],
+                y,
+                ls="none",
+                marker=mk,
+                ms=4,
+                mfc="none",
+                mew=0.9,
+                color=SYS_COLORS[s],
+                label=f"{t('lg_round', n=r)}, {t('lg_s', n=s + 1)}",
+            )
+        ax.plot(
+            x,
+            residuals["mean_delta_g_mgal"],
+            color="black",
+            lw=1.0,
+            marker="o",
+            ms=3,
+            label=t("lg_mean"),
+        )
+        if band is not None:
+            ax.vlines([], [], [], color="0.5", lw=4, alpha=0.3, label=t("lg_band"))
+        if tol_mgal is not None:
+            for sgn in (1, -1):
+                ax.axhline(
+                    sgn * tol_mgal,
+                    color="#b03030",
+                    ls="--",
+                    lw=0.8,
+                    label=t("lg_tol") if sgn > 0 else None,
+                )
+        ax.axhline(0.0, color="0.4", lw=0.5)
+        ax.set_xticks(x, labels)
+        ax.set_xlabel(t("ax_angle"))
+        ax.set_ylabel(t("ax_dg"))
+        ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=6.5)
+        return _png(fig)
+
+
+def read_posterior(path: str | Path, names: Sequence[str] = PAIR_VARS) -> dict[str, np.ndarray]:
+    """Flattened draws of ``names`` (those present) from the posterior group of a NetCDF."""
+    import xarray as xr
+
+    try:
+        ds = xr.open_dataset(path, group="posterior", engine="h5netcdf")
+    except (OSError, ValueError):  # not HDF5-based or no engine: let ArviZ try
+        import arviz as az
+
+        ds = az.from_netcdf(path).posterior
+    with ds:
+        return {
+            n: np.asarray(ds[n].values, dtype=float).reshape(-1)
+            for n in names
+            if n in ds and set(ds[n].dims) <= {"chain", "draw"}  # scalar parameters only
+        }
+
+
+def pair_figure(draws: Mapping[str, np.ndarray], lang: str, *, max_points: int = 1500) -> bytes:
+    """Corner plot: marginal histograms on the diagonal, scatter of draws below it."""
+    from matplotlib.ticker import MaxNLocator
+
+    names = list(draws)
+    k = len(names)
+    n = min(len(v) for v in draws.values())
+    idx = np.linspace(0, n - 1, min(n, max_points)).astype(int)
+    size = 1.25 * k + 0.6
+    with _rc():
+        fig = _new((min(size, 7.0), min(size, 7.0)), constrained=False)  # fast for k² axes
+        fig.subplots_adjust(left=0.11, bottom=0.11, right=0.98, top=0.98, wspace=0.12, hspace=0.12)
+        axes = fig.subplots(k, k, squeeze=False)
+        for i in range(k):
+            yi = draws[names[i]]
+            for j in range(k):
+                ax = axes[i, j]
+                if j > i:
+                    ax.set_axis_off()
+                    continue
+                xj = draws[names[j]]
+                ax.xaxis.set_major_locator(MaxNLocator(3))
+                ax.yaxis.set_major_locator(MaxNLocator(3))
+                ax.tick_params(labelsize=5.5)
+                if i == j:
+                    ax.hist(xj, bins=30, color="#4a7fd0", alpha=0.8)
+                    ax.tick_params(axis="y", left=False, labelleft=False)
+                    ax.grid(False, axis="y")
+                else:
+                    ax.plot(
+                        xj[idx], yi[idx], ls="none", marker=".", ms=1.5, alpha=0.35, color="#1f3f7a"
+                    )
+                if i == k - 1:
+                    ax.set_xlabel(param_name(names[j], lang), fontsize=8)
+                    ax.tick_params(axis="x", labelrotation=45)
+                else:
+                    ax.tick_params(axis="x", labelbottom=False)
+                if j == 0 and i > 0:
+                    ax.set_ylabel(param_name(names[i], lang), fontsize=8)
+                elif i != j:
+                    ax.tick_params(axis="y", labelleft=False)
+        return _png(fig)
+
+
+def drift_figure(curve: Mapping[str, Sequence[float]], t: Translator) -> bytes:
+    """The estimated drift of both systems over time with its band."""
+    th = np.asarray(curve["t_h"], dtype=float)
+    with _rc():
+        fig = _new((7.0, 2.8))
+        ax = fig.subplots()
+        for s in range(2):
+            key = f"m{s + 1}"
+            if f"{key}_pix" not in curve:
+                continue
+            col = SYS_COLORS[s]
+            if f"{key}_low" in curve and f"{key}_high" in curve:
+                ax.fill_between(
+                    th, curve[f"{key}_low"], curve[f"{key}_high"], color=col, alpha=0.2, lw=0
+                )
+            ax.plot(th, curve[f"{key}_pix"], color=col, lw=1.0, label=t("lg_s", n=s + 1))
+        ax.set_xlabel(t("ax_time_h"))
+        ax.set_ylabel(t("ax_drift"))
+        ax.legend(loc="best")
+        return _png(fig)

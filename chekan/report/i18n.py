@@ -1,0 +1,471 @@
+"""Every label of the certificate, in English and Russian (one dict, one place).
+
+``tr(lang)`` returns a callable ``t(key, **fields)``; a missing key is a bug and
+raises ``KeyError`` (the tests render both languages, so every key used is checked).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from chekan.errors import ChekanError
+
+LANGS = ("en", "ru")
+
+LABELS: dict[str, dict[str, str]] = {
+    # ------------------------------------------------------------------ title, header
+    "title": {
+        "en": "Calibration certificate",
+        "ru": "Свидетельство о калибровке",
+    },
+    "subtitle": {
+        "en": "{instrument} gravimeter, serial no. {serial} — tilt-method calibration protocol",
+        "ru": "Гравиметр {instrument}, заводской № {serial} — протокол калибровки методом наклона",
+    },
+    "running_head": {
+        "en": "{instrument} no. {serial} — calibration certificate",
+        "ru": "{instrument} № {serial} — свидетельство о калибровке",
+    },
+    "page": {"en": "page", "ru": "стр."},
+    "sec_header": {"en": "Instrument and calibration", "ru": "Прибор и условия калибровки"},
+    "instrument": {"en": "Instrument", "ru": "Тип прибора"},
+    "model_fmt": {"en": "{instrument} (model {model})", "ru": "{instrument} (модель {model})"},
+    "serial": {"en": "Gravimeter serial no.", "ru": "Заводской номер гравиметра"},
+    "platform_serial": {"en": "Gyro-platform serial no.", "ru": "Заводской номер УСГ"},
+    "site": {"en": "Site", "ru": "Пункт калибровки"},
+    "coords": {"en": "Coordinates", "ru": "Координаты"},
+    "lat": {"en": "latitude", "ru": "широта"},
+    "lon": {"en": "longitude", "ru": "долгота"},
+    "height": {"en": "height {h} m", "ru": "высота {h} м"},
+    "operator": {"en": "Operator", "ru": "Оператор"},
+    "program": {"en": "Tilt program", "ru": "Программа наклонов"},
+    "g_local": {"en": "Gravity at the site g", "ru": "Ускорение силы тяжести в пункте g"},
+    "date": {"en": "Date of calibration", "ru": "Дата калибровки"},
+    "started": {"en": "Record started (UTC)", "ru": "Начало записи (UTC)"},
+    "method": {"en": "Method of estimation", "ru": "Метод обработки"},
+    "method_classical": {
+        "en": "classical least squares of eq. (21) on pair means (25), as Calibr.exe",
+        "ru": "классический МНК по формуле (21) для средних отсчётов (25), как в Calibr.exe",
+    },
+    "method_map": {
+        "en": "maximum a posteriori fit of the full forward model",
+        "ru": "оценка максимума апостериорной плотности по полной модели",
+    },
+    "method_bayes": {
+        "en": "Bayesian: posterior sampling of the full forward model",
+        "ru": "байесовская: выборка из апостериорного распределения полной модели",
+    },
+    "input": {"en": "Input file", "ru": "Входной файл"},
+    "input_record": {"en": "record (raw readings)", "ru": "запись (исходные отсчёты)"},
+    "input_protocol": {
+        "en": "legacy protocol table (Calibr.exe)",
+        "ru": "таблица протокола (Calibr.exe)",
+    },
+    "sha": {"en": "SHA-256 of the input", "ru": "SHA-256 входного файла"},
+    "software": {"en": "Software", "ru": "Программа"},
+    "created": {"en": "Result computed (UTC)", "ru": "Расчёт выполнен (UTC)"},
+    "level": {"en": "Level readings mₕ", "ru": "Отсчёты горизонта mₕ"},
+    "ccd_center": {"en": "CCD centre m₀", "ru": "Центр ПЗС-линейки m₀"},
+    "interval_prob": {"en": "Interval probability", "ru": "Доверительная вероятность"},
+    "pix": {"en": "pix", "ru": "пикс"},
+    "mgal": {"en": "mGal", "ru": "мГал"},
+    "gal": {"en": "Gal", "ru": "Гал"},
+    "yes": {"en": "yes", "ru": "да"},
+    "no": {"en": "no", "ru": "нет"},
+    "na": {"en": "n/a", "ru": "н/д"},
+    # ------------------------------------------------------------------ items а)–е)
+    "sec_a": {
+        "en": "a) Reference and measured increments",
+        "ru": "а) Заданные и измеренные приращения",
+    },
+    "sec_a_text": {
+        "en": "Reference increments da_ref = g(1 − cos θ) and the increments dg measured by each "
+        "quartz system in each round, for every tilt angle θ of the platform "
+        "(± pair mean, eq. 25).",
+        "ru": "Заданные приращения da_эт = g(1 − cos θ) и приращения dg, измеренные каждой "
+        "кварцевой системой в каждом приёме, для каждого угла наклона θ гироплатформы "
+        "(среднее пары ±, формула 25).",
+    },
+    "cap_a": {
+        "en": "Reference increments da_ref and measured increments dg, mGal",
+        "ru": "Заданные приращения da_эт и результаты измерений dg, мГал",
+    },
+    "angle": {"en": "Angle θ", "ru": "Угол θ"},
+    "da_ref": {"en": "da_ref", "ru": "da_эт"},
+    "round_n": {"en": "Round {n}", "ru": "Приём {n}"},
+    "round": {"en": "Round", "ru": "Приём"},
+    "sys_n": {"en": "S{n}", "ru": "КС{n}"},
+    "system": {"en": "System", "ru": "Система"},
+    "sec_b": {
+        "en": "b) Deviations δg from the reference",
+        "ru": "б) Отклонения δg от заданных значений",
+    },
+    "sec_b_text": {
+        "en": "δg = da_ref − dg per angle, system and round; the last column is their mean Δg. "
+        "RMS (СКП) is the root mean square of δg about its mean, per column.",
+        "ru": "δg = da_эт − dg для каждого угла, системы и приёма; последний столбец — их "
+        "среднее Δg. СКП — среднеквадратическое отклонение δg от среднего по столбцу.",
+    },
+    "cap_b": {"en": "Deviations δg, mGal", "ru": "Отклонения δg, мГал"},
+    "mean_dg": {"en": "Mean Δg", "ru": "Среднее Δg"},
+    "rms_row": {"en": "RMS (СКП)", "ru": "СКП"},
+    "pp_note": {
+        "en": "Posterior-predictive 95 % band of δg per angle is shown in the residual figure.",
+        "ru": "95-процентная апостериорно-прогнозная полоса δg показана на рисунке отклонений.",
+    },
+    "sec_c": {
+        "en": "c) Reduced error of the calibration characteristic",
+        "ru": "в) Приведённая погрешность градуировочной характеристики",
+    },
+    "sec_c_text": {
+        "en": "The largest |mean δg| over the angles divided by the upper limit of the measuring "
+        "range Δ₀ = 5 Gal.",
+        "ru": "Отношение максимального по модулю среднего δg к верхнему пределу диапазона "
+        "измерений Δ₀ = 5 Гал.",
+    },
+    "reduced_error": {
+        "en": "Reduced error δg = {v} % (largest |mean δg| = {m} mGal at {angle})",
+        "ru": "Приведённая погрешность δg = {v} % (максимальное |Δg| = {m} мГал при {angle})",
+    },
+    "sec_d": {
+        "en": "d) Coefficients a, b₁, b₂ of the calibration characteristic",
+        "ru": "г) Коэффициенты a, b₁, b₂ градуировочной характеристики",
+    },
+    "sec_d_text": {
+        "en": "Characteristic Δg = b(m − mₕ) + a(m − mₕ)² (eq. 21); b is the scale factor at "
+        "the level reading mₕ, b₀ = b + 2a(m₀ − mₕ) its value at the CCD centre m₀ (eq. 24).",
+        "ru": "Характеристика Δg = b(m − mₕ) + a(m − mₕ)² (формула 21); b — масштабный "
+        "коэффициент при отсчёте горизонта mₕ, b₀ = b + 2a(m₀ − mₕ) — его значение в центре "
+        "ПЗС-линейки m₀ (формула 24).",
+    },
+    "cap_rounds": {
+        "en": "Scale factors per round and system",
+        "ru": "Масштабные коэффициенты по приёмам и системам",
+    },
+    "b_col": {"en": "b, mGal/pix", "ru": "b, мГал/пикс"},
+    "u_col": {"en": "u(b)", "ru": "u(b)"},
+    "b0_col": {"en": "b₀, mGal/pix", "ru": "b₀, мГал/пикс"},
+    "mh_col": {"en": "mₕ, pix", "ru": "mₕ, пикс"},
+    "rms_col": {"en": "RMS, mGal", "ru": "СКП, мГал"},
+    "printed_col": {"en": "b (Calibr.exe)", "ru": "b (Calibr.exe)"},
+    "cap_params": {
+        "en": "Joint estimates over all rounds",
+        "ru": "Совместные оценки по всем приёмам",
+    },
+    "cap_params_bayes": {
+        "en": "Posterior summary: mean, standard deviation and {p} % HDI",
+        "ru": "Апостериорные оценки: среднее, СКО и {p} %-й интервал наибольшей плотности",
+    },
+    "param": {"en": "Parameter", "ru": "Параметр"},
+    "mean": {"en": "Estimate", "ru": "Оценка"},
+    "sd": {"en": "u (1σ)", "ru": "u (1σ)"},
+    "interval": {"en": "{p} % interval", "ru": "{p} %-й интервал"},
+    "hdi": {"en": "{p} % HDI", "ru": "{p} % ИНП"},
+    "unit": {"en": "Unit", "ru": "Ед."},
+    "rhat": {"en": "R-hat", "ru": "R-hat"},
+    "ess": {"en": "ESS", "ru": "ESS"},
+    "fixed": {"en": "fixed", "ru": "фикс."},
+    "mean_b": {
+        "en": "Mean b over systems and rounds (Calibr.exe «Среднее»): {v} mGal/pix",
+        "ru": "Среднее b по системам и приёмам: {v} мГал/пикс",
+    },
+    "discrepancy": {
+        "en": "Discrepancy between rounds: {v} %",
+        "ru": "Расхождение между приёмами: {v} %",
+    },
+    "a_convention": {
+        "en": "a is given in the record convention (readings grow with gravity, tilts give "
+        "m < mₕ); in the sign convention of Calibr.exe protocols a = {v} mGal/pix².",
+        "ru": "a приведён в соглашении записи (отсчёт растёт с ростом силы тяжести, при наклоне "
+        "m < mₕ); в соглашении протоколов Calibr.exe a = {v} мГал/пикс².",
+    },
+    "statement_title": {
+        "en": "Scale factors with the expanded uncertainty U (coverage factor k = 2):",
+        "ru": "Масштабные коэффициенты с расширенной неопределённостью U "
+        "(коэффициент охвата k = 2):",
+    },
+    "statement_typeA": {
+        "en": "U = 2u from the least-squares standard error only (type A); the error of the "
+        "angle readout, drift and a are not included — use the Bayesian method for a full budget.",
+        "ru": "U = 2u только по стандартной ошибке МНК (тип А); погрешности задания угла, "
+        "дрейф и a не учтены — полный бюджет даёт байесовский метод.",
+    },
+    "statement_budget": {
+        "en": "U = 2u with the combined standard uncertainty u of the budget "
+        "(section «Uncertainty budget of b»).",
+        "ru": "U = 2u, u — суммарная стандартная неопределённость по бюджету "
+        "(раздел «Бюджет неопределённости b»).",
+    },
+    "sec_e": {
+        "en": "e) Deviations of b₁, b₂ from the initial values",
+        "ru": "д) Отклонения b₁, b₂ от исходных значений",
+    },
+    "instability": {
+        "en": "Instability of the scale factor {name}: δ{name} = {v} % (U = {u} %, k = 2); "
+        "initial {name} = {prior} mGal/pix",
+        "ru": "Нестабильность масштабного коэффициента {name}: δ{name} = {v} % (U = {u} %, k = 2); "
+        "исходное {name} = {prior} мГал/пикс",
+    },
+    "no_prior": {
+        "en": "Not available: the input carries no initial scale factors (b1_prior, b2_prior).",
+        "ru": "Нет данных: во входном файле нет исходных масштабных коэффициентов "
+        "(b1_prior, b2_prior).",
+    },
+    "sec_f": {
+        "en": "f) Margin of the measuring range",
+        "ru": "е) Запас по диапазону измерений",
+    },
+    "margin_at": {
+        "en": "Margin of the measuring range at latitude {lat}:",
+        "ru": "Запас по диапазону измерений на широте {lat}:",
+    },
+    "margin_plain": {
+        "en": "Margin of the measuring range at the calibration site:",
+        "ru": "Запас по диапазону измерений в пункте калибровки:",
+    },
+    "margin_heavy": {
+        "en": "{v} Gal towards heavier gravity",
+        "ru": "{v} Гал — запас в тяжёлую сторону",
+    },
+    "margin_light": {
+        "en": "{v} Gal towards lighter gravity",
+        "ru": "{v} Гал — запас в лёгкую сторону",
+    },
+    "margin_ccd": {
+        "en": "from the level readings to the CCD ends {lo}…{hi} pix, "
+        "the smaller of the two systems.",
+        "ru": "от отсчётов горизонта до краёв ПЗС-линейки {lo}…{hi} пикс, "
+        "по меньшей из двух систем.",
+    },
+    "no_margin": {
+        "en": "Not available: the input has no level readings (a protocol table).",
+        "ru": "Нет данных: во входном файле нет отсчётов горизонта (таблица протокола).",
+    },
+    # ------------------------------------------------------------------ bayes
+    "sec_budget": {"en": "Uncertainty budget of b", "ru": "Бюджет неопределённости b"},
+    "budget_text": {
+        "en": "Standard uncertainties of each source, from the posterior; relative values in ppm "
+        "(10⁻⁶).",
+        "ru": "Стандартные неопределённости по источникам, по апостериорному распределению; "
+        "относительные значения в млн⁻¹ (10⁻⁶).",
+    },
+    "cap_budget": {
+        "en": "Uncertainty budget of the scale factors, mGal/pix",
+        "ru": "Бюджет неопределённости масштабных коэффициентов, мГал/пикс",
+    },
+    "source": {"en": "Source", "ru": "Источник"},
+    "ppm": {"en": "ppm", "ru": "млн⁻¹"},
+    "src_angle_readout": {"en": "angle readout of the platform", "ru": "отсчёт угла наклона ГП"},
+    "src_noise": {"en": "reading noise", "ru": "шум отсчёта"},
+    "src_drift": {"en": "drift", "ru": "дрейф"},
+    "src_a": {"en": "quadratic coefficient a", "ru": "квадратичный коэффициент a"},
+    "src_total": {"en": "combined standard uncertainty u", "ru": "суммарная стандартная u"},
+    "src_expanded_k2": {"en": "expanded U (k = 2)", "ru": "расширенная U (k = 2)"},
+    "sec_diag": {"en": "Convergence diagnostics", "ru": "Диагностика сходимости"},
+    "sec_diag_classical": {"en": "Fit diagnostics", "ru": "Диагностика подгонки"},
+    "converged": {"en": "Converged", "ru": "Сходимость"},
+    "rhat_max": {
+        "en": "Largest R-hat (should be < 1.01)",
+        "ru": "Наибольший R-hat (должен быть < 1.01)",
+    },
+    "ess_min": {
+        "en": "Smallest bulk ESS (should be ≥ 400)",
+        "ru": "Наименьший ESS (должен быть ≥ 400)",
+    },
+    "n_draws": {"en": "Posterior draws", "ru": "Число выборок"},
+    "seconds": {"en": "Sampling time, s", "ru": "Время выборки, с"},
+    "sigma_fit": {"en": "Residual sd of the fit σ, mGal", "ru": "СКО остатков подгонки σ, мГал"},
+    "problem": {"en": "Problem", "ru": "Проблема"},
+    "note": {"en": "Note", "ru": "Примечание"},
+    # ------------------------------------------------------------------ verdict
+    "sec_verdict": {"en": "Conclusion", "ru": "Заключение"},
+    "crit_reduced": {
+        "en": "reduced error {v} % {op} {tol} %",
+        "ru": "приведённая погрешность {v} % {op} {tol} %",
+    },
+    "crit_instab": {
+        "en": "|instability of {name}| {v} % {op} {tol} %",
+        "ru": "|нестабильность {name}| {v} % {op} {tol} %",
+    },
+    "crit_conv": {"en": "the sampler converged", "ru": "выборка сошлась"},
+    "crit_noconv": {"en": "the sampler did NOT converge", "ru": "выборка НЕ сошлась"},
+    "verdict_pass": {
+        "en": "PASSED (tolerance {tol} %): {crit}.",
+        "ru": "СООТВЕТСТВУЕТ (допуск {tol} %): {crit}.",
+    },
+    "verdict_fail": {
+        "en": "NOT PASSED (tolerance {tol} %): {crit}.",
+        "ru": "НЕ СООТВЕТСТВУЕТ (допуск {tol} %): {crit}.",
+    },
+    "verdict_criteria": {
+        "en": "Criteria: the reduced error (item c) and, when initial values are known, the "
+        "instability of b₁ and b₂ (item e) must not exceed the tolerance{conv}.",
+        "ru": "Критерии: приведённая погрешность (п. в) и, при известных исходных значениях, "
+        "нестабильность b₁ и b₂ (п. д) не должны превышать допуск{conv}.",
+    },
+    "verdict_conv_clause": {
+        "en": "; the Bayesian sampler must have converged",
+        "ru": "; выборка должна сойтись",
+    },
+    "verdict_none": {
+        "en": "No verdict: the result has no reduced error.",
+        "ru": "Заключение не дано: в результате нет приведённой погрешности.",
+    },
+    "sec_summary": {"en": "Result", "ru": "Результат"},
+    "verdict_no_instab": {
+        "en": "Instability not assessed: no initial scale factors.",
+        "ru": "Нестабильность не оценена: нет исходных масштабных коэффициентов.",
+    },
+    # ------------------------------------------------------------------ figures
+    "sec_figures": {"en": "Figures", "ru": "Рисунки"},
+    "fig_record": {
+        "en": "The record: readings of both systems and the platform tilt over time; "
+        "holds shaded (blue: level, orange: tilt), the settling part lighter.",
+        "ru": "Запись: отсчёты обеих систем и наклон гироплатформы во времени; "
+        "удержания закрашены (синие — горизонт, оранжевые — наклон), время успокоения светлее.",
+    },
+    "fig_cos": {
+        "en": "Readings against the tilt angle (the «cosinusoid», Fig. 3 of the paper): hold "
+        "means and the fitted characteristic; below, the hold means minus the characteristic.",
+        "ru": "Зависимость отсчётов от угла наклона («косинусоида», рис. 3 статьи): средние "
+        "удержаний и подобранная характеристика; внизу — разность средних и характеристики.",
+    },
+    "fig_resid": {
+        "en": "Deviations δg per angle for every round and system, their mean, and the "
+        "tolerance ±{tol} % of 5 Gal.",
+        "ru": "Отклонения δg по углам для каждого приёма и системы, их среднее и допуск "
+        "±{tol} % от 5 Гал.",
+    },
+    "fig_resid_pp": {
+        "en": " Bars: posterior-predictive 95 % band.",
+        "ru": " Полосы: апостериорно-прогнозный 95 %-й интервал.",
+    },
+    "fig_pair": {
+        "en": "Posterior pair plot (marginal histograms and pairwise scatter of the draws).",
+        "ru": "Парные диаграммы апостериорного распределения (гистограммы и попарные выборки).",
+    },
+    "fig_drift": {
+        "en": "Estimated drift of the readings with its 95 % band.",
+        "ru": "Оценка дрейфа отсчётов и её 95 %-й интервал.",
+    },
+    "no_record_protocol": {
+        "en": "The input is a protocol table without raw readings: the figures of the record "
+        "and of the cosinusoid are omitted.",
+        "ru": "Входной файл — таблица протокола без исходных отсчётов: рисунки записи и "
+        "косинусоиды не приводятся.",
+    },
+    "no_record_file": {
+        "en": "The record {path} is not available: the figures of the record and of the "
+        "cosinusoid are omitted.",
+        "ru": "Запись {path} недоступна: рисунки записи и косинусоиды не приводятся.",
+    },
+    "record_changed": {
+        "en": "The record {path} differs from the calibrated one (SHA-256 mismatch): its figures "
+        "are omitted.",
+        "ru": "Запись {path} отличается от обработанной (не совпадает SHA-256): её рисунки не "
+        "приводятся.",
+    },
+    "record_unreadable": {
+        "en": "The record {path} could not be read ({err}): its figures are omitted.",
+        "ru": "Запись {path} не читается ({err}): её рисунки не приводятся.",
+    },
+    "no_netcdf": {
+        "en": "The posterior file {path} is not available: the pair plot is omitted.",
+        "ru": "Файл апостериорной выборки {path} недоступен: парные диаграммы не приводятся.",
+    },
+    "bad_netcdf": {
+        "en": "The posterior file {path} could not be read ({err}): the pair plot is omitted.",
+        "ru": "Файл апостериорной выборки {path} не читается ({err}): парные диаграммы не "
+        "приводятся.",
+    },
+    "footer_note": {
+        "en": "Generated by chekan {version} from the result file of {created}. Equation numbers "
+        "refer to the reference paper on the tilt-method calibration of the Chekan-AM.",
+        "ru": "Сформировано программой chekan {version} по файлу результата от {created}. "
+        "Номера формул — по статье о калибровке гравиметра «Чекан-АМ» методом наклона.",
+    },
+    "fig_label": {"en": "Figure {n}:", "ru": "Рис. {n}."},
+    "tab_label": {"en": "Table {n}:", "ru": "Таблица {n}."},
+    # figure axes
+    "ax_time_h": {"en": "time, h", "ru": "время, ч"},
+    "ax_reading": {"en": "reading m, pix", "ru": "отсчёт m, пикс"},
+    "ax_tilt": {"en": "tilt, °", "ru": "наклон, °"},
+    "ax_angle": {"en": "tilt angle θ, °", "ru": "угол наклона θ, °"},
+    "ax_resid_pix": {"en": "m − fit, pix", "ru": "m − хар-ка, пикс"},
+    "ax_dg": {"en": "δg, mGal", "ru": "δg, мГал"},
+    "ax_drift": {"en": "drift, pix", "ru": "дрейф, пикс"},
+    "lg_s": {"en": "system {n}", "ru": "система {n}"},
+    "lg_fit": {"en": "characteristic", "ru": "характеристика"},
+    "lg_mean": {"en": "mean Δg", "ru": "среднее Δg"},
+    "lg_tol": {"en": "tolerance", "ru": "допуск"},
+    "lg_level": {"en": "level", "ru": "горизонт"},
+    "lg_tilt_x": {"en": "tilt X", "ru": "наклон X"},
+    "lg_tilt_y": {"en": "tilt Y", "ru": "наклон Y"},
+    "lg_band": {"en": "95 % band", "ru": "95 %-й интервал"},
+    "lg_round": {"en": "round {n}", "ru": "приём {n}"},
+}
+
+# Parameter display names; units; known metadata values that have a Russian name.
+PARAM_NAMES: dict[str, dict[str, str]] = {
+    "b1": {"en": "b₁", "ru": "b₁"},
+    "b2": {"en": "b₂", "ru": "b₂"},
+    "a": {"en": "a", "ru": "a"},
+    "b1_0": {"en": "b₁₀ (CCD centre)", "ru": "b₁₀ (центр ПЗС)"},
+    "b2_0": {"en": "b₂₀ (CCD centre)", "ru": "b₂₀ (центр ПЗС)"},
+    "eps1_arcmin": {"en": "ε₁", "ru": "ε₁"},
+    "eps2_arcmin": {"en": "ε₂", "ru": "ε₂"},
+    "dgamma_arcmin": {"en": "Δγ", "ru": "Δγ"},
+    "tau_s": {"en": "τ (time constant)", "ru": "τ (постоянная времени)"},
+    "drift1_pix_per_h": {"en": "drift of system 1", "ru": "дрейф системы 1"},
+    "drift2_pix_per_h": {"en": "drift of system 2", "ru": "дрейф системы 2"},
+    "sigma_theta_arcsec": {"en": "σ_θ (angle)", "ru": "σ_θ (угол)"},
+    "sigma_hold_pix": {"en": "σ_hold (hold offset)", "ru": "σ_hold (смещение удержания)"},
+}
+UNITS: dict[str, dict[str, str]] = {
+    "mGal/pix": {"en": "mGal/pix", "ru": "мГал/пикс"},
+    "mGal/pix^2": {"en": "mGal/pix²", "ru": "мГал/пикс²"},
+    "arcmin": {"en": "arcmin", "ru": "угл. мин"},
+    "arcsec": {"en": "arcsec", "ru": "угл. с"},
+    "s": {"en": "s", "ru": "с"},
+    "pix/h": {"en": "pix/h", "ru": "пикс/ч"},
+    "pix": {"en": "pix", "ru": "пикс"},
+    "mGal": {"en": "mGal", "ru": "мГал"},
+}
+VALUES: dict[str, dict[str, str]] = {
+    "Chekan-AM": {"en": "Chekan-AM", "ru": "«Чекан-АМ»"},
+    "Shelf": {"en": "Shelf", "ru": "Шельф"},
+    "simulation": {"en": "simulation", "ru": "моделирование"},
+}
+
+
+def check_lang(lang: str) -> str:
+    """``lang`` if supported, else a :class:`ChekanError` naming the choices."""
+    if lang not in LANGS:
+        raise ChekanError(f"unknown language {lang!r}; choose one of {', '.join(LANGS)}")
+    return lang
+
+
+def tr(lang: str) -> Callable[..., str]:
+    """The translator for ``lang``: ``t("key", field=value)``."""
+    check_lang(lang)
+
+    def t(key: str, **fields: object) -> str:
+        text = LABELS[key][lang]
+        return text.format(**fields) if fields else text
+
+    return t
+
+
+def param_name(name: str, lang: str) -> str:
+    """Display name of a result parameter (the raw key when unknown)."""
+    return PARAM_NAMES.get(name, {}).get(lang, name)
+
+
+def unit_name(unit: str, lang: str) -> str:
+    """Display form of a unit string of the result (as is when unknown)."""
+    return UNITS.get(unit, {}).get(lang, unit)
+
+
+def value_name(value: str, lang: str) -> str:
+    """Localised form of a known metadata value (instrument, model); others unchanged."""
+    return VALUES.get(value, {}).get(lang, value)

@@ -1,0 +1,166 @@
+"""Write a :class:`~chekan.report.document.Report` as typst source and compile it to PDF.
+
+Every piece of text enters the source as a typst *string literal* (``"…"`` with
+``\\`` and ``"`` escaped) inside code, never as markup, so serial numbers or site
+names with ``#``, ``$``, ``*``, ``_`` … are printed as they are. Only typst's
+bundled fonts are used (Libertinus Serif, DejaVu Sans Mono), so the output does
+not depend on the fonts of the machine; both cover Cyrillic.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+from chekan.errors import ChekanError
+from chekan.report.document import Cell, Figure, Heading, KeyValue, Para, Report, Table
+
+FONT = "Libertinus Serif"
+MONO = "DejaVu Sans Mono"
+_ALIGN = {"l": "left", "c": "center", "r": "right"}
+_BOX = {
+    "pass": ('rgb("#e6f4e8")', 'rgb("#2e7d32")'),
+    "fail": ('rgb("#fbe7e6")', 'rgb("#b3261e")'),
+    "warn": ('rgb("#fff4e0")', 'rgb("#b26a00")'),
+}
+
+
+def tstr(text: str) -> str:
+    """``text`` as a typst string literal (control characters other than newline dropped)."""
+    out = []
+    for ch in str(text):
+        if ch == "\\":
+            out.append("\\\\")
+        elif ch == '"':
+            out.append('\\"')
+        elif ch == "\n":
+            out.append("\\n")
+        elif ch == "\t":
+            out.append(" ")
+        elif ord(ch) < 32 or ord(ch) == 127:
+            continue
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _cell(c: Cell, *, header: bool = False) -> str:
+    body = f"strong({tstr(c.text)})" if (c.bold or header) and c.text else tstr(c.text)
+    if c.colspan > 1:
+        return f"table.cell(colspan: {c.colspan}, align: center, {body})"
+    return body
+
+
+def _table(tb: Table) -> str:
+    aligns = ", ".join(_ALIGN[a] for a in tb.align)
+    parts = [
+        f"columns: {tb.ncols}",
+        f"align: ({aligns},)",
+        "stroke: none",
+        "inset: (x: 4pt, y: 2.6pt)",
+        "table.hline(stroke: 0.8pt)",
+    ]
+    head_cells = [_cell(c, header=True) for row in tb.header for c in row]
+    parts.append("table.header(" + ", ".join(head_cells) + ")")
+    parts.append("table.hline(stroke: 0.5pt)")
+    nbody = len(tb.rows) - tb.footer_rows
+    for i, row in enumerate(tb.rows):
+        if i == nbody and tb.footer_rows:
+            parts.append("table.hline(stroke: 0.5pt)")
+        parts.extend(_cell(c) for c in row)
+    parts.append("table.hline(stroke: 0.8pt)")
+    inner = "table(\n    " + ",\n    ".join(parts) + ",\n  )"
+    if tb.caption:
+        return f"#figure(kind: table, caption: {tstr(tb.caption)},\n  {inner})\n"
+    return f"#{inner}\n"
+
+
+def _keyvalue(kv: KeyValue) -> str:
+    cells = []
+    for key, value, mono in kv.rows:
+        cells.append(f"text(fill: luma(70), {tstr(key)})")
+        cells.append(
+            f"text(font: {tstr(MONO)}, size: 7.6pt, {tstr(value)})" if mono else tstr(value)
+        )
+    return (
+        "#table(columns: (auto, 1fr), stroke: none, inset: (x: 4pt, y: 2.2pt),\n  "
+        + ",\n  ".join(cells)
+        + ",\n)\n"
+    )
+
+
+def _para(p: Para) -> str:
+    if p.kind == "strong":
+        return f"#strong({tstr(p.text)})\n"
+    if p.kind == "note":
+        return f"#text(size: 8.5pt, fill: luma(80), {tstr(p.text)})\n"
+    if p.kind in _BOX:
+        fill, stroke = _BOX[p.kind]
+        return (
+            f"#block(width: 100%, inset: 7pt, radius: 3pt, fill: {fill}, "
+            f"stroke: 0.7pt + {stroke}, strong({tstr(p.text)}))\n"
+        )
+    return f"#{tstr(p.text)}\n"
+
+
+def typst_source(rep: Report, fig_files: dict[int, str]) -> str:
+    """The typst source of ``rep``; ``fig_files`` maps ``id(figure)`` to its file name."""
+    head = [
+        f'#set document(title: {tstr(rep.title + " — " + rep.subtitle)}, author: "chekan")',
+        f"#set text(font: {tstr(FONT)}, size: 10pt, lang: {tstr(rep.lang)})",
+        "#set par(justify: false, leading: 0.55em, spacing: 0.9em)",
+        '#set page(paper: "a4", margin: (x: 1.8cm, top: 2.1cm, bottom: 1.9cm),',
+        "  header: context { if counter(page).get().first() > 1 {",
+        f"    set text(size: 8pt, fill: luma(100)); {tstr(rep.running_head)}; h(1fr)",
+        "  } },",
+        "  footer: context align(center, text(size: 8pt, fill: luma(100),",
+        '    counter(page).display("1 / 1", both: true))))',
+        "#show heading.where(level: 1): set text(size: 12pt)",
+        "#show heading: set block(above: 1.3em, below: 0.7em)",
+        "#show figure: set block(breakable: false)",
+        "#show figure.where(kind: table): set block(breakable: true)",
+        "#show figure.where(kind: table): set figure.caption(position: top)",
+        "#show figure.caption: set text(size: 8.5pt)",
+        "#show table: set text(size: 8.6pt)",
+        "#align(center, stack(spacing: 7pt,",
+        f'  text(size: 17pt, weight: "bold", {tstr(rep.title)}),',
+        f"  text(size: 11pt, {tstr(rep.subtitle)})))",
+        "#v(4pt)",
+        "",
+    ]
+    body: list[str] = []
+    for b in rep.blocks:
+        if isinstance(b, Heading):
+            body.append(f"#heading(level: {b.level}, {tstr(b.text)})\n")
+        elif isinstance(b, Para):
+            body.append(_para(b))
+        elif isinstance(b, Table):
+            body.append(_table(b))
+        elif isinstance(b, KeyValue):
+            body.append(_keyvalue(b))
+        elif isinstance(b, Figure):
+            img = f"image({tstr(fig_files[id(b)])}, width: {100 * b.width:.0f}%)"
+            body.append(f"#figure({img}, caption: {tstr(b.caption)})\n")
+    return "\n".join(head) + "\n".join(body)
+
+
+def render_pdf(rep: Report, keep_source: Path | None = None) -> bytes:
+    """Compile ``rep`` to PDF bytes (in a temporary folder with the figure PNGs)."""
+    import typst
+
+    with tempfile.TemporaryDirectory(prefix="chekan-report-") as tmp:
+        root = Path(tmp)
+        files: dict[int, str] = {}
+        for i, f in enumerate(rep.figures, start=1):
+            name = f"fig{i}-{f.name}.png"
+            (root / name).write_bytes(f.png)
+            files[id(f)] = name
+        src = typst_source(rep, files)
+        main = root / "certificate.typ"
+        main.write_text(src, encoding="utf-8")
+        if keep_source is not None:
+            keep_source.write_text(src, encoding="utf-8")
+        try:
+            return typst.compile(str(main), root=str(root), ignore_system_fonts=True)
+        except Exception as e:  # typst.TypstError: a bug of this module, reported plainly
+            raise ChekanError(f"typst could not compile the certificate: {e}") from e

@@ -1,0 +1,246 @@
+"""The ``chekan-result/1`` JSON (``results-json.md``): build, write, read and check.
+
+Every method writes the fixed keys of the spec; extra keys are ours. A method that
+does not estimate a parameter leaves its key out (``a`` fixed → ``fixed.a``).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import chekan
+from chekan.errors import FormatError
+
+FORMAT = "chekan-result/1"
+METHODS = ("classical", "map", "bayes")
+REQUIRED_KEYS = ("format", "serial", "record", "method", "g_local_mgal", "parameters")
+PARAM_FIELDS = ("mean", "sd", "hdi_low", "hdi_high")
+UNITS = {
+    "b1": "mGal/pix",
+    "b2": "mGal/pix",
+    "b1_0": "mGal/pix",
+    "b2_0": "mGal/pix",
+    "a": "mGal/pix^2",
+    "eps1_arcmin": "arcmin",
+    "eps2_arcmin": "arcmin",
+    "dgamma_arcmin": "arcmin",
+}
+META_KEYS = (
+    "instrument",
+    "model",
+    "platform_serial",
+    "site",
+    "started",
+    "date",
+    "latitude_deg",
+    "longitude_deg",
+    "height_m",
+    "operator",
+    "program",
+)
+
+
+def sha256_file(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def z_for(prob: float) -> float:
+    """Two-sided standard-normal quantile: P(|Z| < z) = prob."""
+    from scipy.special import ndtri
+
+    return float(ndtri(0.5 + prob / 2.0))
+
+
+def param_entry(mean: float, sd: float | None, hdi_prob: float, unit: str = "", **extra) -> dict:
+    """A parameter entry; least-squares methods use the symmetric interval mean ± z·sd."""
+    sd_ = float(sd) if sd is not None and np.isfinite(sd) else None
+    z = z_for(hdi_prob)
+    e = {
+        "mean": float(mean),
+        "sd": sd_,
+        "hdi_low": float(mean - z * sd_) if sd_ is not None else None,
+        "hdi_high": float(mean + z * sd_) if sd_ is not None else None,
+        "unit": unit,
+    }
+    e.update(extra)
+    return e
+
+
+def _clean(obj: Any) -> Any:
+    """NumPy → JSON types; NaN/inf → None (JSON has no NaN)."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    return obj
+
+
+def base_result(
+    *,
+    method: str,
+    serial: str,
+    input_path: str | Path,
+    input_kind: str,
+    g_local_mgal: float,
+    meta: dict[str, str],
+    hdi_prob: float,
+    ccd_center_pix: float,
+) -> dict:
+    """The header part common to every method."""
+    p = Path(input_path)
+    return {
+        "format": FORMAT,
+        "serial": str(serial),
+        "record": str(input_path),
+        "record_sha256": sha256_file(p) if p.is_file() else None,
+        "input_kind": input_kind,
+        "method": method,
+        "software": {"name": "chekan", "version": chekan.__version__},
+        "created": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "g_local_mgal": float(g_local_mgal),
+        "ccd_center_pix": float(ccd_center_pix),
+        "hdi_prob": float(hdi_prob),
+        "metadata": {k: meta[k] for k in META_KEYS if k in meta},
+    }
+
+
+def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) -> dict:
+    """Fill a result dict from a :class:`chekan.classical.ClassicalResult`."""
+    hp = header["hdi_prob"]
+    m0 = header["ccd_center_pix"]
+    t = cres.table
+    out = dict(header)
+    params: dict[str, dict] = {}
+    for s in range(2):
+        params[f"b{s + 1}"] = param_entry(cres.b_mean[s], cres.b_mean_sd[s], hp, UNITS["b1"])
+    fixed: dict[str, float] = {}
+    if cres.a_sd is None:
+        fixed["a"] = cres.a
+    else:
+        params["a"] = param_entry(cres.a, cres.a_sd, hp, UNITS["a"])
+    b0 = cres.b0(m0)
+    if b0 is not None:
+        for s in range(2):
+            sd0 = cres.b_mean_sd[s]  # the shift 2a(m0 − m_h) is known to far better than b
+            params[f"b{s + 1}_0"] = param_entry(np.nanmean(b0[:, s]), sd0, hp, UNITS["b1_0"])
+    if cres.eps_arcmin is not None:
+        for s in range(2):
+            params[f"eps{s + 1}_arcmin"] = param_entry(
+                cres.eps_arcmin[s], cres.eps_sd_arcmin[s], hp, "arcmin", source="eq. (17)"
+            )
+    out["parameters"] = params
+    if fixed:
+        out["fixed"] = fixed
+    if t.m_level_pix is not None:
+        mh = np.nanmean(t.m_level_pix, axis=0)
+        out["level_reading_pix"] = {"m1": float(mh[0]), "m2": float(mh[1])}
+    out["rounds"] = [
+        {
+            "round": int(r),
+            "b1": {"mean": cres.b[i, 0], "sd": cres.b_sd[i, 0]},
+            "b2": {"mean": cres.b[i, 1], "sd": cres.b_sd[i, 1]},
+            **(
+                {"b1_0": b0[i, 0], "b2_0": b0[i, 1], "level_reading_pix": list(t.m_level_pix[i])}
+                if b0 is not None
+                else {}
+            ),
+            **({"b_printed": list(t.b_printed[i])} if t.b_printed is not None else {}),
+            "rms_mgal": {"s1": cres.rms_mgal[i, 0], "s2": cres.rms_mgal[i, 1]},
+        }
+        for i, r in enumerate(t.rounds)
+    ]
+    out["mean_b_mgal_per_pix"] = cres.mean_all
+    cols = cres.column_names
+    R = len(t.rounds)
+    out["residuals_mgal"] = {
+        "angle_deg": list(t.angle_deg),
+        "angle_label": list(t.angle_label),
+        "da_ref_mgal": list(np.nanmean(t.da_ref_mgal, axis=0)),
+        "columns": cols,
+        "dg_mgal": {c: list(cres.dg_mgal[i // 2, i % 2]) for i, c in enumerate(cols)},
+        "delta_g_mgal": {c: list(cres.delta_g_mgal[i // 2, i % 2]) for i, c in enumerate(cols)},
+        "mean_delta_g_mgal": list(cres.mean_delta_g_mgal),
+        "rms_mgal": {c: float(cres.rms_mgal[i // 2, i % 2]) for i, c in enumerate(cols)},
+        "da_ref_by_round_mgal": {f"r{r}": list(t.da_ref_mgal[i]) for i, r in enumerate(t.rounds)},
+    }
+    out["reduced_error_percent"] = cres.reduced_error_percent
+    if R >= 2:
+        out["discrepancy_between_rounds_percent"] = cres.discrepancy_percent
+    inst = cres.instability_percent(b_prior) if b_prior is not None else [None, None]
+    if any(v is not None for v in inst):
+        out["instability_percent"] = {"b1": inst[0], "b2": inst[1]}
+        out["b_prior"] = {"b1": b_prior[0], "b2": b_prior[1]}
+    if ccd_range_pix is not None:
+        rm = cres.range_margin_gal(ccd_range_pix)
+        if rm is not None:
+            out["range_margin_gal"] = rm
+            out["ccd_range_pix"] = list(ccd_range_pix)
+    out["diagnostics"] = {
+        "converged": True,
+        "sigma_mgal": cres.sigma_mgal,
+        "notes": list(cres.notes),
+    }
+    return out
+
+
+def write_result(path: str | Path, result: dict) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(_clean(result), indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    return path
+
+
+def read_result(path: str | Path) -> dict:
+    """Read and check a result file: the spec's fixed keys must be present and sane."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FormatError(path, None, "no such result file") from None
+    except json.JSONDecodeError as e:
+        raise FormatError(path, e.lineno, f"not valid JSON: {e.msg}") from None
+    check_result(data, path)
+    return data
+
+
+def check_result(data: Any, path: str | Path = "<result>") -> None:
+    if not isinstance(data, dict):
+        raise FormatError(path, None, "a result must be a JSON object")
+    if data.get("format") != FORMAT:
+        raise FormatError(path, None, f"format must be {FORMAT!r}, not {data.get('format')!r}")
+    missing = [k for k in REQUIRED_KEYS if k not in data]
+    if missing:
+        raise FormatError(path, None, f"missing key(s): {', '.join(missing)}")
+    if data["method"] not in METHODS:
+        raise FormatError(
+            path, None, f"unknown method {data['method']!r}; expected one of {', '.join(METHODS)}"
+        )
+    params = data["parameters"]
+    if not isinstance(params, dict):
+        raise FormatError(path, None, "'parameters' must be an object")
+    for name in ("b1", "b2"):
+        if name not in params:
+            raise FormatError(path, None, f"parameters.{name} is missing")
+    for name, e in params.items():
+        if not isinstance(e, dict) or "mean" not in e:
+            raise FormatError(path, None, f"parameters.{name} has no 'mean'")

@@ -1,0 +1,110 @@
+"""Readable plain-text summary of a ``chekan-result/1`` dict (what ``calibrate`` prints)."""
+
+from __future__ import annotations
+
+import math
+
+ORDER = ("b1", "b2", "a", "b1_0", "b2_0", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin")
+
+
+def _f(x, fmt: str) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "—"
+    return format(x, fmt)
+
+
+def _param_fmt(name: str) -> str:
+    if name == "a":
+        return ".4e"
+    if name.startswith("b"):
+        return ".6f"
+    return ".3f"
+
+
+def format_summary(res: dict) -> str:
+    lines: list[str] = []
+    meta = res.get("metadata", {})
+    inst = meta.get("instrument", "Chekan-AM")
+    lines.append(
+        f"{inst} no. {res['serial']} — method {res['method']} — {res.get('input_kind', 'input')} "
+        f"{res['record']}"
+    )
+    lines.append(f"g_local = {res['g_local_mgal']:.2f} mGal;  interval probability {res['hdi_prob']:g}")
+    if "level_reading_pix" in res:
+        lv = res["level_reading_pix"]
+        lines.append(f"level readings m_h: m1 = {lv['m1']:.3f} pix, m2 = {lv['m2']:.3f} pix")
+    lines.append("")
+    p = res["parameters"]
+    hp = int(round(res["hdi_prob"] * 100))
+    head = f"{'parameter':<15}{'mean':>14}{'sd':>12}{f'{hp}% low':>14}{f'{hp}% high':>14}"
+    has_diag = any("r_hat" in e for e in p.values())
+    if has_diag:
+        head += f"{'R-hat':>8}{'ESS':>8}"
+    lines.append(head + "  unit")
+    names = [n for n in ORDER if n in p] + sorted(n for n in p if n not in ORDER)
+    for n in names:
+        e = p[n]
+        fmt = _param_fmt(n)
+        row = (
+            f"{n:<15}{_f(e.get('mean'), fmt):>14}{_f(e.get('sd'), '.2e'):>12}"
+            f"{_f(e.get('hdi_low'), fmt):>14}{_f(e.get('hdi_high'), fmt):>14}"
+        )
+        if has_diag:
+            row += f"{_f(e.get('r_hat'), '.3f'):>8}{_f(e.get('ess_bulk'), '.0f'):>8}"
+        lines.append(row + f"  {e.get('unit', '')}")
+    for k, v in res.get("fixed", {}).items():
+        lines.append(f"{k:<15}{_f(v, _param_fmt(k)):>14}  (fixed)")
+    rs = res.get("residuals_mgal")
+    if rs and "columns" in rs:
+        cols = rs["columns"]
+        lines.append("")
+        lines.append("increments dg and deviations δg = da_ref − dg, mGal")
+        lines.append(
+            f"{'angle':<9}{'da_ref':>9}"
+            + "".join(f"{'dg ' + c:>12}" for c in cols)
+            + "".join(f"{'δg ' + c:>11}" for c in cols)
+            + f"{'mean δg':>9}"
+        )
+        for i, lab in enumerate(rs["angle_label"]):
+            row = f"{lab:<9}{_f(rs['da_ref_mgal'][i], '.2f'):>9}"
+            row += "".join(f"{_f(rs['dg_mgal'][c][i], '.2f'):>12}" for c in cols)
+            row += "".join(f"{_f(rs['delta_g_mgal'][c][i], '.2f'):>11}" for c in cols)
+            row += f"{_f(rs['mean_delta_g_mgal'][i], '.2f'):>9}"
+            lines.append(row)
+        lines.append(
+            f"{'СКП/RMS':<18}"
+            + " " * (12 * len(cols))
+            + "".join(f"{_f(rs['rms_mgal'][c], '.2f'):>11}" for c in cols)
+        )
+    if res.get("rounds"):
+        lines.append("")
+        for r in res["rounds"]:
+            b1, b2 = r["b1"], r["b2"]
+            lines.append(
+                f"round {r['round']}: b1 = {_f(b1['mean'], '.6f')} ± {_f(b1.get('sd'), '.1e')}, "
+                f"b2 = {_f(b2['mean'], '.6f')} ± {_f(b2.get('sd'), '.1e')} mGal/pix"
+            )
+    lines.append("")
+    if "mean_b_mgal_per_pix" in res:
+        lines.append(f"mean b over systems and rounds («Среднее»): {res['mean_b_mgal_per_pix']:.6f} mGal/pix")
+    if "reduced_error_percent" in res:
+        lines.append(f"reduced error of the characteristic: {res['reduced_error_percent']:.3f} %")
+    if res.get("discrepancy_between_rounds_percent") is not None:
+        lines.append(f"discrepancy between rounds: {res['discrepancy_between_rounds_percent']:.3f} %")
+    for k, v in (res.get("instability_percent") or {}).items():
+        if v is not None:
+            lines.append(f"instability of {k} against the prior: {v:+.3f} %")
+    if "range_margin_gal" in res:
+        rm = res["range_margin_gal"]
+        lines.append(f"range margin: {rm['heavy']:.1f} Gal heavy side, {rm['light']:.1f} Gal light side")
+    d = res.get("diagnostics", {})
+    if d:
+        conv = d.get("converged")
+        lines.append(f"converged: {'yes' if conv else 'NO'}" + "".join(
+            f"; {k} = {v:.4g}" for k, v in d.items() if isinstance(v, int | float) and k != "converged"
+        ))
+        for msg in d.get("problems", []):
+            lines.append(f"WARNING: {msg}")
+        for msg in d.get("notes", []):
+            lines.append(f"note: {msg}")
+    return "\n".join(lines)

@@ -1,0 +1,51 @@
+"""Typed errors of the hardware layer (one class per way a link or a device fails)."""
+
+from __future__ import annotations
+
+from chekan.errors import ChekanError
+
+
+class HwError(ChekanError):
+    """Base class of the hardware layer's errors."""
+
+
+class LinkLost(HwError):
+    """The port failed (unplugged, pty closed, open refused): close it and reopen."""
+
+    def __init__(self, port: str, reason: str):
+        self.port = port
+        self.reason = reason
+        super().__init__(f"{port}: link lost ({reason})")
+
+
+class ReplyTimeout(HwError):
+    """A query got no matching reply in time (the line may have been lost: retry)."""
+
+    def __init__(self, port: str, query: str, timeout_s: float):
+        self.port = port
+        self.query = query
+        self.timeout_s = timeout_s
+        super().__init__(f"{port}: no reply to {query} within {timeout_s:g} s")
+
+
+class DeviceError(HwError):
+    """The device refused a command (e.g. ``$PLA,TILT,ERR,RANGE``) or misbehaved."""
+
+    def __init__(self, port: str, command: str, reason: str):
+        self.port = port
+        self.command = command
+        self.reason = reason
+        super().__init__(f"{port}: {command} refused: {reason}")
+
+
+class GaveUp(HwError):
+    """A link stayed down (or silent) beyond the give-up limit."""
+
+    def __init__(self, port: str, down_s: float, attempts: int, last_error: str = ""):
+        self.port = port
+        self.down_s = down_s
+        self.attempts = attempts
+        extra = f"; last error: {last_error}" if last_error else ""
+        super().__init__(
+            f"{port}: gave up after {down_s:.1f} s without data ({attempts} reopen attempts{extra})"
+        )

@@ -1,0 +1,154 @@
+"""The only module that touches ArviZ (0.23; imported lazily: ~1.6 s and a FutureWarning).
+
+Moving to ArviZ 1.x (InferenceData → xarray DataTree) should touch this file only. NetCDF
+files written here stay readable across that move. ``hdi_prob`` is always passed explicitly
+(the 1.x default changes).
+"""
+
+from __future__ import annotations
+
+from . import _jax  # noqa: F401  (float64 before any array exists)
+
+# isort: split
+
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    import arviz as az
+
+__all__ = [
+    "ess_bulk_array",
+    "ess_tail_array",
+    "hdi_array",
+    "load_netcdf",
+    "mcse_mean_array",
+    "rhat_array",
+    "save_netcdf",
+    "summary",
+    "to_inference_data",
+]
+
+
+def _az():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        import arviz
+
+    return arviz
+
+
+def _as_chain_draw(x: np.ndarray, what: str) -> np.ndarray:
+    x = np.asarray(x, dtype=float)
+    if x.ndim != 2:
+        raise ValueError(f"{what} needs a (chain, draw) array, got shape {x.shape}")
+    return x
+
+
+# --------------------------------------------------------------------------- array statistics
+def rhat_array(x: np.ndarray) -> float:
+    """Rank-normalised split R̂ (Vehtari et al. 2021) of a (chain, draw) array."""
+    return float(_az().rhat(_as_chain_draw(x, "rhat"), method="rank"))
+
+
+def ess_bulk_array(x: np.ndarray) -> float:
+    """Rank-normalised bulk effective sample size of a (chain, draw) array."""
+    return float(_az().ess(_as_chain_draw(x, "ess_bulk"), method="bulk"))
+
+
+def ess_tail_array(x: np.ndarray) -> float:
+    """Tail effective sample size (5 % and 95 % quantiles) of a (chain, draw) array."""
+    return float(_az().ess(_as_chain_draw(x, "ess_tail"), method="tail"))
+
+
+def mcse_mean_array(x: np.ndarray) -> float:
+    """Monte-Carlo standard error of the mean of a (chain, draw) array."""
+    return float(_az().mcse(_as_chain_draw(x, "mcse"), method="mean"))
+
+
+def hdi_array(x: np.ndarray, hdi_prob: float) -> tuple[float, float]:
+    """Highest-density interval of all draws of ``x`` (any shape, pooled)."""
+    lo, hi = _az().hdi(np.asarray(x, dtype=float).reshape(-1), hdi_prob=hdi_prob)
+    return float(lo), float(hi)
+
+
+# --------------------------------------------------------------------------- InferenceData
+def to_inference_data(
+    posterior: Mapping[str, np.ndarray],
+    *,
+    sample_stats: Mapping[str, np.ndarray] | None = None,
+    observed_data: Mapping[str, np.ndarray] | None = None,
+    posterior_predictive: Mapping[str, np.ndarray] | None = None,
+    log_likelihood: Mapping[str, np.ndarray] | None = None,
+    coords: Mapping[str, Sequence[Any]] | None = None,
+    dims: Mapping[str, Sequence[str]] | None = None,
+    attrs: Mapping[str, Any] | None = None,
+) -> az.InferenceData:
+    """InferenceData from (chain, draw, ...) arrays; ``observed_data`` has no chain/draw axes.
+
+    ``attrs`` values must be NetCDF-storable (str, numbers, 1-D arrays of them).
+    """
+    az = _az()
+    for group, d in (
+        ("posterior", posterior),
+        ("sample_stats", sample_stats),
+        ("posterior_predictive", posterior_predictive),
+        ("log_likelihood", log_likelihood),
+    ):
+        for k, v in (d or {}).items():
+            if np.ndim(v) < 2:
+                raise ValueError(
+                    f"{group}[{k!r}] has shape {np.shape(v)}: need (chain, draw, ...) arrays"
+                )
+    return az.from_dict(
+        posterior={k: np.asarray(v) for k, v in posterior.items()},
+        sample_stats=None if sample_stats is None else dict(sample_stats),
+        observed_data=None if observed_data is None else dict(observed_data),
+        posterior_predictive=None if posterior_predictive is None else dict(posterior_predictive),
+        log_likelihood=None if log_likelihood is None else dict(log_likelihood),
+        coords=None if coords is None else dict(coords),
+        dims=None if dims is None else {k: list(v) for k, v in dims.items()},
+        attrs=None if attrs is None else dict(attrs),
+    )
+
+
+def save_netcdf(idata: az.InferenceData, path: str | Path) -> Path:
+    """Write ``idata`` to NetCDF (h5netcdf engine, compressed); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    idata.to_netcdf(str(path), engine="h5netcdf")
+    return path
+
+
+def load_netcdf(path: str | Path) -> az.InferenceData:
+    """Read an InferenceData NetCDF file written by :func:`save_netcdf`."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no InferenceData file at {path}")
+    return _az().from_netcdf(str(path), engine="h5netcdf")
+
+
+def posterior_arrays(
+    idata: az.InferenceData, var_names: Sequence[str] | None = None
+) -> dict[str, np.ndarray]:
+    """The posterior group as (chain, draw, ...) NumPy arrays."""
+    post = idata.posterior
+    names = list(post.data_vars) if var_names is None else list(var_names)
+    missing = [n for n in names if n not in post.data_vars]
+    if missing:
+        raise KeyError(f"posterior has no variable(s) {missing}; has {list(post.data_vars)}")
+    return {n: np.asarray(post[n].transpose("chain", "draw", ...).values) for n in names}
+
+
+def summary(
+    idata: az.InferenceData, var_names: Sequence[str] | None, hdi_prob: float
+) -> dict[str, dict[str, float]]:
+    """Per flat element (``"b[1]"``): mean, sd, hdi_low, hdi_high, r_hat, ess_bulk, ess_tail,
+    mcse_mean (see :func:`inference.diagnostics.summarize_draws`)."""
+    from .diagnostics import summarize_draws
+
+    return summarize_draws(posterior_arrays(idata, var_names), hdi_prob=hdi_prob)

@@ -1,0 +1,435 @@
+r"""Posterior sampling with emcee driven by a jitted, vectorised JAX log-density.
+
+The caller supplies :math:`\log p(z\mid \text{data})` up to a constant (prior + likelihood, in
+the working coordinates :math:`z`). Several *independent* ensembles ("chains") are run side by
+side, so that split-R̂ across chains is meaningful (walkers of one ensemble are not independent).
+
+Stopping rule, checked every ``check_every`` steps with the integrated autocorrelation time
+:math:`\tau_k` of each coordinate (emcee's estimator, averaged over chains):
+
+.. math::  n \ge \text{min\_steps},\quad n \ge \text{tau\_factor}\cdot\tau_\max,\quad
+           \widehat{\text{ESS}} = \frac{C\,W\,(n - \text{burn})}{\tau_\max} \ge \text{target\_ess},
+
+with burn-in :math:`2\tau_\max` and thinning :math:`\max(1, \lfloor\tau_\min/2\rfloor)`.
+
+Retained draws are laid out ``(chain, draw, ndim)`` with ``draw`` running walker-major (each
+walker's thinned trace contiguous), so that autocorrelation-based ESS from ArviZ sees genuine
+time series.
+"""
+
+from __future__ import annotations
+
+from . import _jax  # noqa: F401  (float64 before any array exists)
+
+# isort: split
+
+import math
+import sys
+import time
+import warnings
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any, Literal
+
+import emcee
+import jax
+import jax.numpy as jnp
+import numpy as np
+from emcee.moves.red_blue import RedBlueMove
+from jax import Array
+from numpy.typing import ArrayLike
+
+__all__ = ["SamplerConfig", "SamplingResult", "SnookerMove", "integrated_time", "sample"]
+
+
+@dataclass
+class SamplerConfig:
+    """Settings of :func:`sample`.
+
+    ``n_walkers``: per ensemble (default ``max(2·ndim+2, 16)`` rounded up to even; must be even
+    and ≥ 2·ndim). ``n_chains``: independent ensembles (≥ 2 for R̂; 4 recommended).
+    ``moves``: ``"de"`` (emcee DEMove 0.8 + :class:`SnookerMove` 0.2) or ``"stretch"`` (emcee's
+    default). Measured on a 10-D correlated Gaussian, 32 walkers: τ ≈ 31 steps for ``"de"``
+    against ≈ 108 for ``"stretch"`` (≈ 2× fewer seconds per effective draw despite the slower
+    step).
+    """
+
+    n_walkers: int | None = None
+    n_chains: int = 4
+    max_steps: int = 20000
+    min_steps: int = 500
+    target_ess: float = 1000.0
+    tau_factor: float = 50.0
+    check_every: int = 250
+    moves: Literal["stretch", "de"] = "de"
+    seed: int = 0
+    progress: bool = True
+
+    def walkers(self, ndim: int) -> int:
+        """Number of walkers per ensemble for a ``ndim``-dimensional problem (validated)."""
+        if self.n_walkers is None:
+            nw = max(2 * ndim + 2, 16)
+            return nw + (nw % 2)
+        nw = int(self.n_walkers)
+        if nw % 2 or nw < 2 * ndim:
+            raise ValueError(
+                f"n_walkers={nw} must be even (emcee updates two halves, one compile each) and "
+                f"≥ 2·ndim = {2 * ndim} (fewer walkers cannot span the parameter space)"
+            )
+        return nw
+
+    def validate(self) -> None:
+        if self.n_chains < 1:
+            raise ValueError(f"n_chains must be ≥ 1, got {self.n_chains}")
+        if self.check_every < 1 or self.max_steps < 1 or self.min_steps < 0:
+            raise ValueError("check_every and max_steps must be ≥ 1, min_steps ≥ 0")
+        if self.moves not in ("stretch", "de"):
+            raise ValueError(f"moves must be 'stretch' or 'de', got {self.moves!r}")
+
+
+@dataclass
+class SamplingResult:
+    """Retained posterior draws in z-space and what is needed to judge them.
+
+    ``draws`` (chain, draw, ndim) after burn-in and thinning; ``log_prob`` (chain, draw);
+    ``blobs`` per-draw extras from ``blob_fn`` (chain, draw, ...); ``tau`` (ndim,) integrated
+    autocorrelation times in steps; ``ess`` (ndim,) the emcee-based estimate used for stopping
+    (check with :func:`inference.diagnostics.ess_bulk`); ``acceptance`` (chain,).
+    """
+
+    draws: np.ndarray
+    log_prob: np.ndarray
+    blobs: dict[str, np.ndarray] | None
+    tau: np.ndarray
+    burn: int
+    thin: int
+    n_steps: int
+    acceptance: np.ndarray
+    seconds: float
+    converged: bool = False
+    message: str = ""
+    ess: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    n_walkers: int = 0
+
+    @property
+    def n_chains(self) -> int:
+        return self.draws.shape[0]
+
+    def values(self, space: Any) -> dict[str, np.ndarray]:
+        """Draws mapped to named values with ``space.to_values`` → (chain, draw, *shape)."""
+        return {k: np.asarray(v) for k, v in space.to_values(self.draws).items()}
+
+
+# --------------------------------------------------------------------------- JAX side
+# ``log_density`` is a static argument: hashing by identity (bound methods by (self, func))
+# lets repeated calls of ``sample`` with the same function reuse the compiled code.
+@partial(jax.jit, static_argnums=0)
+def _logp_batch(log_density: Callable, zs: Array, data: Any) -> Array:
+    return jax.vmap(log_density, in_axes=(0, None))(zs, data)
+
+
+@partial(jax.jit, static_argnums=0)
+def _blob_batch(blob_fn: Callable, zs: Array, data: Any) -> Any:
+    return jax.vmap(blob_fn, in_axes=(0, None))(zs, data)
+
+
+def _batched(fn: Callable, cached: Callable) -> Callable:
+    """``cached`` (shared compile cache) when ``fn`` is hashable, else a fresh jit of vmap."""
+    try:
+        hash(fn)
+    except TypeError:  # e.g. an equinox Module holding arrays: compile once for this call
+        return jax.jit(jax.vmap(fn, in_axes=(0, None)))
+    return partial(cached, fn)
+
+
+def _host_logp(log_density: Callable, data: Any) -> Callable[[np.ndarray], np.ndarray]:
+    batched = _batched(log_density, _logp_batch)
+
+    def lnp(zs: np.ndarray) -> np.ndarray:
+        # NumPy in, NumPy out: jnp.asarray on the input alone costs ~4x the call itself.
+        out = np.asarray(batched(zs, data), dtype=float)
+        return np.where(np.isfinite(out), out, -np.inf)
+
+    return lnp
+
+
+# --------------------------------------------------------------------------- initialisation
+def _regularised_cov(init_cov: ArrayLike, ndim: int) -> np.ndarray:
+    """A usable covariance for the initial ball: symmetric, finite, eigenvalues ≥ 1e-8·max."""
+    c = np.array(init_cov, dtype=float)
+    if c.ndim == 0:
+        c = np.eye(ndim) * c
+    elif c.ndim == 1:
+        c = np.diag(c)
+    if c.shape != (ndim, ndim):
+        raise ValueError(f"init_cov has shape {c.shape}, expected ({ndim}, {ndim})")
+    bad = ~np.isfinite(np.diag(c)) | (np.diag(c) <= 0)
+    c[bad, :] = 0.0
+    c[:, bad] = 0.0
+    c[bad, bad] = 1.0  # unidentified / unknown: the O(1) size of a z coordinate
+    c[~np.isfinite(c)] = 0.0
+    c = 0.5 * (c + c.T)
+    w, v = np.linalg.eigh(c)
+    top = max(float(w.max()), 1e-300)
+    w = np.clip(w, 1e-8 * top, None)
+    return (v * w) @ v.T
+
+
+def _initial_walkers(
+    lnp: Callable, z_init: np.ndarray, cov: np.ndarray, n: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` walkers from N(z_init, cov) with finite log density (redrawn, shrinking if needed)."""
+    chol = np.linalg.cholesky(cov)
+    coords = z_init + rng.standard_normal((n, z_init.size)) @ chol.T
+    lp = _eval_halves(lnp, coords)
+    shrink = 1.0
+    for attempt in range(60):
+        bad = ~np.isfinite(lp)
+        if not bad.any():
+            return coords, lp
+        if attempt >= 10:
+            shrink *= 0.7
+        coords[bad] = z_init + shrink * rng.standard_normal((bad.sum(), z_init.size)) @ chol.T
+        lp[bad] = _eval_any(lnp, coords[bad], n // 2)
+    raise RuntimeError(
+        f"could not place {int(bad.sum())} of {n} initial walkers where the log density is "
+        "finite, even in a ball shrunk 60-fold around z_init: check the support of the "
+        "log-density (constraints, NaNs) near z_init"
+    )
+
+
+def _eval_halves(lnp: Callable, coords: np.ndarray) -> np.ndarray:
+    """Evaluate in batches of n/2 so that only emcee's batch size is ever compiled."""
+    h = coords.shape[0] // 2
+    return np.concatenate([lnp(coords[:h]), lnp(coords[h:])])
+
+
+def _eval_any(lnp: Callable, coords: np.ndarray, batch: int) -> np.ndarray:
+    """Evaluate any number of points, padding to ``batch`` (avoids new compiles)."""
+    out = []
+    for i in range(0, coords.shape[0], batch):
+        chunk = coords[i : i + batch]
+        k = chunk.shape[0]
+        pad = np.concatenate([chunk, np.repeat(chunk[-1:], batch - k, axis=0)])
+        out.append(lnp(pad)[:k])
+    return np.concatenate(out)
+
+
+class SnookerMove(RedBlueMove):
+    r"""Differential-evolution snooker update (ter Braak & Vrugt 2008), corrected and vectorised.
+
+    For walker :math:`x` pick :math:`z, z_1, z_2` from the three other quarters of the ensemble,
+    :math:`e = (x - z)/\lVert x - z\rVert`, propose :math:`x' = x + \gamma\, e\, e^\top(z_1 - z_2)`
+    and accept with the extra factor :math:`(\lVert x' - z\rVert/\lVert x - z\rVert)^{d-1}`.
+
+    emcee 3.1.6's ``DESnookerMove`` normalises ``x − z`` by the *square root* of its norm and
+    uses half the exponent: measured on a 3-D standard normal its draws have variance 0.80
+    (this class: 0.99 ± 0.01), so it is not used here.
+    """
+
+    def __init__(self, gammas: float = 1.7):
+        self.gammas = gammas
+        super().__init__(nsplits=4)
+
+    def get_proposal(self, s, c, random):
+        ns, ndim = s.shape
+        picks = np.stack([cj[random.randint(len(cj), size=ns)] for cj in c], axis=1)
+        order = np.argsort(random.rand(ns, len(c)), axis=1)  # random roles for z, z1, z2
+        picks = np.take_along_axis(picks, order[:, :, None], axis=1)
+        z, z1, z2 = picks[:, 0], picks[:, 1], picks[:, 2]
+        delta = s - z
+        norm = np.linalg.norm(delta, axis=1)
+        e = delta / norm[:, None]
+        q = s + self.gammas * e * np.sum(e * (z1 - z2), axis=1, keepdims=True)
+        with np.errstate(divide="ignore"):
+            factor = (ndim - 1.0) * (np.log(np.linalg.norm(q - z, axis=1)) - np.log(norm))
+        return q, factor
+
+
+def _moves(kind: str):
+    if kind == "stretch":
+        return emcee.moves.StretchMove()
+    return [(emcee.moves.DEMove(), 0.8), (SnookerMove(), 0.2)]
+
+
+# --------------------------------------------------------------------------- diagnostics
+def integrated_time(x: np.ndarray, c: float = 5.0) -> np.ndarray:
+    """emcee's integrated autocorrelation time of ``x`` (step, walker, dim), vectorised.
+
+    Same estimator as ``emcee.autocorr.integrated_time(x, c, tol=0)``: the normalised
+    autocorrelation of every walker's series is averaged over walkers,
+    τ(M) = 1 + 2 Σ_{t=1..M} ρ(t), and the window is the smallest M with M ≥ c·τ(M) (Sokal).
+    One FFT over all walkers and dimensions instead of one per series. Walkers that never
+    moved are left out of the average (emcee would return NaN); if none moved, τ = n_steps.
+    """
+    x = np.asarray(x, dtype=float)
+    n_t = x.shape[0]
+    if n_t < 2:
+        return np.full(x.shape[2], np.nan)
+    n = 1 << (n_t - 1).bit_length()
+    xc = x - x.mean(axis=0)
+    f = np.fft.rfft(xc, n=2 * n, axis=0)
+    acf = np.fft.irfft(f * np.conj(f), n=2 * n, axis=0)[:n_t]
+    moving = acf[0] > 0  # a walker that never moved has no autocorrelation to measure
+    with np.errstate(invalid="ignore", divide="ignore"):
+        acf = np.where(moving, acf / np.where(moving, acf[0], 1.0), 0.0)
+    n_moving = moving.sum(axis=0)  # (dim,)
+    rho = acf.sum(axis=1) / np.maximum(n_moving, 1)  # (step, dim)
+    taus = 2.0 * np.cumsum(rho, axis=0) - 1.0
+    below = np.arange(n_t)[:, None] < c * taus
+    window = np.where(below.all(axis=0), n_t - 1, np.argmin(below, axis=0))
+    tau = taus[window, np.arange(taus.shape[1])]
+    return np.where(n_moving > 0, tau, float(n_t))  # nothing moved: as bad as it can be
+
+
+def _tau(chains: list[np.ndarray], discard: int) -> np.ndarray:
+    """Integrated autocorrelation time per coordinate, averaged over chains (steps)."""
+    return np.mean([integrated_time(ch[discard:]) for ch in chains], axis=0)
+
+
+def _burn_thin(tau: np.ndarray, n_steps: int) -> tuple[int, int]:
+    burn = math.ceil(2.0 * float(np.max(tau)))
+    burn = min(burn, n_steps // 2)
+    thin = max(1, int(float(np.min(tau)) // 2))
+    return burn, thin
+
+
+def _flatten_walkers(x: np.ndarray) -> np.ndarray:
+    """(step, walker, ...) → (walker·step, ...), walker-major."""
+    x = np.swapaxes(x, 0, 1)
+    return x.reshape((x.shape[0] * x.shape[1], *x.shape[2:]))
+
+
+# --------------------------------------------------------------------------- public API
+def sample(
+    log_density: Callable[[Array, Any], Array],
+    data: Any,
+    z_init: ArrayLike,
+    init_cov: ArrayLike,
+    config: SamplerConfig | None = None,
+    *,
+    blob_fn: Callable[[Array, Any], Any] | None = None,
+) -> SamplingResult:
+    """Sample ``log_density(z, data) -> scalar`` with ``config.n_chains`` emcee ensembles.
+
+    Walkers start from N(``z_init``, ``init_cov``) (e.g. MAP and Laplace covariance; a
+    degenerate or non-finite ``init_cov`` is regularised; a vector means variances, a scalar
+    an isotropic variance). ``blob_fn(z, data)`` (a pytree of
+    arrays, e.g. a dict) is evaluated on the retained draws only. Never raises for lack of
+    convergence: ``converged``/``message`` say why and a ``RuntimeWarning`` is emitted.
+    """
+    config = SamplerConfig() if config is None else config
+    config.validate()
+    t0 = time.perf_counter()
+    z_init = np.asarray(z_init, dtype=float).reshape(-1)
+    ndim = z_init.size
+    if ndim == 0 or not np.all(np.isfinite(z_init)):
+        raise ValueError(f"z_init must be a non-empty finite vector, got {z_init}")
+    out_shape = jax.eval_shape(log_density, jnp.zeros(ndim), data).shape
+    if out_shape != ():
+        raise ValueError(f"log_density must return a scalar, returned shape {out_shape}")
+    nw = config.walkers(ndim)
+    nc = config.n_chains
+    data = jax.device_put(data)  # once, not on every call
+    lnp = _host_logp(log_density, data)
+    lp0 = _eval_any(lnp, z_init[None, :], nw // 2)[0]
+    if not np.isfinite(lp0):
+        raise ValueError("log_density(z_init) is not finite: start from a point in the support")
+
+    rng = np.random.default_rng(config.seed)
+    cov = _regularised_cov(init_cov, ndim)
+    samplers, states = [], []
+    for _ in range(nc):
+        coords, lp = _initial_walkers(lnp, z_init, cov, nw, rng)
+        rs = np.random.RandomState(rng.integers(2**31 - 1))
+        samplers.append(
+            emcee.EnsembleSampler(nw, ndim, lnp, moves=_moves(config.moves), vectorize=True)
+        )
+        states.append(emcee.State(coords, log_prob=lp, random_state=rs.get_state()))
+
+    from tqdm.auto import tqdm
+
+    show = config.progress and sys.stderr.isatty()
+    bar = tqdm(total=config.max_steps, disable=not show, desc="emcee", unit="step")
+    n_steps = 0
+    tau = np.full(ndim, np.nan)
+    ess = np.zeros(ndim)
+    burn = 0
+    converged = False
+    try:
+        while n_steps < config.max_steps:
+            k = min(config.check_every, config.max_steps - n_steps)
+            for c in range(nc):
+                states[c] = samplers[c].run_mcmc(
+                    states[c], k, progress=False, skip_initial_state_check=n_steps > 0
+                )
+            n_steps += k
+            bar.update(k)
+            chains = [s.get_chain() for s in samplers]
+            tau = _tau(chains, discard=min(burn, n_steps // 2))
+            burn, _ = _burn_thin(tau, n_steps)
+            ess = nc * nw * (n_steps - burn) / tau
+            bar.set_postfix(tau_max=f"{np.max(tau):.0f}", ess=f"{np.min(ess):.0f}")
+            converged = (
+                n_steps >= config.min_steps
+                and n_steps >= config.tau_factor * float(np.max(tau))
+                and float(np.min(ess)) >= config.target_ess
+            )
+            if converged:
+                break
+    finally:
+        bar.close()
+
+    burn, thin = _burn_thin(tau, n_steps)
+    draws = np.stack([_flatten_walkers(s.get_chain()[burn::thin]) for s in samplers])
+    log_prob = np.stack([_flatten_walkers(s.get_log_prob()[burn::thin]) for s in samplers])
+    if converged:
+        message = (
+            f"converged after {n_steps} steps: tau_max={np.max(tau):.1f}, "
+            f"ESS≈{np.min(ess):.0f} ≥ {config.target_ess:g}"
+        )
+    else:
+        message = (
+            f"NOT converged: max_steps={config.max_steps} reached with tau_max={np.max(tau):.1f} "
+            f"(need ≥ {config.tau_factor:g}·tau = {config.tau_factor * np.max(tau):.0f} steps) "
+            f"and ESS≈{np.min(ess):.0f} (target {config.target_ess:g}); the draws are "
+            "unreliable: run longer, reparametrise, or marginalise linear parameters"
+        )
+        warnings.warn(message, RuntimeWarning, stacklevel=2)
+    blobs = None
+    if blob_fn is not None:
+        blobs = _eval_blobs(blob_fn, draws, data, nw // 2)
+    return SamplingResult(
+        draws=draws,
+        log_prob=log_prob,
+        blobs=blobs,
+        tau=tau,
+        burn=burn,
+        thin=thin,
+        n_steps=n_steps,
+        acceptance=np.array([np.mean(s.acceptance_fraction) for s in samplers]),
+        seconds=time.perf_counter() - t0,
+        converged=converged,
+        message=message,
+        ess=ess,
+        n_walkers=nw,
+    )
+
+
+def _eval_blobs(blob_fn: Callable, draws: np.ndarray, data: Any, chunk: int) -> dict:
+    nc, nd, ndim = draws.shape
+    flat = draws.reshape(nc * nd, ndim)
+    chunk = max(chunk, min(4096, flat.shape[0]))
+    batched = _batched(blob_fn, _blob_batch)
+    parts = []
+    for i in range(0, flat.shape[0], chunk):
+        z = flat[i : i + chunk]
+        k = z.shape[0]
+        z = np.concatenate([z, np.repeat(z[-1:], chunk - k, axis=0)])
+        out = batched(z, data)
+        parts.append(jax.tree_util.tree_map(lambda a, k=k: np.asarray(a)[:k], out))
+    joined = jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
+    if not isinstance(joined, Mapping):
+        joined = {"blob": joined}
+    return {k: np.asarray(v).reshape(nc, nd, *np.shape(v)[1:]) for k, v in joined.items()}

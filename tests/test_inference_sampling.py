@@ -1,0 +1,148 @@
+"""emcee sampling against an analytic posterior; diagnostics; ArviZ/NetCDF round trip."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from inference import (
+    LeastSquaresProblem,
+    Param,
+    ParamSpace,
+    SamplerConfig,
+    convergence_report,
+    load_netcdf,
+    sample,
+    save_netcdf,
+    summarize_draws,
+    to_inference_data,
+)
+from inference.arviz_io import summary as idata_summary
+from inference.sampling import integrated_time
+
+SIGMA, PRIOR_SD = 0.5, 2.0
+rng = np.random.default_rng(11)
+X = np.c_[np.ones(30), np.linspace(-1, 1, 30), np.linspace(-1, 1, 30) ** 2]
+Y = X @ np.array([0.3, -1.0, 0.8]) + SIGMA * rng.normal(size=30)
+DATA = {"X": X, "y": Y}
+SPACE = ParamSpace([Param("beta", scale=PRIOR_SD, shape=(3,))])
+PROBLEM = LeastSquaresProblem(SPACE, lambda v, d: (d["y"] - d["X"] @ v["beta"]) / SIGMA)
+COV = np.linalg.inv(X.T @ X / SIGMA**2 + np.eye(3) / PRIOR_SD**2)
+MEAN = COV @ X.T @ Y / SIGMA**2
+
+
+def _blob(z, data):
+    return {"fit": data["X"] @ SPACE.to_values(z)["beta"]}
+
+
+@pytest.fixture(scope="module")
+def run():
+    # start from the analytic posterior in z = beta/PRIOR_SD (what fit_map would return)
+    z0, cov_z = MEAN / PRIOR_SD, COV / PRIOR_SD**2
+    # τ ≈ 10 steps here: 30 τ is plenty for a 3-D Gaussian and keeps the test short
+    cfg = SamplerConfig(
+        n_chains=4, min_steps=200, tau_factor=30, check_every=100, progress=False, seed=1
+    )
+    return sample(PROBLEM.log_density, DATA, z0, cov_z, cfg, blob_fn=_blob)
+
+
+def test_emcee_matches_analytic_posterior(run) -> None:
+    res = run
+    assert res.converged, res.message
+    assert res.draws.shape[0] == 4 and res.draws.shape[2] == 3
+    assert res.n_steps >= 30 * res.tau.max()
+    beta = res.values(SPACE)["beta"]  # (chain, draw, 3)
+    summ = summarize_draws({"beta": beta}, hdi_prob=0.9)
+    sd_true = np.sqrt(np.diag(COV))
+    for i in range(3):
+        s = summ[f"beta[{i}]"]
+        assert s["r_hat"] < 1.01, s
+        assert s["ess_bulk"] >= 400, s
+        mc_err = sd_true[i] / np.sqrt(s["ess_bulk"])
+        assert abs(s["mean"] - MEAN[i]) < 4 * mc_err, (i, s["mean"], MEAN[i], mc_err)
+        # sd of a Gaussian sample: relative MC error ≈ 1/√(2 ESS)
+        assert abs(s["sd"] / sd_true[i] - 1) < 4 / np.sqrt(2 * s["ess_bulk"]), (i, s["sd"])
+        assert s["hdi_low"] < MEAN[i] < s["hdi_high"]
+    ok, problems = convergence_report(summ)
+    assert ok, problems
+    assert 0.1 < res.acceptance.min() < 0.9
+    # blobs: evaluated on the retained draws
+    np.testing.assert_allclose(res.blobs["fit"], beta @ X.T, rtol=1e-12)
+    # log_prob is the log density of the retained draws
+    i = (1, 5)
+    assert res.log_prob[i] == pytest.approx(float(PROBLEM.log_density(res.draws[i], DATA)))
+
+
+def test_arviz_netcdf_round_trip(run, tmp_path) -> None:
+    res = run
+    post = res.values(SPACE)
+    idata = to_inference_data(
+        post,
+        sample_stats={"lp": res.log_prob},
+        observed_data={"y": Y},
+        posterior_predictive={"fit": res.blobs["fit"]},
+        dims={"beta": ["coef"], "fit": ["obs"]},
+        coords={"coef": ["c0", "c1", "c2"]},
+        attrs={"model": "quadratic"},
+    )
+    path = save_netcdf(idata, tmp_path / "sub" / "post.nc")
+    back = load_netcdf(path)
+    np.testing.assert_array_equal(back.posterior["beta"].values, post["beta"])
+    np.testing.assert_array_equal(back.observed_data["y"].values, Y)
+    assert back.attrs["model"] == "quadratic"
+    summ = idata_summary(back, ["beta"], hdi_prob=0.94)
+    assert set(summ) == {"beta[0]", "beta[1]", "beta[2]"}
+    assert set(summ["beta[0]"]) >= {"mean", "sd", "hdi_low", "hdi_high", "r_hat", "ess_bulk"}
+    with pytest.raises(FileNotFoundError):
+        load_netcdf(tmp_path / "missing.nc")
+
+
+def test_short_run_is_flagged() -> None:
+    """A deliberately short run: not converged, warned, and the report says why."""
+    cfg = SamplerConfig(max_steps=30, check_every=15, min_steps=0, progress=False, seed=2)
+    with pytest.warns(RuntimeWarning, match="NOT converged"):
+        res = sample(PROBLEM.log_density, DATA, np.full(3, 3.0), 1e-4, cfg)
+    assert not res.converged
+    ok, problems = convergence_report(summarize_draws({"z": res.draws}, hdi_prob=0.9))
+    assert not ok
+    assert any("R-hat" in p for p in problems) and any("ESS" in p for p in problems)
+
+
+def test_sampler_input_errors() -> None:
+    with pytest.raises(ValueError, match="even"):
+        SamplerConfig(n_walkers=7).walkers(3)
+    with pytest.raises(ValueError, match="2·ndim"):
+        SamplerConfig(n_walkers=4).walkers(3)
+    assert SamplerConfig().walkers(3) == 16 and SamplerConfig().walkers(10) == 22
+    with pytest.raises(ValueError, match="not finite"):
+        sample(lambda z, d: -np.inf * z.sum(), None, np.ones(2), np.eye(2), SamplerConfig())
+
+
+def test_vectorised_tau_equals_emcee() -> None:
+    emcee = pytest.importorskip("emcee")
+    r = np.random.default_rng(0)
+    x = np.cumsum(r.normal(size=(2000, 6, 2)), axis=0) * 0.05 + r.normal(size=(2000, 6, 2))
+    np.testing.assert_allclose(
+        integrated_time(x), emcee.autocorr.integrated_time(x, tol=0), rtol=1e-10
+    )
+
+
+def test_snooker_move_samples_the_target() -> None:
+    """emcee 3.1.6's DESnookerMove gives variance ≈ 0.80 on N(0, I₃); ours must give 1."""
+    import emcee
+
+    from inference.sampling import SnookerMove
+
+    sampler = emcee.EnsembleSampler(
+        16, 3, lambda x: -0.5 * np.sum(x**2, axis=1), moves=SnookerMove(), vectorize=True
+    )
+    state = emcee.State(
+        np.random.default_rng(0).normal(size=(16, 3)),
+        random_state=np.random.RandomState(0).get_state(),
+    )
+    sampler.run_mcmc(state, 1200)
+    chain = sampler.get_chain(discard=100)
+    tau = integrated_time(chain).max()
+    ess = chain.shape[0] * chain.shape[1] / tau
+    var = np.mean(chain**2)  # pooled over the 3 coordinates; MC sd ≈ √(2/(3·ESS))
+    assert abs(var - 1) < 5 * np.sqrt(2 / (3 * ess)), (var, ess)

@@ -1,0 +1,477 @@
+"""The calibration certificate (chekan.report): PDF and HTML, ru and en, against the JSON.
+
+Text is read back from the PDFs with the package's own reader (chekan.report.pdftext),
+so these tests need no poppler; one cross-check with pdftotext runs when it is installed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from chekan.errors import ChekanError, FormatError
+from chekan.report import build_report, render_report, verdict_of
+from chekan.report.cli import add_report_parser
+from chekan.report.pdftext import normalize, read_pdf
+
+REPO = Path(__file__).resolve().parents[1]
+PAPER_CSV = Path(__file__).resolve().parents[2] / "shared" / "reference" / "calibr_46_protocol.csv"
+DATA = Path(__file__).resolve().parent / "data" / "report"
+BAYES_JSON = DATA / "bayes_result.json"
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def f6(x: float) -> str:
+    return f"{x:.6f}"
+
+
+def f2(x: float) -> str:
+    return f"{x:.2f}"
+
+
+# --------------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="module")
+def paper(tmp_path_factory) -> tuple[dict, Path]:
+    """The paper's protocol (Fig. 6), calibrated with the classical method."""
+    if not PAPER_CSV.is_file():
+        pytest.skip(f"reference protocol not found: {PAPER_CSV}")
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.result import write_result
+
+    res = calibrate_file(PAPER_CSV, CalibrationOptions(progress=False))
+    path = write_result(tmp_path_factory.mktemp("paper") / "r46.json", res)
+    return res, path
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory) -> tuple[dict, Path]:
+    """A simulated 9 h session (seed 0), calibrated with the classical method."""
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.program import default_program
+    from chekan.records import write_record
+    from chekan.result import write_result
+    from chekan.simulate import Truth, simulate_session
+
+    d = tmp_path_factory.mktemp("sim")
+    rec, _ = simulate_session(default_program(), Truth(), seed=0)
+    write_record(d / "sim.csv", rec)
+    res = calibrate_file(d / "sim.csv", CalibrationOptions(progress=False))
+    return res, write_result(d / "sim.json", res)
+
+
+@pytest.fixture(scope="module")
+def bayes(tmp_path_factory) -> tuple[dict, Path]:
+    """The hand-made Bayesian result with its posterior NetCDF (made with ArviZ) beside it."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "make_bayes_fixture", DATA / "make_bayes_fixture.py"
+    )
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    d = tmp_path_factory.mktemp("bayes")
+    mod.write_posterior_netcdf(d / "posterior.nc")
+    path = d / "bayes_result.json"
+    shutil.copy(BAYES_JSON, path)
+    return json.loads(path.read_text(encoding="utf-8")), path
+
+
+_PDFS: dict[tuple, tuple[Path, str, int, Path]] = {}
+
+
+def pdf_of(kind: str, lang: str, result_path: Path, tmp_root: Path) -> tuple[Path, str, int, Path]:
+    """Render once per (kind, lang): (pdf, normalized text, images drawn, figure folder)."""
+    key = (kind, lang, str(result_path))
+    if key not in _PDFS:
+        out = tmp_root / f"calibr_{kind}_{lang}.pdf"
+        figs = tmp_root / f"figs_{kind}_{lang}"
+        written = render_report(result_path, out, lang=lang, keep_figures=figs)
+        assert written == out and out.stat().st_size > 10_000
+        info = read_pdf(out)
+        assert info.n_notdef == 0, "glyphs missing from the fonts (tofu)"
+        assert "\ufffd" not in info.text
+        _PDFS[key] = (out, normalize(info.text), info.n_images, figs)
+    return _PDFS[key]
+
+
+@pytest.fixture(scope="module")
+def outdir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("certificates")
+
+
+def assert_in(needle: str, text: str) -> None:
+    assert normalize(needle) in text, f"{needle!r} not in the certificate text"
+
+
+# --------------------------------------------------------------------------- the paper's protocol
+
+
+@pytest.mark.parametrize("lang", ["ru", "en"])
+def test_paper_protocol_certificate(paper, outdir, lang):
+    res, path = paper
+    _pdf, text, n_img, figs = pdf_of("paper", lang, path, outdir)
+    # header: serial, platform serial, SHA-256 of the input, software, method
+    assert_in(str(res["serial"]), text)
+    assert_in("123456", text)
+    assert re.fullmatch(r"[0-9a-f]{64}", res["record_sha256"])
+    assert_in(res["record_sha256"], text)
+    assert_in(f"chekan {res['software']['version']}", text)
+    # а) reference and measured increments; б) deviations and СКП — every value of the JSON
+    rs = res["residuals_mgal"]
+    for i, lab in enumerate(rs["angle_label"]):
+        row = [lab, f2(rs["da_ref_mgal"][i])] + [f2(rs["dg_mgal"][c][i]) for c in rs["columns"]]
+        assert_in(" ".join(row), text)
+        row = [lab] + [f2(rs["delta_g_mgal"][c][i]) for c in rs["columns"]]
+        row.append(f2(rs["mean_delta_g_mgal"][i]))
+        assert_in(" ".join(row), text)
+    rms = " ".join(f2(rs["rms_mgal"][c]) for c in rs["columns"])
+    assert rms == "0.62 0.69 0.54 0.75"  # the paper's СКП
+    assert_in(("СКП " if lang == "ru" else "RMS (СКП) ") + rms, text)
+    # в) reduced error 0.019 %
+    assert f"{res['reduced_error_percent']:.3f}" == "0.019"
+    assert_in("0.019 %", text)
+    # г) b per round and system (6.980339 …) next to the value printed by Calibr.exe
+    r1 = res["rounds"][0]
+    assert f6(r1["b1"]["mean"]) == "6.980339"
+    sys1 = "КС1" if lang == "ru" else "S1"
+    assert_in(f"1 {sys1} 6.980339", text)
+    for r in res["rounds"]:
+        for s in (1, 2):
+            assert_in(f6(r[f"b{s}"]["mean"]), text)
+            assert_in(f6(r["b_printed"][s - 1]), text)
+    for name in ("b1", "b2"):
+        assert_in(f6(res["parameters"][name]["mean"]), text)
+    assert_in(f6(res["mean_b_mgal_per_pix"]), text)
+    assert_in(f"{res['discrepancy_between_rounds_percent']:.3f} %", text)
+    assert_in("7.828·10⁻⁵", text)  # a, fixed by the protocol
+    # labels of the items а)–е)
+    labels = {
+        "ru": [
+            "Свидетельство о калибровке",
+            "а) Заданные и измеренные приращения",
+            "б) Отклонения δg",
+            "в) Приведённая погрешность",
+            "г) Коэффициенты a, b₁, b₂",
+            "д) Отклонения b₁, b₂",
+            "е) Запас по диапазону измерений",
+            "Заводской номер УСГ",
+            "Приём 1",
+            "КС2",
+            "Заключение",
+            "СООТВЕТСТВУЕТ",
+        ],
+        "en": [
+            "Calibration certificate",
+            "a) Reference and measured increments",
+            "b) Deviations δg",
+            "c) Reduced error",
+            "d) Coefficients a, b₁, b₂",
+            "e) Deviations of b₁, b₂",
+            "f) Margin of the measuring range",
+            "Gyro-platform serial no.",
+            "Round 1",
+            "Conclusion",
+            "PASSED",
+        ],
+    }[lang]
+    for lab in labels:
+        assert_in(lab, text)
+    # a protocol has no raw record: the residual figure only, and a note saying so
+    assert n_img == 1
+    assert_in(
+        "таблица протокола без исходных отсчётов"
+        if lang == "ru"
+        else "protocol table without raw readings",
+        text,
+    )
+    pngs = sorted(figs.glob("*.png"))
+    assert [p.name for p in pngs] == ["fig1-residuals.png"]
+    assert pngs[0].read_bytes().startswith(PNG_MAGIC) and pngs[0].stat().st_size > 10_000
+
+
+# --------------------------------------------------------------------------- the simulated session
+
+
+@pytest.mark.parametrize("lang", ["en", "ru"])
+def test_simulated_session_certificate(sim, outdir, lang):
+    res, path = sim
+    _pdf, text, n_img, figs = pdf_of("sim", lang, path, outdir)
+    assert_in(res["serial"], text)
+    assert_in(res["record_sha256"], text)
+    for name in ("b1", "b2", "b1_0", "b2_0"):
+        assert_in(f6(res["parameters"][name]["mean"]), text)
+    for r in res["rounds"]:
+        assert_in(f6(r["b1"]["mean"]), text)
+        assert_in(f6(r["b2"]["mean"]), text)
+    assert_in(f"{res['reduced_error_percent']:.3f} %", text)
+    for s in ("b1", "b2"):
+        assert_in(f"{res['instability_percent'][s]:+.3f} %", text)
+        assert_in(f6(res["b_prior"][s]), text)
+    rm = res["range_margin_gal"]
+    gal = "Гал" if lang == "ru" else "Gal"
+    assert_in(f"{rm['heavy']:.1f} {gal}", text)
+    assert_in(f"{rm['light']:.1f} {gal}", text)
+    # the metrology statement with U = 2·sd (classical: type A only)
+    b1 = res["parameters"]["b1"]
+    u = float(f"{2 * b1['sd']:.1e}")
+    nd = max(0, 1 - int(f"{u:e}".split("e")[1]))
+    unit = "мГал/пикс" if lang == "ru" else "mGal/pix"
+    assert_in(f"b₁ = {b1['mean']:.{nd}f} {unit}, U = {u:.{nd}f} {unit} (k = 2)", text)
+    # the verdict agrees with the JSON and the default tolerance 0.05 %
+    ok = res["reduced_error_percent"] <= 0.05 and all(
+        abs(v) <= 0.05 for v in res["instability_percent"].values()
+    )
+    word = {
+        ("en", True): "PASSED (tolerance 0.05 %)",
+        ("en", False): "NOT PASSED (tolerance 0.05 %)",
+        ("ru", True): "СООТВЕТСТВУЕТ (допуск 0.05 %)",
+        ("ru", False): "НЕ СООТВЕТСТВУЕТ (допуск 0.05 %)",
+    }[lang, ok]
+    assert_in(word, text)
+    # figures: the record, the cosinusoid, the residuals — all drawn, all non-empty PNGs
+    assert n_img == 3
+    names = sorted(p.name for p in figs.glob("*.png"))
+    assert names == ["fig1-record.png", "fig2-cosinusoid.png", "fig3-residuals.png"]
+    for p in figs.glob("*.png"):
+        assert p.read_bytes().startswith(PNG_MAGIC) and p.stat().st_size > 20_000
+
+
+def test_tolerance_changes_the_verdict(sim):
+    res, _ = sim
+    worst = max([res["reduced_error_percent"], *map(abs, res["instability_percent"].values())])
+    ok, line = verdict_of(res, worst * 1.01)
+    assert ok is True and line.startswith("PASSED")
+    ok, line = verdict_of(res, worst * 0.99, lang="ru")
+    assert ok is False and line.startswith("НЕ СООТВЕТСТВУЕТ")
+    assert verdict_of({k: v for k, v in res.items() if k != "reduced_error_percent"})[0] is None
+    rep = build_report(res, tolerance_percent=worst * 0.99, figures=False)
+    assert rep.figures == [] and [b.kind for b in rep.blocks if getattr(b, "kind", "") == "fail"]
+
+
+def test_record_moved_or_changed(sim, tmp_path):
+    res, _ = sim
+    moved = dict(res, record=str(tmp_path / "gone.csv"))
+    rep = build_report(moved)
+    assert [f.name for f in rep.figures] == ["residuals"]
+    assert any("gone.csv is not available" in getattr(b, "text", "") for b in rep.blocks)
+    changed = tmp_path / "changed.csv"
+    changed.write_bytes(Path(res["record"]).read_bytes() + b"\n")
+    rep = build_report(res, record_path=changed)
+    assert [f.name for f in rep.figures] == ["residuals"]
+    assert any("SHA-256 mismatch" in getattr(b, "text", "") for b in rep.blocks)
+
+
+# --------------------------------------------------------------------------- Bayesian result
+
+
+def test_bayes_certificate(bayes, outdir):
+    res, path = bayes
+    _pdf, text, n_img, figs = pdf_of("bayes", "en", path, outdir)
+    # special characters of user text printed literally
+    assert_in('B-7 #1 $x* "q"', text)
+    assert_in('Lab #3 $1_000 *roof* \\ "north"', text)
+    # the budget and the expanded uncertainty, metrology style
+    assert_in("b₁ = 6.98041 mGal/pix, U = 0.00021 mGal/pix (k = 2)", text)
+    assert_in("b₂ = 6.88213 mGal/pix, U = 0.00022 mGal/pix (k = 2)", text)
+    assert_in("Uncertainty budget of b", text)
+    for label in (
+        "angle readout of the platform",
+        "reading noise",
+        "drift",
+        "quadratic coefficient a",
+        "combined standard uncertainty u",
+        "expanded U (k = 2)",
+    ):
+        assert_in(label, text)
+    bud = res["uncertainty_budget"]["b1"]
+    assert_in(f"angle readout of the platform {bud['angle_readout']:.6f}", text)
+    assert_in("expanded U (k = 2) 0.00021 30 0.00022 32", text)  # U and U/b in ppm
+    # posterior summary with HDI, R-hat and ESS for every parameter
+    assert_in("95 % HDI", text)
+    assert_in("R-hat ESS", text)
+    for name, label in (
+        ("dgamma_arcmin", "Δγ"),
+        ("tau_s", "τ (time constant)"),
+        ("drift1_pix_per_h", "drift of system 1"),
+        ("eps1_arcmin", "ε₁"),
+    ):
+        e = res["parameters"][name]
+        assert_in(f"{label} ", text)
+        assert_in(f"{e['r_hat']:.3f} {e['ess_bulk']:.0f}", text)
+    # diagnostics and problems, the verdict
+    d = res["diagnostics"]
+    assert_in(f"Largest R-hat (should be < 1.01) {d['r_hat_max']:.3f}", text)
+    assert_in(f"Smallest bulk ESS (should be ≥ 400) {d['ess_bulk_min']:.0f}", text)
+    assert_in(d["problems"][0], text)
+    assert_in("the sampler converged", text)
+    # an archived result: the record is gone, the posterior is there
+    assert_in("archive/missing_record.csv is not available", text)
+    assert n_img == 3
+    assert sorted(p.name for p in figs.glob("*.png")) == [
+        "fig1-residuals.png",
+        "fig2-pair.png",
+        "fig3-drift.png",
+    ]
+
+
+def test_bayes_html_ru_self_contained(bayes, tmp_path):
+    _, path = bayes
+    out = render_report(path, tmp_path / "c.html", lang="ru")
+    html = out.read_text(encoding="utf-8")
+    assert "Бюджет неопределённости b" in html
+    assert "b₁ = 6.98041 мГал/пикс, U = 0.00021 мГал/пикс (k = 2)" in html
+    assert "B-7 #1 $x* &quot;q&quot;" in html  # escaped, not interpreted
+    srcs = re.findall(r'\bsrc="([^"]*)"', html)
+    assert len(srcs) == 3 and all(s.startswith("data:image/png;base64,") for s in srcs)
+    for s in srcs:
+        assert base64.b64decode(s.split(",", 1)[1]).startswith(PNG_MAGIC)
+    assert "<link" not in html and "<script" not in html and "url(" not in html
+    assert not re.search(r"(href|src)=\"(https?:|//)", html)
+
+
+def test_bayes_without_netcdf_notes_it(bayes, tmp_path):
+    res, _ = bayes
+    rep = build_report(res, source=tmp_path / "elsewhere.json")
+    assert [f.name for f in rep.figures] == ["residuals", "drift"]
+    assert any("posterior.nc is not available" in getattr(b, "text", "") for b in rep.blocks)
+
+
+def test_bayes_not_converged_fails(bayes):
+    res, _ = bayes
+    bad = json.loads(json.dumps(res))
+    bad["diagnostics"]["converged"] = False
+    rep = build_report(bad, tolerance_percent=1.0, source=BAYES_JSON, figures=False)
+    fails = [b.text for b in rep.blocks if getattr(b, "kind", "") == "fail"]
+    assert fails and "did NOT converge" in fails[0]
+
+
+# --------------------------------------------------------------------------- HTML, CLI
+
+
+def test_html_self_contained_sim(sim, tmp_path):
+    res, path = sim
+    out = render_report(res, tmp_path / "calibr.html", source=path)
+    html = out.read_text(encoding="utf-8")
+    assert html.startswith("<!DOCTYPE html>")
+    srcs = re.findall(r'\bsrc="([^"]*)"', html)
+    assert len(srcs) == 3 and all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert "<link" not in html and "url(" not in html
+    assert f6(res["rounds"][0]["b1"]["mean"]) in html
+    assert res["record_sha256"] in html
+
+
+def test_cli_report(paper, tmp_path, capsys):
+    _, path = paper
+    ap = argparse.ArgumentParser(prog="chekan")
+    add_report_parser(ap.add_subparsers(dest="command"))
+    out = tmp_path / "deep" / "c.htm"
+    args = ap.parse_args(
+        ["report", str(path), "--lang", "ru", "--out", str(out), "--tolerance-percent", "0.01"]
+    )
+    assert args.func(args) == 0
+    html = out.read_text(encoding="utf-8")
+    assert "НЕ СООТВЕТСТВУЕТ (допуск 0.01 %)" in html  # 0.019 % > 0.01 %
+    assert f"wrote {out}" in capsys.readouterr().out
+    # default name: calibr_<serial>.<format> beside the result
+    args = ap.parse_args(["report", str(path), "--format", "html"])
+    assert args.func(args) == 0
+    assert (path.parent / "calibr_46.html").is_file()
+    with pytest.raises(SystemExit):
+        ap.parse_args(["report", str(path), "--lang", "de"])
+
+
+def test_calibrate_report_option(tmp_path):
+    """``chekan calibrate … --report`` (wired by the CLI) renders through render_report."""
+    if not PAPER_CSV.is_file():
+        pytest.skip(f"reference protocol not found: {PAPER_CSV}")
+    from chekan.cli import main
+
+    out = tmp_path / "calibr_46.html"
+    assert main(["calibrate", str(PAPER_CSV), "--quiet", "--report", str(out), "--lang", "ru"]) == 0
+    assert "Свидетельство о калибровке" in out.read_text(encoding="utf-8")
+
+
+# --------------------------------------------------------------------------- pdftotext cross-check
+
+
+def test_pdftotext_reads_the_cyrillic(paper, outdir):
+    exe = shutil.which("pdftotext")
+    if exe is None:
+        pytest.skip(
+            "pdftotext (poppler-utils) is not installed; the built-in reader covers the rest"
+        )
+    _, path = paper
+    pdf, own_text, _, _ = pdf_of("paper", "ru", path, outdir)
+    text = normalize(
+        subprocess.run(
+            [exe, "-layout", str(pdf), "-"], capture_output=True, text=True, check=True
+        ).stdout
+    )
+    for s in (
+        "Свидетельство о калибровке",
+        "Заводской номер гравиметра",
+        "СКП",
+        "Приведённая погрешность δg = 0.019 %",
+        "6.980339",
+        "6.980343",
+    ):
+        assert s in text and s in own_text
+
+
+# --------------------------------------------------------------------------- bad inputs
+
+
+def _write(tmp_path: Path, obj) -> Path:
+    p = tmp_path / "r.json"
+    p.write_text(json.dumps(obj), encoding="utf-8")
+    return p
+
+
+def test_bad_inputs(paper, tmp_path):
+    res, _ = paper
+    out = tmp_path / "c.pdf"
+    missing = {k: v for k, v in res.items() if k != "parameters"}
+    with pytest.raises(FormatError, match=r"r\.json: missing key\(s\): parameters"):
+        render_report(_write(tmp_path, missing), out)
+    with pytest.raises(FormatError, match="unknown method 'magic'"):
+        render_report(_write(tmp_path, dict(res, method="magic")), out)
+    with pytest.raises(FormatError, match="not valid JSON"):
+        (tmp_path / "bad.json").write_text("{", encoding="utf-8")
+        render_report(tmp_path / "bad.json", out)
+    with pytest.raises(FormatError, match="no such result file"):
+        render_report(tmp_path / "none.json", out)
+    with pytest.raises(ChekanError, match="unknown language 'de'"):
+        render_report(res, out, lang="de")
+    with pytest.raises(ChekanError, match="cannot tell the report format"):
+        render_report(res, tmp_path / "c.docx")
+    with pytest.raises(ChekanError, match="unknown report format"):
+        render_report(res, out, fmt="docx")
+    with pytest.raises(ChekanError, match="tolerance_percent must be a positive"):
+        render_report(res, out, tolerance_percent=0)
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("x")
+    with pytest.raises(ChekanError, match=r"file\.txt/c\.pdf: cannot write the certificate"):
+        render_report(res, blocker / "c.pdf")
+    with pytest.raises(ChekanError, match="is a folder"):
+        render_report(res, tmp_path)
+    broken = json.loads(json.dumps(res))
+    del broken["residuals_mgal"]["dg_mgal"]["r2_s1"]
+    with pytest.raises(
+        FormatError, match=r"r\.json: residuals_mgal\.dg_mgal has no column 'r2_s1'"
+    ):
+        render_report(_write(tmp_path, broken), out)
+    broken = json.loads(json.dumps(res))
+    broken["rounds"][0]["b1"] = 6.98
+    with pytest.raises(FormatError, match=r"rounds\[0\]\.b1\.mean is missing"):
+        render_report(_write(tmp_path, broken), out)
+    assert not out.exists()
+    assert not list(tmp_path.glob(".c.pdf.*"))  # no temporary left behind
