@@ -16,7 +16,7 @@ $(BIN)/chekan: pyproject.toml
 venv: $(BIN)/chekan
 
 demo: venv
-	$(BIN)/chekan demo --out $(DEMO)
+	$(BIN)/chekan demo --out $(DEMO) --quick
 
 test: venv
 	$(BIN)/ruff check .

@@ -24,19 +24,19 @@ import time
 import warnings
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
-import jax
-import jax.numpy as jnp
 from chekan import calmodel as cm
 from chekan import model as fm
 from chekan.classical import fit_classical, increments_from_holds
 from chekan.errors import ChekanError
 from chekan.holds import segment_record
 from chekan.result import param_entry
-from inference.normal_eq import draw_beta_normal
 from inference.map import fit_map
+from inference.normal_eq import draw_beta_normal
 
 EM_ITERATIONS = 3
 PARAM_UNITS = {
@@ -202,6 +202,20 @@ def _derived_fn(prob: cm.CalibrationProblem):
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
 
 
+def _in_chunks(fn, zs: np.ndarray, keys, data, chunk: int = 128) -> dict:
+    """Apply a vmapped ``fn(z, key, data)`` to many draws in fixed-size chunks (one compile,
+    bounded memory: each draw assembles a p×p normal-equation matrix)."""
+    n = zs.shape[0]
+    pad = (-n) % chunk
+    zp = np.concatenate([zs, np.repeat(zs[-1:], pad, axis=0)])
+    kp = jnp.concatenate([keys, jnp.repeat(keys[-1:], pad, axis=0)])
+    parts = [
+        fn(jnp.asarray(zp[i : i + chunk]), kp[i : i + chunk], data)
+        for i in range(0, n + pad, chunk)
+    ]
+    return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}
+
+
 def _map_derived(prob, res, h, data):
     """Derived quantities at the MAP with delta-method sds.
 
@@ -214,19 +228,40 @@ def _map_derived(prob, res, h, data):
     D = model.drift_degree
     dur_h = (model.t_span_s[1] - model.t_span_s[0]) / 3600.0
     ends = jnp.asarray([1.0 - (-1.0) ** ell for ell in range(1, D + 1)])
-    names = ["b1", "b2", "a", "b1_0", "b2_0", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin",
-             "tau_s", "drift1_pix_per_h", "drift2_pix_per_h"]
+    names = [
+        "b1",
+        "b2",
+        "a",
+        "b1_0",
+        "b2_0",
+        "eps1_arcmin",
+        "eps2_arcmin",
+        "dgamma_arcmin",
+        "tau_s",
+        "drift1_pix_per_h",
+        "drift2_pix_per_h",
+    ]
 
     def g(z, beta):
         v = space.to_values(z)
         sp = cm.sensor_params(v, data, beta[blocks["c"]])
         b0 = fm.scale_factor_at_centre(sp)
         slope = beta[blocks["drift"]].reshape(2, D) @ ends / dur_h
-        return jnp.stack([
-            v["b1"], v["b2"], jnp.mean(fm.quadratic_coefficient(sp, sp.m_level_pix)),
-            b0[0], b0[1], v["eps1_arcmin"], v["eps2_arcmin"], v["dgamma_arcmin"],
-            v["tau_s"], slope[0], slope[1],
-        ])
+        return jnp.stack(
+            [
+                v["b1"],
+                v["b2"],
+                jnp.mean(fm.quadratic_coefficient(sp, sp.m_level_pix)),
+                b0[0],
+                b0[1],
+                v["eps1_arcmin"],
+                v["eps2_arcmin"],
+                v["dgamma_arcmin"],
+                v["tau_s"],
+                slope[0],
+                slope[1],
+            ]
+        )
 
     def beta_hat(z):
         return cm.solve_beta(space.to_values(z), h, model, data)[1]
@@ -236,7 +271,6 @@ def _map_derived(prob, res, h, data):
     val = np.asarray(g(z, beta))
     Jz = np.asarray(jax.jacfwd(lambda zz: g(zz, beta_hat(zz)))(z))
     Jb = np.asarray(jax.jacfwd(lambda bb: g(z, bb))(beta))
-    _, _, var_b = _beta_at(prob, res, h, data)
     L = np.asarray(cm.solve_beta(space.to_values(z), h, model, data)[2])
     Linv = np.linalg.solve(L, np.eye(L.shape[0]))
     Minv = Linv.T @ Linv
@@ -267,8 +301,13 @@ def uncertainty_budget(prob, res, data) -> dict:
     blocks = model.beta_blocks
     groups = {"noise": np.arange(n_data)}
     off = n_data
-    for name, key in (("level offset", "c"), ("drift", "drift"), ("hold offsets", "hold_offset"),
-                      ("angle readout", "angle_error"), ("angle readout", "encoder")):
+    for name, key in (
+        ("level offset", "c"),
+        ("drift", "drift"),
+        ("hold offsets", "hold_offset"),
+        ("angle readout", "angle_error"),
+        ("angle readout", "encoder"),
+    ):
         groups.setdefault(name, np.zeros(0, int))
         groups[name] = np.concatenate([groups[name], off + blocks[key]])
     off += nb
@@ -283,11 +322,13 @@ def uncertainty_budget(prob, res, data) -> dict:
     H = np.linalg.pinv(JtJ) @ J.T  # (nz, rows)
     step = space.step
     out = {}
-    for j, name in enumerate(("b1", "b2")):
+    for name in ("b1", "b2"):
         i = space.flat_indices([name])[0]
         h = H[i] * step[i]
         total = float(np.sum(h**2))
-        out[name] = {g: float(np.sqrt(np.sum(h[rows] ** 2))) for g, rows in groups.items() if rows.size}
+        out[name] = {
+            g: float(np.sqrt(np.sum(h[rows] ** 2))) for g, rows in groups.items() if rows.size
+        }
         out[name]["total_linearised"] = float(np.sqrt(total))
     return out
 
@@ -312,8 +353,10 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     g = float(g_local)
     for i in take:
         sp = fm.make_params(
-            g_mgal=g, K_pix_per_rad=float(np.sqrt(g / 2 / flat["a"][i])) if flat["a"][i] > 0 else cm.K_DESIGN,
-            b_mgal_per_pix=[flat["b1"][i], flat["b2"][i]], m_level_pix=flat["m_level_pix"][i],
+            g_mgal=g,
+            K_pix_per_rad=float(np.sqrt(g / 2 / flat["a"][i])) if flat["a"][i] > 0 else cm.K_DESIGN,
+            b_mgal_per_pix=[flat["b1"][i], flat["b2"][i]],
+            m_level_pix=flat["m_level_pix"][i],
             eps_rad=np.array([flat["eps1_arcmin"][i], flat["eps2_arcmin"][i]]) / 3437.7467707849396,
             gamma_rad=flat["dgamma_arcmin"][i] / 3437.7467707849396,
         )
@@ -346,8 +389,10 @@ def estimate(data, *, kind: str, classical, base: dict, options) -> dict:
     holds, model, prob = _setup(record, classical, options)
     init = _initial_values(classical, record.g_local_mgal)
     if options.progress:
-        print(f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
-              f"{model.n_beta} marginalised linear parameters")
+        print(
+            f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
+            f"{model.n_beta} marginalised linear parameters"
+        )
     res, h, history = fit_map_em(prob, init, progress=options.progress)
     mdata = dict(model.data)
     mdata["hyper"] = h
@@ -377,10 +422,27 @@ def estimate(data, *, kind: str, classical, base: dict, options) -> dict:
         out["parameters"] = params
         out["level_reading_pix"] = {"m1": float(md["_m_level"][0]), "m2": float(md["_m_level"][1])}
         out["uncertainty_budget"] = _budget_entries(budget_raw, params)
+        _flag_prior_dominated(params, diag)
         diag["seconds"] = time.perf_counter() - t_start
         out["diagnostics"] = diag
         return out
     return _sample(prob, model, holds, res, h, out, diag, budget_raw, options, t_start, record)
+
+
+PRIOR_SD = {"eps1_arcmin": 10.0, "eps2_arcmin": 10.0, "dgamma_arcmin": 10.0}
+
+
+def _flag_prior_dominated(params: dict, diag: dict) -> None:
+    """Identifiability: a posterior sd above half the prior sd means the data say little."""
+    dominated = [
+        n for n, psd in PRIOR_SD.items() if n in params and (params[n]["sd"] or 0) > 0.5 * psd
+    ]
+    diag["prior_dominated"] = dominated
+    for n in dominated:
+        diag.setdefault("notes", []).append(
+            f"{n} is prior-dominated (sd {params[n]['sd']:.3g} vs prior sd {PRIOR_SD[n]:g}): "
+            "this program cannot separate it"
+        )
 
 
 def _budget_entries(budget_raw: dict, params: dict) -> dict:
@@ -425,8 +487,8 @@ def _sample(prob, model, holds, res, h, out, diag, budget_raw, options, t_start,
     samp = sample(prob.log_density, data, z0, cov, cfg)
     C, Dn = samp.draws.shape[:2]
     keys = jax.random.split(jax.random.PRNGKey(options.seed), C * Dn)
-    derived = _derived_fn(prob)(jnp.asarray(samp.draws.reshape(C * Dn, -1)), keys, data)
-    draws = {k: np.asarray(v).reshape(C, Dn, *np.asarray(v).shape[1:]) for k, v in derived.items()}
+    derived = _in_chunks(_derived_fn(prob), samp.draws.reshape(C * Dn, -1), keys, data)
+    draws = {k: v.reshape(C, Dn, *v.shape[1:]) for k, v in derived.items()}
     from inference.diagnostics import convergence_report, summarize_draws
 
     scalar = {k: v for k, v in draws.items() if v.ndim == 2}
@@ -436,18 +498,19 @@ def _sample(prob, model, holds, res, h, out, diag, budget_raw, options, t_start,
     for name in PARAM_UNITS:
         s = summ[name]
         params[name] = {
-            "mean": s["mean"], "sd": s["sd"], "hdi_low": s["hdi_low"], "hdi_high": s["hdi_high"],
-            "unit": PARAM_UNITS[name], "r_hat": s["r_hat"], "ess_bulk": s["ess_bulk"],
+            "mean": s["mean"],
+            "sd": s["sd"],
+            "hdi_low": s["hdi_low"],
+            "hdi_high": s["hdi_high"],
+            "unit": PARAM_UNITS[name],
+            "r_hat": s["r_hat"],
+            "ess_bulk": s["ess_bulk"],
         }
     out["parameters"] = params
     mh = draws["m_level_pix"].reshape(-1, 2).mean(axis=0)
     out["level_reading_pix"] = {"m1": float(mh[0]), "m2": float(mh[1])}
     out["uncertainty_budget"] = _budget_entries(budget_raw, params)
-    # identifiability: posterior sd close to the prior sd ⇒ prior-dominated
-    prior_sd = {"eps1_arcmin": 10.0, "eps2_arcmin": 10.0, "dgamma_arcmin": 10.0}
-    dominated = [n for n, psd in prior_sd.items() if params[n]["sd"] > 0.5 * psd]
-    if dominated:
-        diag["prior_dominated"] = dominated
+    _flag_prior_dominated(params, diag)
     diag["problems"] = diag["problems"] + problems
     diag.update(
         converged=bool(ok and res.converged),
@@ -472,15 +535,23 @@ def _sample(prob, model, holds, res, h, out, diag, budget_raw, options, t_start,
     out["diagnostics"] = diag
     # posterior predictive of the paper's residual table
     rng = np.random.default_rng(options.seed)
-    rep = posterior_predictive_delta_g(holds, record.g_local_mgal, draws, model, rng, options.a_fixed)
+    rep = posterior_predictive_delta_g(
+        holds, record.g_local_mgal, draws, model, rng, options.a_fixed
+    )
     rs = out.get("residuals_mgal", {})
     cols = rs.get("columns", [])
     lo, hi = (1 - options.hdi_prob) / 2 * 100, (1 + options.hdi_prob) / 2 * 100
     out["posterior_predictive_mgal"] = {
         "columns": cols,
-        "delta_g_mean": {c: list(np.nanmean(rep[:, i // 2, i % 2], axis=0)) for i, c in enumerate(cols)},
-        "delta_g_low": {c: list(np.nanpercentile(rep[:, i // 2, i % 2], lo, axis=0)) for i, c in enumerate(cols)},
-        "delta_g_high": {c: list(np.nanpercentile(rep[:, i // 2, i % 2], hi, axis=0)) for i, c in enumerate(cols)},
+        "delta_g_mean": {
+            c: list(np.nanmean(rep[:, i // 2, i % 2], axis=0)) for i, c in enumerate(cols)
+        },
+        "delta_g_low": {
+            c: list(np.nanpercentile(rep[:, i // 2, i % 2], lo, axis=0)) for i, c in enumerate(cols)
+        },
+        "delta_g_high": {
+            c: list(np.nanpercentile(rep[:, i // 2, i % 2], hi, axis=0)) for i, c in enumerate(cols)
+        },
         "rms_mgal_mean": float(np.nanmean(np.sqrt(np.nanmean(rep**2, axis=-1)))),
         "n_replicates": int(rep.shape[0]),
     }
@@ -525,9 +596,12 @@ def _write_netcdf(path, draws, samp, model, rep, cols) -> Path:
         post,
         sample_stats={"lp": samp.log_prob},
         observed_data={"bin_mean_pix": np.where(mask, y, np.nan)},
-        posterior_predictive={"delta_g_mgal": np.broadcast_to(
-            rep.reshape(1, nrep, len(cols) // 2, 2, -1).reshape(1, nrep, len(cols), -1),
-            (1, nrep, len(cols), rep.shape[-1]))},
+        posterior_predictive={
+            "delta_g_mgal": np.broadcast_to(
+                rep.reshape(1, nrep, len(cols) // 2, 2, -1).reshape(1, nrep, len(cols), -1),
+                (1, nrep, len(cols), rep.shape[-1]),
+            )
+        },
         coords={"hold": [int(s) for s in model.hold_steps], "system": [1, 2], "column": cols},
         dims={
             "angle_error_arcsec": ["hold"],

@@ -52,14 +52,15 @@ d (pix)                 N(0, 2²) per coefficient           drift over a session
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
-import jax
-import jax.numpy as jnp
 from chekan import model as fm
 from chekan.holds import HoldTable
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
@@ -76,7 +77,9 @@ def nonlinear_params(b_loc=(6.9, 6.9)) -> list[Param]:
     return [
         Param("b1", loc=float(b_loc[0]), scale=0.5, typical=1e-3, unit="mGal/pix"),
         Param("b2", loc=float(b_loc[1]), scale=0.5, typical=1e-3, unit="mGal/pix"),
-        Param("K", loc=math.log(K_DESIGN), scale=0.25, transform="log", typical=0.01, unit="pix/rad"),
+        Param(
+            "K", loc=math.log(K_DESIGN), scale=0.25, transform="log", typical=0.01, unit="pix/rad"
+        ),
         Param("eps1_arcmin", scale=10.0, typical=0.1, unit="arcmin"),
         Param("eps2_arcmin", scale=10.0, typical=0.1, unit="arcmin"),
         Param("dgamma_arcmin", scale=10.0, typical=1.0, unit="arcmin"),
@@ -141,12 +144,16 @@ def _moves(record, holds: HoldTable, dt_s: float):
     tx = np.asarray(record.tilt_x_arcsec, dtype=float) / ARCSEC_PER_RAD
     ty = np.asarray(record.tilt_y_arcsec, dtype=float) / ARCSEC_PER_RAD
     H = holds.n
-    idx = [np.arange(holds.stop[k - 1], holds.start[k]) if k else np.zeros(0, int) for k in range(H)]
+    idx = [
+        np.arange(holds.stop[k - 1], holds.start[k]) if k else np.zeros(0, int) for k in range(H)
+    ]
     idx = [i[np.isfinite(tx[i]) & np.isfinite(ty[i])] for i in idx]
     M = max(1, max(i.size for i in idx))
     mx, my, lag = np.zeros((H, M)), np.zeros((H, M)), np.zeros((H, M))
     mask = np.zeros((H, M), bool)
-    t_last = np.array([t[holds.start[k] - 1] if holds.start[k] > 0 else t[0] - 1e9 for k in range(H)])
+    t_last = np.array(
+        [t[holds.start[k] - 1] if holds.start[k] > 0 else t[0] - 1e9 for k in range(H)]
+    )
     for k, i in enumerate(idx):
         n = i.size
         mx[k, :n], my[k, :n] = tx[i], ty[i]
@@ -177,7 +184,7 @@ def prepare_record(
         rel = tt - tt[0]
         edges = sorted({e for e in bin_edges_s if e < holds.settle_s} | {holds.settle_s})
         edges = [e for e in edges if e <= rel[-1]] + [np.inf]
-        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+        for lo, hi in itertools.pairwise(edges):
             sel = (rel >= lo) & (rel < hi)
             if not sel.any():
                 continue
@@ -299,7 +306,9 @@ def linear_terms(v: dict, data: dict):
     tau = v["tau_s"]
     # lag state at the end of each slew: previous hold's equilibrium + the slew's equilibria
     Em = fm.equilibrium_readings(p, data["mv_tx"], data["mv_ty"])  # (H, M, 2)
-    wm = jnp.where(data["mv_mask"], -jnp.expm1(-data["dt"] / tau) * jnp.exp(-data["mv_lag"] / tau), 0.0)
+    wm = jnp.where(
+        data["mv_mask"], -jnp.expm1(-data["dt"] / tau) * jnp.exp(-data["mv_lag"] / tau), 0.0
+    )
     wprev = 1.0 - wm.sum(axis=1)  # (H,)
     Mv = jnp.einsum("hm,hmj->hj", wm, Em)  # (H, 2)
     w = lag_weights(tau, data)  # (N,) weight of the state at the end of the slew
@@ -308,15 +317,17 @@ def linear_terms(v: dict, data: dict):
     return f, G, -S / ARCSEC_PER_RAD
 
 
-def _beta_index(model: "RecordModel", j: int) -> np.ndarray:
+def _beta_index(model: RecordModel, j: int) -> np.ndarray:
     """Global β indices of system j's local columns [cⱼ, dⱼ, oⱼ, δ, e]."""
     b, D, H = model.beta_blocks, model.drift_degree, model.n_holds
-    return np.concatenate([
-        j * (1 + D) + np.arange(1 + D),
-        b["hold_offset"][j * H : (j + 1) * H],
-        b["angle_error"],
-        b["encoder"],
-    ])
+    return np.concatenate(
+        [
+            j * (1 + D) + np.arange(1 + D),
+            b["hold_offset"][j * H : (j + 1) * H],
+            b["angle_error"],
+            b["encoder"],
+        ]
+    )
 
 
 def _local_columns(G, s_j, Q, enc):
@@ -325,7 +336,7 @@ def _local_columns(G, s_j, Q, enc):
     return jnp.concatenate([Q, G, Gs, Gs @ enc], axis=1)
 
 
-def apply_A(beta, G, s, model: "RecordModel", data: dict):
+def apply_A(beta, G, s, model: RecordModel, data: dict):
     """A·β as (N, 2), without forming A."""
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data["drift_basis"]], axis=1)
     out = []
@@ -335,7 +346,7 @@ def apply_A(beta, G, s, model: "RecordModel", data: dict):
     return jnp.stack(out, axis=1)
 
 
-def normal_equations(v: dict, h: dict, model: "RecordModel", data: dict):
+def normal_equations(v: dict, h: dict, model: RecordModel, data: dict):
     """rᵀWr, AᵀWr, AᵀWA assembled blockwise through G (W = mask/noise variance).
 
     β = (q₁, q₂, o₁, o₂, δ, e) with qⱼ = (cⱼ, dⱼ); with Qⱼ-weighted products
@@ -375,7 +386,9 @@ def normal_equations(v: dict, h: dict, model: "RecordModel", data: dict):
         [QGs[0].T, QGs[1].T, GGs[0].T, GGs[1].T, Sd, Sd @ E],
     ]
     if L:
-        rows.append([(QGs[0] @ E).T, (QGs[1] @ E).T, (GGs[0] @ E).T, (GGs[1] @ E).T, E.T @ Sd, E.T @ Sd @ E])
+        rows.append(
+            [(QGs[0] @ E).T, (QGs[1] @ E).T, (GGs[0] @ E).T, (GGs[1] @ E).T, E.T @ Sd, E.T @ Sd @ E]
+        )
     else:
         rows = [row[:-1] for row in rows]
     Mg = jnp.block(rows)
@@ -386,7 +399,7 @@ def normal_equations(v: dict, h: dict, model: "RecordModel", data: dict):
     return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), (f, G, s, r, W)
 
 
-def predict(v: dict, model: "RecordModel", data: dict):
+def predict(v: dict, model: RecordModel, data: dict):
     """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
     f, G, s = linear_terms(v, data)
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data["drift_basis"]], axis=1)
@@ -446,7 +459,7 @@ def solve_beta(v: dict, h: dict, model: RecordModel, data: dict):
     """
     from inference.normal_eq import posterior_beta_normal
 
-    ne, (f, G, s, r, W) = normal_equations(v, h, model, data)
+    ne, (_, G, s, r, W) = normal_equations(v, h, model, data)
     beta, L = posterior_beta_normal(ne, beta_prior_var(h, model))
     rw = jnp.sqrt(W) * (r - apply_A(beta, G, s, model, data))
     return rw.reshape(-1), beta, L

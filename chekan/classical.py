@@ -135,7 +135,9 @@ def increments_from_protocol(protocol) -> IncrementTable:
     b = np.asarray(protocol.b_mgal_per_pix, dtype=float)  # (R, S)
     dg = np.asarray(protocol.dg_mgal, dtype=float)  # (R, S, n)
     if dg.shape[1] != 2:
-        raise ChekanError(f"{protocol.path}: the protocol must hold both systems (has {dg.shape[1]})")
+        raise ChekanError(
+            f"{protocol.path}: the protocol must hold both systems (has {dg.shape[1]})"
+        )
     bb = b[:, :, None]
     if a_p == 0.0:
         x_p = dg / bb
@@ -149,7 +151,9 @@ def increments_from_protocol(protocol) -> IncrementTable:
         angle_deg=np.asarray(protocol.angle_deg, dtype=float),
         angle_label=[format_dms(a, sign="pm") for a in protocol.angle_deg],
         rounds=tuple(int(r) for r in protocol.rounds),
-        da_ref_mgal=np.broadcast_to(np.asarray(protocol.da_ref_mgal, dtype=float), (R, dg.shape[2])).copy(),
+        da_ref_mgal=np.broadcast_to(
+            np.asarray(protocol.da_ref_mgal, dtype=float), (R, dg.shape[2])
+        ).copy(),
         x_pix=-x_p,
         theta_pair_rad=np.broadcast_to(np.deg2rad(protocol.angle_deg), (R, dg.shape[2])).copy(),
         a_fixed=-a_p,

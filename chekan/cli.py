@@ -1,10 +1,10 @@
 """The ``chekan`` command line. Every subcommand has ``--help``.
 
-    chekan simulate --out rec.csv [--seed N] [--truth truth.json]
-    chekan calibrate REC_OR_PROTOCOL --method classical|map|bayes --json result.json
-    chekan program [FILE]
-    chekan emulate …      chekan acquire …      (hardware layer)
-    chekan demo --out DIR (the main job end to end on the built-in emulator)
+chekan simulate --out rec.csv [--seed N] [--truth truth.json]
+chekan calibrate REC_OR_PROTOCOL --method classical|map|bayes --json result.json
+chekan program [FILE]
+chekan emulate …      chekan acquire …      (hardware layer)
+chekan demo --out DIR (the main job end to end on the built-in emulator)
 """
 
 from __future__ import annotations
@@ -84,7 +84,10 @@ def _cmd_program(args) -> int:
     p = load_program(args.file) if args.file else default_program()
     print(p.describe())
     for s in p.steps:
-        print(f"{s.index:3d}  round {s.round}  {s.label():>9}  dwell {s.dwell_s:g} s (settle {s.settle_s:g} s)")
+        print(
+            f"{s.index:3d}  round {s.round}  {s.label():>9}  "
+            f"dwell {s.dwell_s:g} s (settle {s.settle_s:g} s)"
+        )
     return 0
 
 
@@ -123,8 +126,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hdi-prob", type=float, default=0.95, help="interval probability (0.95)")
     p.add_argument("--settle-s", type=float, help="settling time excluded from dwell means")
     p.add_argument("--a-fixed", type=float, help="fix a (mGal/pix², record convention)")
-    p.add_argument("--encoder-error", action="store_true",
-                   help="bayes/map: also model a smooth systematic angle error of the encoder")
+    p.add_argument(
+        "--encoder-error",
+        action="store_true",
+        help="bayes/map: also model a smooth systematic angle error of the encoder",
+    )
     p.add_argument("--seed", type=int, default=0, help="sampler seed")
     p.add_argument("--quick", action="store_true", help="bayes: smaller ESS target (demos)")
     p.add_argument("--strict", action="store_true", help="exit 3 when the sampler did not converge")
@@ -146,13 +152,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_optional(sub) -> None:
-    """Subcommands of other layers, registered when their modules are present."""
-    try:
-        from hw import cli as hwcli
-    except ImportError:
-        return
+    """Subcommands of the other layers (hardware, certificate, archive)."""
+    from hw import cli as hwcli
+
     hwcli.add_emulate_parser(sub)
     hwcli.add_acquire_parser(sub)
+    from chekan.report import add_report_parser
+
+    add_report_parser(sub)
+    try:
+        from chekan.archive import cli as archive_cli
+    except ImportError:  # the archive package is optional until it lands
+        return
+    for name in ("add_archive_parser", "add_reanalyze_parser", "add_history_parser"):
+        fn = getattr(archive_cli, name, None)
+        if fn is not None:
+            fn(sub)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -74,7 +74,9 @@ def _runs(step: np.ndarray) -> list[tuple[int, int, int]]:
     change = np.flatnonzero(np.diff(step) != 0) + 1
     starts = np.concatenate([[0], change])
     stops = np.concatenate([change, [step.size]])
-    return [(int(step[a]), int(a), int(b)) for a, b in zip(starts, stops, strict=True) if step[a] >= 0]
+    return [
+        (int(step[a]), int(a), int(b)) for a, b in zip(starts, stops, strict=True) if step[a] >= 0
+    ]
 
 
 def segment_record(
@@ -109,7 +111,9 @@ def segment_record(
         tt = t[a:b]
         sel = tt - tt[0] >= settle_s
         if not sel.any():
-            notes.append(f"step {s}: hold of {tt[-1] - tt[0]:.0f} s is shorter than settle_s={settle_s:g}")
+            notes.append(
+                f"step {s}: hold of {tt[-1] - tt[0]:.0f} s is shorter than settle_s={settle_s:g}"
+            )
         out["t0"][i], out["t1"][i] = tt[0], tt[-1]
         out["tm"][i] = tt[sel].mean() if sel.any() else np.nan
         out["nu"][i] = sel.sum()
@@ -148,10 +152,13 @@ def segment_record(
         j = i
         while j < n and not is_level[j]:
             j += 1
-        r = Round(len(rounds) + 1, list(range(i, j)), i - 1 if i > 0 else None, j if j < n else None)
+        r = Round(
+            len(rounds) + 1, list(range(i, j)), i - 1 if i > 0 else None, j if j < n else None
+        )
         if r.level_before is None or r.level_after is None:
             notes.append(
-                f"round {r.number}: no level step {'before' if r.level_before is None else 'after'} it;"
+                f"round {r.number}: no level step "
+                f"{'before' if r.level_before is None else 'after'} it;"
                 " drift between level steps cannot be removed"
             )
         rnd[i:j] = r.number

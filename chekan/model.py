@@ -36,12 +36,14 @@ of the characteristic is G(φ) = λ(Φ + φ)/cos φ (eq. 6). Then
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
-import chekan.jaxconfig  # noqa: F401  (x64 before any array)
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+import chekan.jaxconfig  # noqa: F401  (x64 before any array)
 
 NEWTON_STEPS = 4
 SECONDS_PER_HOUR = 3600.0
@@ -180,6 +182,7 @@ def solve_deflection(du_z, u_y, u_zh, phi_h, lam, g, newton_steps: int = NEWTON_
     return delta - _residual(delta, *args) / _residual_derivative(delta, *args)
 
 
+@jax.jit
 def equilibrium_readings(params: SensorParams, tx_rad, ty_rad):
     """Equilibrium readings (…, 2) of both systems at platform attitude (tx, ty), pixels."""
     phi_h, lam, _ = level_state(params)
@@ -188,6 +191,7 @@ def equilibrium_readings(params: SensorParams, tx_rad, ty_rad):
     return params.m_level_pix + params.K_pix_per_rad * delta
 
 
+@jax.jit
 def reading_sensitivity_to_tilt(params: SensorParams, tx_rad, ty_rad):
     """∂m/∂ty (…, 2) in pixels per radian, by forward-mode autodiff."""
 
@@ -200,6 +204,7 @@ def reading_sensitivity_to_tilt(params: SensorParams, tx_rad, ty_rad):
 # ---------------------------------------------------------------- characteristic G(m)
 
 
+@jax.jit
 def felt_gravity_derivatives(params: SensorParams, m_pix):
     """G(φ) − G_h, G'(φ), G''(φ) of each system at reading(s) m (…, 2), φ = (m − m₀)/K.
 
@@ -219,24 +224,28 @@ def felt_gravity_derivatives(params: SensorParams, m_pix):
     return dG, G1, G2
 
 
+@jax.jit
 def scale_factor(params: SensorParams, m_pix):
     """Local scale factor b(m) = dG/dm = G'(φ)/K of each system, mGal/pix."""
     _, G1, _ = felt_gravity_derivatives(params, m_pix)
     return G1 / params.K_pix_per_rad
 
 
+@jax.jit
 def quadratic_coefficient(params: SensorParams, m_pix):
     """Local quadratic coefficient a(m) = G''(φ)/(2K²) of each system, mGal/pix² (eq. 10)."""
     _, _, G2 = felt_gravity_derivatives(params, m_pix)
     return G2 / (2.0 * params.K_pix_per_rad**2)
 
 
+@jax.jit
 def scale_factor_at_centre(params: SensorParams):
     """b₀ = b + 2a(m₀ − m_h) (eq. 24), with a taken at the level reading."""
     a = quadratic_coefficient(params, params.m_level_pix)
     return params.b_mgal_per_pix + 2.0 * a * (params.m0_pix - params.m_level_pix)
 
 
+@jax.jit
 def characteristic(params: SensorParams, m_pix):
     """Exact gravity change G(m) − G(m_h) that a reading m stands for (…, 2), mGal."""
     dG, _, _ = felt_gravity_derivatives(params, m_pix)
@@ -246,6 +255,7 @@ def characteristic(params: SensorParams, m_pix):
 # ---------------------------------------------------------------- time: drift and damping lag
 
 
+@partial(jax.jit, static_argnames=("t_ref_s",))
 def drift_pix(coeffs_pix, t_s, t_ref_s: float = 0.0):
     """Polynomial drift Σₖ cₖ ((t − t_ref)/3600)^(k+1), k = 0…; coeffs (…, 2, deg), pixels.
 
@@ -257,6 +267,7 @@ def drift_pix(coeffs_pix, t_s, t_ref_s: float = 0.0):
     return jnp.einsum("...k,jk->...j", powers, coeffs_pix)
 
 
+@jax.jit
 def lag_filter(x, dt_s, tau_s, y0=None):
     """First-order damping lag τ ẏ = x − y with x held over each interval (exact ZOH).
 

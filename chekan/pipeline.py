@@ -47,7 +47,7 @@ def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) 
         ccd_range = None
     header = base_result(
         method=opts.method,
-        serial=data.serial if kind == "protocol" else data.serial,
+        serial=data.serial,
         input_path=path,
         input_kind=kind,
         g_local_mgal=g,
@@ -62,7 +62,9 @@ def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) 
     from chekan import classical
 
     if kind == "record":
-        cres, _holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
+        cres, _holds = classical.calibrate_record(
+            data, settle_s=opts.settle_s, a_fixed=opts.a_fixed
+        )
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)

@@ -126,14 +126,17 @@ def build_program(
         raise ProgramError(f"{source}: order must be '+-', '-+' or 'alternate', not {order!r}")
     if sequence not in ("ascending", "descending", "as-given", "zigzag"):
         raise ProgramError(
-            f"{source}: sequence must be ascending, descending, as-given or zigzag, not {sequence!r}"
+            f"{source}: sequence must be ascending, descending, as-given or zigzag, "
+            f"not {sequence!r}"
         )
     if not np.isfinite(dwell_s) or dwell_s <= 0:
         raise ProgramError(f"{source}: dwell_s must be positive, not {dwell_s:g}")
     if not np.isfinite(settle_s) or settle_s < 0:
         raise ProgramError(f"{source}: settle_s must be zero or positive, not {settle_s:g}")
     if settle_s >= dwell_s:
-        raise ProgramError(f"{source}: settle_s ({settle_s:g}) must be shorter than dwell_s ({dwell_s:g})")
+        raise ProgramError(
+            f"{source}: settle_s ({settle_s:g}) must be shorter than dwell_s ({dwell_s:g})"
+        )
     if int(rounds) != rounds or rounds < 1:
         raise ProgramError(f"{source}: rounds must be a positive integer, not {rounds!r}")
 

@@ -149,7 +149,7 @@ def program_timeline(
             seg_ty.append(my)
             seg_rx.append(mx * ARCSEC_PER_RAD)
             seg_ry.append(my * ARCSEC_PER_RAD)
-        n_hold = int(round(s.dwell_s / dt))
+        n_hold = round(s.dwell_s / dt)
         e = err[k] / ARCSEC_PER_RAD  # readout − true, about the program axis
         tx_true, ty_true = (cmd[0], cmd[1] - e) if program.axis == "y" else (cmd[0] - e, cmd[1])
         seg_step.append(np.full(n_hold, k))
@@ -238,7 +238,9 @@ def simulate_session(
 
 def write_truth(path: str | Path, truth: Truth) -> Path:
     path = Path(path)
-    path.write_text(json.dumps(truth.to_json(), indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    path.write_text(
+        json.dumps(truth.to_json(), indent=2, ensure_ascii=False) + "\n", encoding="utf-8"
+    )
     return path
 
 
@@ -274,11 +276,15 @@ class Instrument:
     def equilibrium(self, tx_rad: float, ty_rad: float) -> np.ndarray:
         att = (float(tx_rad), float(ty_rad))
         if att != self._att:
-            self._m_eq = np.asarray(fm.equilibrium_readings(self._params, att[0], att[1]), dtype=float)
+            self._m_eq = np.asarray(
+                fm.equilibrium_readings(self._params, att[0], att[1]), dtype=float
+            )
             self._att = att
         return self._m_eq
 
-    def sample(self, t_s: float, tx_true_rad: float, ty_true_rad: float) -> tuple[float, float, float]:
+    def sample(
+        self, t_s: float, tx_true_rad: float, ty_true_rad: float
+    ) -> tuple[float, float, float]:
         x = self.equilibrium(tx_true_rad, ty_true_rad) + self._offset
         if self._y is None:
             self._y = x.copy()

@@ -29,13 +29,15 @@ def format_summary(res: dict) -> str:
         f"{inst} no. {res['serial']} — method {res['method']} — {res.get('input_kind', 'input')} "
         f"{res['record']}"
     )
-    lines.append(f"g_local = {res['g_local_mgal']:.2f} mGal;  interval probability {res['hdi_prob']:g}")
+    lines.append(
+        f"g_local = {res['g_local_mgal']:.2f} mGal;  interval probability {res['hdi_prob']:g}"
+    )
     if "level_reading_pix" in res:
         lv = res["level_reading_pix"]
         lines.append(f"level readings m_h: m1 = {lv['m1']:.3f} pix, m2 = {lv['m2']:.3f} pix")
     lines.append("")
     p = res["parameters"]
-    hp = int(round(res["hdi_prob"] * 100))
+    hp = round(res["hdi_prob"] * 100)
     head = f"{'parameter':<15}{'mean':>14}{'sd':>12}{f'{hp}% low':>14}{f'{hp}% high':>14}"
     has_diag = any("r_hat" in e for e in p.values())
     if has_diag:
@@ -86,23 +88,34 @@ def format_summary(res: dict) -> str:
             )
     lines.append("")
     if "mean_b_mgal_per_pix" in res:
-        lines.append(f"mean b over systems and rounds («Среднее»): {res['mean_b_mgal_per_pix']:.6f} mGal/pix")
+        lines.append(
+            f"mean b over systems and rounds («Среднее»): {res['mean_b_mgal_per_pix']:.6f} mGal/pix"
+        )
     if "reduced_error_percent" in res:
         lines.append(f"reduced error of the characteristic: {res['reduced_error_percent']:.3f} %")
     if res.get("discrepancy_between_rounds_percent") is not None:
-        lines.append(f"discrepancy between rounds: {res['discrepancy_between_rounds_percent']:.3f} %")
+        lines.append(
+            f"discrepancy between rounds: {res['discrepancy_between_rounds_percent']:.3f} %"
+        )
     for k, v in (res.get("instability_percent") or {}).items():
         if v is not None:
             lines.append(f"instability of {k} against the prior: {v:+.3f} %")
     if "range_margin_gal" in res:
         rm = res["range_margin_gal"]
-        lines.append(f"range margin: {rm['heavy']:.1f} Gal heavy side, {rm['light']:.1f} Gal light side")
+        lines.append(
+            f"range margin: {rm['heavy']:.1f} Gal heavy side, {rm['light']:.1f} Gal light side"
+        )
     d = res.get("diagnostics", {})
     if d:
         conv = d.get("converged")
-        lines.append(f"converged: {'yes' if conv else 'NO'}" + "".join(
-            f"; {k} = {v:.4g}" for k, v in d.items() if isinstance(v, int | float) and k != "converged"
-        ))
+        lines.append(
+            f"converged: {'yes' if conv else 'NO'}"
+            + "".join(
+                f"; {k} = {v:.4g}"
+                for k, v in d.items()
+                if isinstance(v, int | float) and k != "converged"
+            )
+        )
         for msg in d.get("problems", []):
             lines.append(f"WARNING: {msg}")
         for msg in d.get("notes", []):

@@ -27,6 +27,7 @@ __all__ = [
     "hdi_array",
     "load_netcdf",
     "mcse_mean_array",
+    "posterior_arrays",
     "rhat_array",
     "save_netcdf",
     "summary",

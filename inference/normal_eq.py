@@ -15,7 +15,9 @@ Same model as :mod:`inference.linear`, :math:`y = f + A\beta + e`, :math:`e\sim 
 
 from __future__ import annotations
 
-from . import _jax  # noqa: F401
+from . import _jax  # noqa: F401  (float64 before any array exists)
+
+# isort: split
 
 import math
 from typing import NamedTuple

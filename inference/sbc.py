@@ -36,6 +36,7 @@ __all__ = [
     "coverage",
     "coverage_table",
     "format_coverage_table",
+    "gaussian_interval",
     "rank_statistic",
     "rank_uniformity_pvalue",
     "zscores",

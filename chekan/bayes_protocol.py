@@ -1,0 +1,246 @@
+"""MAP and Bayesian re-analysis of a legacy protocol table (``chekan-protocol/1``).
+
+Only the per-angle increments survive, so the model is the characteristic itself
+(eq. 21) in the record's convention, per round r, system j and angle i:
+
+    Δg_ref,ri = b_rj x_rji + a x_rji² − g sin θᵢ · δ_ri + e_rji,
+
+with x = m − m_h recovered from the protocol (:func:`chekan.classical.increments_from_protocol`),
+δ_ri the angle-readout error of the ± pair (shared by both systems; the mean of two holds'
+errors, variance σ_θ²/2) and e the independent error of each system's pair mean
+(variance σ_e²). δ is marginalised: each (r, i) pair of systems is bivariate normal with
+covariance σ_e² I + (g sin θᵢ)² σ_θ²/2 · 11ᵀ.
+
+Priors: b_rj ~ N(6.9, 0.5) (wide); a ~ N(a_protocol, (0.25·|a_protocol|)²) — the protocol
+fixed a, and only the quadratic curvature of eight points informs it; log σ_θ ~ N(log 2″, 0.5)
+(platform readout ≤ 3″); log σ_e ~ N(log 0.3 mGal, 1). ε and Δγ cannot be identified from
+pair means and are not reported.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import chekan.jaxconfig  # noqa: F401
+from chekan.classical import increments_from_protocol
+from chekan.result import param_entry
+from chekan.units import ARCSEC_PER_RAD
+from inference.map import fit_map
+from inference.params import Param, ParamSpace
+from inference.problem import LeastSquaresProblem
+
+
+def _space(R: int, a0: float) -> tuple[ParamSpace, ParamSpace]:
+    bs = [
+        Param(f"b_r{r + 1}_s{j + 1}", loc=6.9, scale=0.5, typical=1e-3, unit="mGal/pix")
+        for r in range(R)
+        for j in range(2)
+    ]
+    a = Param("a", loc=a0, scale=0.25 * abs(a0) if a0 else 1e-4, typical=1e-6, unit="mGal/pix^2")
+    hyp = [
+        Param("sigma_theta_arcsec", loc=math.log(2.0), scale=0.5, transform="log", typical=0.2),
+        Param("sigma_e_mgal", loc=math.log(0.3), scale=1.0, transform="log", typical=0.2),
+    ]
+    return ParamSpace([*bs, a]), ParamSpace([*bs, a, *hyp])
+
+
+def _data(table) -> dict:
+    x = np.nan_to_num(table.x_pix)
+    mask = np.isfinite(table.x_pix)
+    theta = np.deg2rad(table.angle_deg)
+    return {
+        "x": jnp.asarray(x),  # (R, 2, n)
+        "mask": jnp.asarray(mask),
+        "y": jnp.asarray(-np.nan_to_num(table.da_ref_mgal)),  # (R, n) Δg_ref, record convention
+        "gs": jnp.asarray(table.g_local_mgal * np.sin(theta) / ARCSEC_PER_RAD),  # mGal per arcsec
+    }
+
+
+def _bmat(v: dict, R: int) -> jax.Array:
+    return jnp.stack([jnp.stack([v[f"b_r{r + 1}_s{j + 1}"] for j in range(2)]) for r in range(R)])
+
+
+def _resid(v, data):
+    b = _bmat(v, data["x"].shape[0])
+    x = data["x"]
+    pred = b[:, :, None] * x + v["a"] * x**2
+    return jnp.where(data["mask"], data["y"][:, None, :] - pred, 0.0)  # (R, 2, n)
+
+
+def _log_lik(v, data):
+    """Σ over (r, i) of log N(res (2,); 0, σ_e² I + c² 11ᵀ), c = g sin θ σ_θ/√2 (closed form)."""
+    r = _resid(v, data)
+    both = data["mask"].all(axis=1)  # (R, n)
+    c2 = (data["gs"] * v["sigma_theta_arcsec"]) ** 2 / 2.0  # (n,)
+    s2 = v["sigma_e_mgal"] ** 2
+    r1, r2 = r[:, 0, :], r[:, 1, :]
+    det = s2 * (s2 + 2 * c2)
+    quad = ((s2 + c2) * (r1**2 + r2**2) - 2 * c2 * r1 * r2) / det
+    ll2 = -0.5 * (quad + jnp.log(det) + 2 * math.log(2 * math.pi))
+    # rows with one system only: univariate with variance s2 + c2
+    single = data["mask"].any(axis=1) & ~both
+    rs = jnp.where(data["mask"][:, 0, :], r1, r2)
+    ll1 = -0.5 * (rs**2 / (s2 + c2) + jnp.log(2 * math.pi * (s2 + c2)))
+    return jnp.sum(jnp.where(both, ll2, 0.0)) + jnp.sum(jnp.where(single, ll1, 0.0))
+
+
+def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
+    t0 = time.perf_counter()
+    table = increments_from_protocol(protocol)
+    R = len(table.rounds)
+    a0 = float(table.a_fixed)
+    theta_space, full_space = _space(R, a0)
+    data = _data(table)
+    hyp = {"sigma_theta_arcsec": 2.0, "sigma_e_mgal": 0.3}
+
+    def residuals(v, d):
+        """Whitened residuals at fixed hyperparameters: Cholesky of each 2×2 covariance."""
+        vv = {**v, **d["hyp"]}
+        r = _resid(vv, d)
+        c2 = (d["gs"] * vv["sigma_theta_arcsec"]) ** 2 / 2.0
+        s2 = vv["sigma_e_mgal"] ** 2
+        l11 = jnp.sqrt(s2 + c2)
+        l21 = c2 / l11
+        l22 = jnp.sqrt(s2 + c2 - l21**2)
+        w1 = r[:, 0, :] / l11
+        w2 = (r[:, 1, :] - l21 * w1) / l22
+        return jnp.concatenate([w1.reshape(-1), w2.reshape(-1)])
+
+    lsq = LeastSquaresProblem(theta_space, residuals)
+    init = {
+        p.name: float(classical.b[int(p.name[3]) - 1, int(p.name[6]) - 1])
+        for p in theta_space.params
+        if p.name.startswith("b_")
+    }
+    init["a"] = a0
+    mdata = {**data, "hyp": {k: jnp.asarray(v) for k, v in hyp.items()}}
+    res = fit_map(lsq, mdata, init)
+    out = dict(base)
+    out["method"] = options.method
+    out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2")}
+    out.pop("fixed", None)
+    hp = options.hdi_prob
+    diag = {
+        "converged": bool(res.converged),
+        "map_steps": int(res.num_steps),
+        "problems": [],
+        "model": "characteristic per round (eq. 21) with shared angle errors marginalised",
+    }
+    if options.method == "map":
+        sd = res.sd()
+        cov_b = res.cov_values([f"b_r{r + 1}_s{j + 1}" for r in range(R) for j in range(2)])
+        params = _joint_b(res.values, cov_b, R, hp)
+        params["a"] = param_entry(float(res.values["a"]), float(sd["a"]), hp, "mGal/pix^2")
+        rounds = [
+            {
+                f"b{j + 1}": {
+                    "mean": float(res.values[f"b_r{r + 1}_s{j + 1}"]),
+                    "sd": float(sd[f"b_r{r + 1}_s{j + 1}"]),
+                }
+                for j in range(2)
+            }
+            for r in range(R)
+        ]
+        _merge_rounds(out, rounds)
+        out["parameters"] = params
+        diag["seconds"] = time.perf_counter() - t0
+        out["diagnostics"] = diag
+        return out
+
+    from inference.diagnostics import convergence_report, summarize_draws
+    from inference.sampling import SamplerConfig, sample
+
+    def log_density(z, d):
+        v = full_space.to_values(z)
+        lp = full_space.log_prior(z) + _log_lik(v, d)
+        return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
+
+    vals = {**res.values, **hyp}
+    z0 = np.asarray(full_space.to_z(vals))
+    n = theta_space.size
+    cov = np.eye(full_space.size) * 0.25
+    if np.all(np.isfinite(res.cov_z)):
+        cov[:n, :n] = res.cov_z
+    cfg = SamplerConfig(
+        n_chains=4,
+        target_ess=2000.0,
+        min_steps=500,
+        max_steps=20000,
+        seed=options.seed,
+        progress=options.progress,
+    )
+    samp = sample(log_density, data, z0, cov, cfg)
+    draws = {k: np.asarray(v) for k, v in full_space.to_values(samp.draws).items()}
+    for j in range(2):
+        draws[f"b{j + 1}"] = np.mean([draws[f"b_r{r + 1}_s{j + 1}"] for r in range(R)], axis=0)
+    summ = summarize_draws(draws, hdi_prob=hp)
+    ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
+    units = {"a": "mGal/pix^2", "sigma_theta_arcsec": "arcsec", "sigma_e_mgal": "mGal"}
+    params = {}
+    for name in ("b1", "b2", "a", "sigma_theta_arcsec", "sigma_e_mgal"):
+        s = summ[name]
+        params[name] = {
+            "mean": s["mean"],
+            "sd": s["sd"],
+            "hdi_low": s["hdi_low"],
+            "hdi_high": s["hdi_high"],
+            "unit": units.get(name, "mGal/pix"),
+            "r_hat": s["r_hat"],
+            "ess_bulk": s["ess_bulk"],
+        }
+    rounds = [
+        {
+            f"b{j + 1}": {
+                k: summ[f"b_r{r + 1}_s{j + 1}"][k] for k in ("mean", "sd", "hdi_low", "hdi_high")
+            }
+            for j in range(2)
+        }
+        for r in range(R)
+    ]
+    _merge_rounds(out, rounds)
+    out["parameters"] = params
+    diag.update(
+        converged=bool(ok and res.converged),
+        problems=problems,
+        r_hat_max=float(max(s["r_hat"] for s in summ.values())),
+        ess_bulk_min=float(min(s["ess_bulk"] for s in summ.values())),
+        n_draws=int(samp.draws.shape[0] * samp.draws.shape[1]),
+        n_steps=int(samp.n_steps),
+        seconds=time.perf_counter() - t0,
+    )
+    out["diagnostics"] = diag
+    if options.netcdf:
+        from inference.arviz_io import save_netcdf, to_inference_data
+
+        idata = to_inference_data(
+            draws,
+            sample_stats={"lp": samp.log_prob},
+            observed_data={"x_pix": np.asarray(table.x_pix)},
+            attrs={"model": "chekan.bayes_protocol"},
+        )
+        out["posterior_netcdf"] = str(save_netcdf(idata, options.netcdf))
+    return out
+
+
+def _joint_b(values, cov_b, R, hp) -> dict:
+    """b_j = mean over rounds, with the covariance of the per-round estimates."""
+    out = {}
+    for j in range(2):
+        idx = [2 * r + j for r in range(R)]
+        w = np.full(R, 1.0 / R)
+        mean = float(sum(values[f"b_r{r + 1}_s{j + 1}"] for r in range(R)) / R)
+        sd = float(np.sqrt(w @ cov_b[np.ix_(idx, idx)] @ w))
+        out[f"b{j + 1}"] = param_entry(mean, sd, hp, "mGal/pix")
+    return out
+
+
+def _merge_rounds(out: dict, rounds: list[dict]) -> None:
+    """Put the model's per-round b beside the classical ones (``model_b1``, ``model_b2``)."""
+    for r, est in zip(out.get("rounds", []), rounds, strict=False):
+        r["model_b1"] = est["b1"]
+        r["model_b2"] = est["b2"]
