@@ -22,8 +22,9 @@ coefficients on sᵢ = time scaled to [−1, 1] (polynomial, no constant), and
 wᵢ = mean over the bin's samples of exp(−(t − t_last)/τ) the first-order lag weight
 from the state at the end of the slew into the hold. That state is the exact
 discrete lag filter of the equilibrium along the slew's *measured* attitude (a slew
-from +θ to −θ passes through level, so the reading overshoots towards m_h), written
-above as Eₖ₋₁ for brevity.
+from +θ to −θ passes through level, so the reading overshoots towards m_h), started
+from the lagged reading at the end of the previous hold (which need not have settled:
+a scan over holds carries the remainder), written above as Eₖ₋₁ for brevity.
 With ``encoder=True`` the angle error has a smooth systematic part repeated in every
 round, δₖ += Σₗ eₗ Pₗ(θₖ/θ_max) (Legendre, l = 1…3; prior eₗ ~ N(0, 2″)).
 
@@ -177,6 +178,8 @@ def prepare_record(
     H = holds.n
     dt_s = 1.0 / float(record.sample_rate_hz)
     mv_tx, mv_ty, mv_lag, mv_mask, t_last = _moves(record, holds, dt_s)
+    # time from the end of the slew into hold k to the hold's last sample (lag carried on)
+    hold_T = np.array([t[holds.stop[k] - 1] - t_last[k] if k else 0.0 for k in range(H)])
     rows = []  # (hold, mean(2), count(2), d0, dstep, n_t, t_mid)
     for k in range(H):
         a, b = holds.start[k], holds.stop[k]
@@ -236,6 +239,7 @@ def prepare_record(
         "mv_lag": jnp.asarray(mv_lag),
         "mv_mask": jnp.asarray(mv_mask),
         "dt": jnp.asarray(dt_s),
+        "hold_T": jnp.asarray(hold_T),
         "drift_basis": jnp.asarray(P),
         "enc_basis": jnp.asarray(enc),
         "sigma_base": jnp.asarray(_robust_sigma(record, holds)),
@@ -313,8 +317,26 @@ def linear_terms(v: dict, data: dict):
     Mv = jnp.einsum("hm,hmj->hj", wm, Em)  # (H, 2)
     w = lag_weights(tau, data)  # (N,) weight of the state at the end of the slew
     G = (1.0 - w)[:, None] * data["own"] + (w * (data["own"] @ wprev))[:, None] * data["prev"]
-    f = G @ E + w[:, None] * (data["own"] @ Mv)
+    R = _unsettled_carry(E, Mv, wprev, jnp.exp(-data["hold_T"] / tau))
+    f = G @ E + w[:, None] * (data["own"] @ (Mv + R))
     return f, G, -S / ARCSEC_PER_RAD
+
+
+def _unsettled_carry(E, Mv, wprev, rho):
+    """Rₖ: the part of the lag state after slew k left over from holds that had not settled.
+
+    y₀,ₖ = wₚᵣₑᵥ,ₖ yₑₙd,ₖ₋₁ + Mvₖ with yₑₙd,ₖ₋₁ = Eₖ₋₁ + (y₀,ₖ₋₁ − Eₖ₋₁) ρₖ₋₁,
+    ρ = e^{−T/τ} (T: slew end to hold end); Rₖ = y₀,ₖ − wₚᵣₑᵥ,ₖ Eₖ₋₁ − Mvₖ (R₀ = 0, hold 0
+    settled). Deterministic part only: the β terms keep the one-hold carry (the rest is
+    second order, ρ·σ_o).
+    """
+
+    def step(y0_prev, k):
+        y0 = wprev[k] * (E[k - 1] + (y0_prev - E[k - 1]) * rho[k - 1]) + Mv[k]
+        return y0, y0 - wprev[k] * E[k - 1] - Mv[k]
+
+    _, R = jax.lax.scan(step, E[0], jnp.arange(1, E.shape[0]))
+    return jnp.concatenate([jnp.zeros((1, E.shape[1])), R], axis=0)
 
 
 def _beta_index(model: RecordModel, j: int) -> np.ndarray:

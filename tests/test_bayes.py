@@ -116,7 +116,13 @@ def test_posterior_end_to_end(short_session, tmp_path):
     import arviz as az
 
     idata = az.from_netcdf(res["posterior_netcdf"])
-    for group in ("posterior", "sample_stats", "observed_data", "posterior_predictive"):
+    for group in (
+        "posterior",
+        "sample_stats",
+        "observed_data",
+        "posterior_predictive",
+        "log_likelihood",
+    ):
         assert group in idata.groups()
     assert idata.posterior["b1"].shape[0] == 4  # four independent ensembles = chains
     json.dumps(res)  # serialisable as is

@@ -259,6 +259,12 @@ LABELS: dict[str, dict[str, str]] = {
     "src_noise": {"en": "reading noise", "ru": "шум отсчёта"},
     "src_drift": {"en": "drift", "ru": "дрейф"},
     "src_a": {"en": "quadratic coefficient a", "ru": "квадратичный коэффициент a"},
+    "src_hold_offsets": {
+        "en": "per-hold offsets of the quartz systems",
+        "ru": "смещения кварцевых систем на стоянках",
+    },
+    "src_level_offset": {"en": "level reading", "ru": "отсчёт в горизонте"},
+    "src_other_priors": {"en": "other priors (ε, γ, τ, b)", "ru": "прочие априорные (ε, γ, τ, b)"},
     "src_total": {"en": "combined standard uncertainty u", "ru": "суммарная стандартная u"},
     "src_expanded_k2": {"en": "expanded U (k = 2)", "ru": "расширенная U (k = 2)"},
     "sec_diag": {"en": "Convergence diagnostics", "ru": "Диагностика сходимости"},
