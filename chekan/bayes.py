@@ -55,6 +55,7 @@ PARAM_UNITS = {
     "sigma2_pix": "pix",
     "sigma_theta_arcsec": "arcsec",
     "sigma_hold_pix": "pix",
+    "slew_error": "",
 }
 
 
@@ -68,10 +69,28 @@ def _setup(record, classical, options):
     holds = segment_record(record, settle_s=settle)
     m_ref = np.nanmean(holds.m_mean_pix[holds.is_level], axis=0)
     model = cm.prepare_record(record, holds, m_ref, encoder=options.encoder_error)
-    prior = record.b_prior
-    b_loc = tuple(p if p is not None else 6.9 for p in prior)
-    prob = cm.build_problem(model, b_loc=b_loc)
-    return holds, model, prob
+    return holds, model, _problem_for(model)
+
+
+_PROBLEMS: dict = {}
+
+
+def _problem_for(model: cm.RecordModel) -> cm.CalibrationProblem:
+    """One problem object per model structure, so compiled solvers are reused across
+    records of the same shape (batch re-analysis, validation studies)."""
+    key = (
+        model.n_holds,
+        model.n_bins,
+        model.drift_degree,
+        model.encoder_degree,
+        tuple(model.data["mv_tx"].shape),
+    )
+    if key not in _PROBLEMS:
+        _PROBLEMS[key] = cm.build_problem(model)
+    prob = _PROBLEMS[key]
+    return cm.CalibrationProblem(
+        model, prob.theta_space, prob.bayes_space, prob.map_space, prob.lsq
+    )
 
 
 def _initial_values(classical, g: float) -> dict:
@@ -118,15 +137,28 @@ def fit_map_em(prob: cm.CalibrationProblem, init: dict, *, progress: bool = Fals
             )
         if it == EM_ITERATIONS:
             break
-        rw, beta, var = _beta_at(prob, res, h, data)
+        rw, beta, var, base, trans = _beta_at(prob, res, h, data)
         o, vo = beta[blocks["hold_offset"]], var[blocks["hold_offset"]]
         d, vd = beta[blocks["angle_error"]], var[blocks["angle_error"]]
         r = rw.reshape(mask.shape)
-        ms = np.array([np.sum(r[:, j] ** 2) / max(mask[:, j].sum(), 1) for j in range(2)])
+        nv = base + (float(h["slew_error"]) * trans) ** 2
+        raw2 = np.where(mask, r**2 * nv, 0.0)  # squared residuals in pix²
+        settled = mask & (trans < 1e-3)
+        ms = np.array(
+            [
+                np.sum(raw2[settled[:, j], j] / base[settled[:, j], j])
+                / max(settled[:, j].sum(), 1)
+                for j in range(2)
+            ]
+        )
+        t4 = np.sum(np.where(mask, trans**4, 0.0))
+        excess = np.where(mask, raw2 - base * ms[None, :], 0.0)
+        kappa2 = np.sum(excess * trans**2) / t4 if t4 > 0 else 0.0
         h = cm.hyper_dict(
             noise_scale=np.clip(np.asarray(h["noise_scale"]) * np.sqrt(ms), 0.05, 50.0),
             sigma_theta_arcsec=float(np.clip(np.sqrt(np.mean(d**2 + vd)), 0.05, 30.0)),
             sigma_hold_pix=float(np.clip(np.sqrt(np.mean(o**2 + vo)), 1e-3, 5.0)),
+            slew_error=float(np.clip(np.sqrt(max(kappa2, 0.0)), 1e-4, 0.5)),
         )
         z0 = res.z
     return res, h, history
@@ -137,18 +169,19 @@ _BETA_FNS: dict = {}
 
 def _beta_at(prob, res, h, data):
     """β̂, its conditional variances diag(M⁻¹) and the whitened residuals at the MAP."""
-    key = id(prob)
+    key = id(prob.lsq)
     if key not in _BETA_FNS:
 
         def fn(z, h, data):
             v = prob.map_space.to_values(z)
             rw, beta, L = cm.solve_beta(v, h, prob.model, data)
             Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
-            return rw, beta, jnp.sum(Linv**2, axis=0)
+            _, _, _, trans = cm.linear_terms(v, data)
+            return rw, beta, jnp.sum(Linv**2, axis=0), cm.noise_var(h, data), trans
 
         _BETA_FNS[key] = (prob, jax.jit(fn))
-    rw, beta, var = _BETA_FNS[key][1](jnp.asarray(res.z), h, data)
-    return np.asarray(rw), np.asarray(beta), np.asarray(var)
+    rw, beta, var, base, trans = _BETA_FNS[key][1](jnp.asarray(res.z), h, data)
+    return np.asarray(rw), np.asarray(beta), np.asarray(var), np.asarray(base), np.asarray(trans)
 
 
 # ----------------------------------------------------------------------------- derived
@@ -165,11 +198,10 @@ def _derived_fn(prob: cm.CalibrationProblem):
 
     def one(z, key, data):
         v = space.to_values(z)
-        ne, (_, G, s_ang, r, _) = cm.normal_equations(v, v, model, data)
+        ne, (_, G, s_ang, r, _, nv, _) = cm.normal_equations(v, v, model, data)
         beta = draw_beta_normal(key, ne, cm.beta_prior_var(v, model))
         # pointwise log-likelihood of each bin mean given this draw's (θ, β): conditional,
         # because the marginal over β does not factorise over bins
-        nv = cm.noise_var(v, data)
         res_b = r - cm.apply_A(beta, G, s_ang, model, data)
         loglik = jnp.where(data["mask"], -0.5 * (res_b**2 / nv + jnp.log(2 * jnp.pi * nv)), 0.0)
         c = beta[blocks["c"]]
@@ -198,6 +230,7 @@ def _derived_fn(prob: cm.CalibrationProblem):
             "sigma2_pix": sig[1],
             "sigma_theta_arcsec": v["sigma_theta_arcsec"],
             "sigma_hold_pix": v["sigma_hold_pix"],
+            "slew_error": v["slew_error"],
             "m_level_pix": sp.m_level_pix,
             "drift_coeffs": dr,
             "angle_error_arcsec": delta,
@@ -298,6 +331,7 @@ def _map_derived(prob, res, h, data):
     out["sigma2_pix"] = (float(s[1]), None)
     out["sigma_theta_arcsec"] = (float(h["sigma_theta_arcsec"]), None)
     out["sigma_hold_pix"] = (float(h["sigma_hold_pix"]), None)
+    out["slew_error"] = (float(h["slew_error"]), None)
     out["_m_level"] = np.asarray(data["m_ref"]) + np.asarray(beta)[blocks["c"]]
     return out
 
@@ -484,11 +518,11 @@ def _sample(prob, model, holds, res, h, out, diag, budget_raw, options, t_start,
         cov[:ntheta, :ntheta] = ct
     cfg = SamplerConfig(
         n_chains=4,
-        target_ess=800.0 if options.quick else 2000.0,
-        min_steps=300 if options.quick else 500,
-        max_steps=4000 if options.quick else 20000,
+        target_ess=1000.0 if options.quick else 2000.0,
+        min_steps=600 if options.quick else 1000,
+        max_steps=6000 if options.quick else 20000,
         check_every=100 if options.quick else 250,
-        tau_factor=20.0 if options.quick else 50.0,
+        tau_factor=25.0 if options.quick else 50.0,
         seed=options.seed,
         progress=options.progress,
     )

@@ -37,7 +37,8 @@ and the hyperparameters (log s₁, log s₂, log σ_θ, log σ_o), 11 dimensions
 ======================  =================================  ===================================
 parameter               prior                              source
 ======================  =================================  ===================================
-b₁, b₂ (mGal/pix)       N(b_prior or 6.9, 0.5)             previous calibration / design, wide
+b₁, b₂ (mGal/pix)       N(6.9, 0.5)                        paper's range of b, wide (fixed, so
+                                                           the problem is shared by records)
 K (pix/rad)             log K ~ N(log 60428, 0.25)         optics F = 150 mm, δ = 7 µm, n = 1.4
                                                            (eq. 4); a = g/2K² (eq. 10) ± 50 %
 ε₁, ε₂ (arcmin)         N(0, 10)                           "ε … can reach 10′"
@@ -70,7 +71,7 @@ from inference.problem import LeastSquaresProblem
 
 K_DESIGN = 60428.0
 BIN_EDGES_S = (0.0, 15.0, 40.0, 90.0, 180.0)
-HYPER_NAMES = ("noise_scale", "sigma_theta_arcsec", "sigma_hold_pix")
+HYPER_NAMES = ("noise_scale", "sigma_theta_arcsec", "sigma_hold_pix", "slew_error")
 
 
 def nonlinear_params(b_loc=(6.9, 6.9)) -> list[Param]:
@@ -93,6 +94,7 @@ def hyper_params() -> list[Param]:
         Param("noise_scale", scale=0.5, transform="log", shape=(2,), typical=0.05),
         Param("sigma_theta_arcsec", loc=math.log(2.0), scale=0.5, transform="log", typical=0.2),
         Param("sigma_hold_pix", loc=math.log(0.05), scale=1.0, transform="log", typical=0.2),
+        Param("slew_error", loc=math.log(0.003), scale=1.5, transform="log", typical=0.3),
     ]
 
 
@@ -319,7 +321,10 @@ def linear_terms(v: dict, data: dict):
     G = (1.0 - w)[:, None] * data["own"] + (w * (data["own"] @ wprev))[:, None] * data["prev"]
     R = _unsettled_carry(E, Mv, wprev, jnp.exp(-data["hold_T"] / tau))
     f = G @ E + w[:, None] * (data["own"] @ (Mv + R))
-    return f, G, -S / ARCSEC_PER_RAD
+    E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
+    jump = jnp.abs(wprev[:, None] * E_prev + Mv + R - E)  # (H, 2) transient amplitude
+    trans = w[:, None] * (data["own"] @ jump)  # (N, 2) transient left in each bin
+    return f, G, -S / ARCSEC_PER_RAD, trans
 
 
 def _unsettled_carry(E, Mv, wprev, rho):
@@ -377,9 +382,9 @@ def normal_equations(v: dict, h: dict, model: RecordModel, data: dict):
     """
     from inference.normal_eq import NormalEquations
 
-    f, G, s = linear_terms(v, data)
+    f, G, s, trans = linear_terms(v, data)
     mask = data["mask"]
-    nv = noise_var(h, data)
+    nv = noise_var(h, data, trans)
     W = jnp.where(mask, 1.0 / nv, 0.0)
     r = jnp.where(mask, data["y"] - f, 0.0)
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data["drift_basis"]], axis=1)
@@ -418,12 +423,12 @@ def normal_equations(v: dict, h: dict, model: RecordModel, data: dict):
     g = jnp.concatenate([bq[0], bq[1], bo[0], bo[1], bdt] + ([E.T @ bdt] if L else []))
     rWr = jnp.sum(W * r * r)
     logdet_n = jnp.sum(jnp.where(mask, jnp.log(nv), 0.0))
-    return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), (f, G, s, r, W)
+    return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), (f, G, s, r, W, nv, trans)
 
 
 def predict(v: dict, model: RecordModel, data: dict):
     """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
-    f, G, s = linear_terms(v, data)
+    f, G, s, _ = linear_terms(v, data)
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data["drift_basis"]], axis=1)
     N = G.shape[0]
     cols = []
@@ -444,10 +449,19 @@ def beta_prior_var(h: dict, model: RecordModel) -> jax.Array:
     return pv.at[b["angle_error"]].set(h["sigma_theta_arcsec"] ** 2)
 
 
-def noise_var(h: dict, data: dict) -> jax.Array:
-    """(N, 2) variance of each bin mean: (sⱼσⱼ)²/n."""
+def noise_var(h: dict, data: dict, trans=None) -> jax.Array:
+    """(N, 2) variance of each bin mean: (sⱼσⱼ)²/n + (κ·transient)².
+
+    The second term is the slew error: a row carries the *latest* platform angles, so
+    during a slew the recorded attitude may lag the true one by up to a sample; the lag
+    state after the slew is then uncertain in proportion to the transient still present
+    in the bin (κ = ``slew_error``, a hyperparameter; zero once the hold has settled).
+    """
     s = h["noise_scale"] * data["sigma_base"]
-    return s[None, :] ** 2 / jnp.maximum(data["cnt"], 1.0)
+    base = s[None, :] ** 2 / jnp.maximum(data["cnt"], 1.0)
+    if trans is None:
+        return base
+    return base + (h["slew_error"] * trans) ** 2
 
 
 # ----------------------------------------------------------------------------- problems
@@ -481,7 +495,7 @@ def solve_beta(v: dict, h: dict, model: RecordModel, data: dict):
     """
     from inference.normal_eq import posterior_beta_normal
 
-    ne, (_, G, s, r, W) = normal_equations(v, h, model, data)
+    ne, (_, G, s, r, W, _, _) = normal_equations(v, h, model, data)
     beta, L = posterior_beta_normal(ne, beta_prior_var(h, model))
     rw = jnp.sqrt(W) * (r - apply_A(beta, G, s, model, data))
     return rw.reshape(-1), beta, L
@@ -509,9 +523,12 @@ def build_problem(model: RecordModel, b_loc=(6.9, 6.9)) -> CalibrationProblem:
     )
 
 
-def hyper_dict(noise_scale=(1.0, 1.0), sigma_theta_arcsec=2.0, sigma_hold_pix=0.05) -> dict:
+def hyper_dict(
+    noise_scale=(1.0, 1.0), sigma_theta_arcsec=2.0, sigma_hold_pix=0.05, slew_error=0.003
+) -> dict:
     return {
         "noise_scale": jnp.asarray(noise_scale, dtype=jnp.float64),
         "sigma_theta_arcsec": jnp.asarray(sigma_theta_arcsec, dtype=jnp.float64),
         "sigma_hold_pix": jnp.asarray(sigma_hold_pix, dtype=jnp.float64),
+        "slew_error": jnp.asarray(slew_error, dtype=jnp.float64),
     }

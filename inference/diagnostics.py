@@ -83,7 +83,7 @@ def convergence_report(
         et = s.get("ess_tail", np.inf)
         if not np.isfinite(r) or r > rhat_max:
             problems.append(
-                f"{name}: R-hat = {r:.4g} > {rhat_max:g}: the independent chains disagree "
+                f"{name}: R-hat = {r:.4f} > {rhat_max:g}: the independent chains disagree "
                 "(not converged or multimodal) — run longer or check identifiability"
             )
         if not np.isfinite(eb) or eb < ess_min:

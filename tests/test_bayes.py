@@ -46,7 +46,7 @@ def test_normal_equations_equal_dense_marginal(short_session, encoder):
     dense = marginal_loglik(
         (data["y"] - f).reshape(-1),
         A.reshape(-1, A.shape[-1]),
-        cm.noise_var(v, data).reshape(-1),
+        cm.noise_var(v, data, cm.linear_terms(v, data)[3]).reshape(-1),
         0.0,
         cm.beta_prior_var(v, model),
         mask=data["mask"].reshape(-1),
@@ -56,7 +56,11 @@ def test_normal_equations_equal_dense_marginal(short_session, encoder):
     assert float(fast) == pytest.approx(float(dense), rel=1e-10)
     # β̂ from the normal equations solves the dense regularised least squares
     _, beta, _ = cm.solve_beta(v, v, model, data)
-    W = np.where(np.asarray(data["mask"]), 1 / np.asarray(cm.noise_var(v, data)), 0).reshape(-1)
+    W = np.where(
+        np.asarray(data["mask"]),
+        1 / np.asarray(cm.noise_var(v, data, cm.linear_terms(v, data)[3])),
+        0,
+    ).reshape(-1)
     A2 = np.asarray(A).reshape(-1, A.shape[-1])
     r = np.where(np.asarray(data["mask"]), np.asarray(data["y"] - f), 0).reshape(-1)
     lhs = A2.T @ (W[:, None] * A2) + np.diag(1 / np.asarray(cm.beta_prior_var(v, model)))
