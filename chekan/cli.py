@@ -132,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="bayes/map: also model a smooth systematic angle error of the encoder",
     )
     p.add_argument("--seed", type=int, default=0, help="sampler seed")
-    p.add_argument("--quick", action="store_true", help="bayes: smaller ESS target (demos)")
+    p.add_argument("--quick", action="store_true", help="bayes: cap the sampler at 6000 steps")
     p.add_argument("--strict", action="store_true", help="exit 3 when the sampler did not converge")
     p.add_argument("--quiet", action="store_true", help="print only what was written")
     p.set_defaults(func=_cmd_calibrate)

@@ -25,7 +25,7 @@ class CalibrationOptions:
     seed: int = 0
     progress: bool = True
     encoder_error: bool = False  # bayes/map: smooth systematic angle error per commanded angle
-    quick: bool = False  # bayes: smaller ESS target (tests, demos)
+    quick: bool = False  # bayes: cap the sampler at 6000 steps (tests, demos)
 
 
 def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) -> dict:

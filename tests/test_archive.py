@@ -220,10 +220,7 @@ def test_dask_executor(tree, run1, tmp_path):
             assert mine["b1"]["mean"] == pytest.approx(ref["b1"]["mean"], rel=1e-12)
 
 
-@pytest.mark.skipif(
-    os.environ.get("CHEKAN_TEST_MAP") != "1",
-    reason="MAP re-analysis takes minutes per record on 2 cores; set CHEKAN_TEST_MAP=1",
-)
+@pytest.mark.slow
 def test_map_reanalysis(tree, run1, tmp_path):
     pytest.importorskip("chekan.bayes", reason="chekan.bayes (map/bayes methods) not available")
     sub = tmp_path / "one"
