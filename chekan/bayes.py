@@ -34,7 +34,7 @@ from chekan import model as fm
 from chekan.classical import fit_classical, increments_from_holds
 from chekan.errors import ChekanError
 from chekan.holds import segment_record
-from chekan.result import param_entry
+from chekan.result import param_entry, posterior_entry
 from inference.map import fit_map
 from inference.normal_eq import draw_beta_normal
 
@@ -272,19 +272,7 @@ def _map_derived(prob, res, h, data):
     D = model.drift_degree
     dur_h = (model.t_span_s[1] - model.t_span_s[0]) / 3600.0
     ends = jnp.asarray([1.0 - (-1.0) ** ell for ell in range(1, D + 1)])
-    names = [
-        "b1",
-        "b2",
-        "a",
-        "b1_0",
-        "b2_0",
-        "eps1_arcmin",
-        "eps2_arcmin",
-        "dgamma_arcmin",
-        "tau_s",
-        "drift1_pix_per_h",
-        "drift2_pix_per_h",
-    ]
+    names = list(PARAM_UNITS)[:11]  # b1 … drift2_pix_per_h, in the order g() stacks them
 
     def g(z, beta):
         v = space.to_values(z)
@@ -539,18 +527,7 @@ def _sample(prob, model, holds, res, h, out, diag, budget_raw, options, t_start,
     scalar = {k: v for k, v in draws.items() if v.ndim == 2}
     summ = summarize_draws(scalar, hdi_prob=options.hdi_prob)
     ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
-    params = {}
-    for name in PARAM_UNITS:
-        s = summ[name]
-        params[name] = {
-            "mean": s["mean"],
-            "sd": s["sd"],
-            "hdi_low": s["hdi_low"],
-            "hdi_high": s["hdi_high"],
-            "unit": PARAM_UNITS[name],
-            "r_hat": s["r_hat"],
-            "ess_bulk": s["ess_bulk"],
-        }
+    params = {name: posterior_entry(summ[name], unit) for name, unit in PARAM_UNITS.items()}
     out["parameters"] = params
     mh = draws["m_level_pix"].reshape(-1, 2).mean(axis=0)
     out["level_reading_pix"] = {"m1": float(mh[0]), "m2": float(mh[1])}

@@ -28,7 +28,7 @@ import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
 from chekan.classical import increments_from_protocol
-from chekan.result import param_entry
+from chekan.result import param_entry, posterior_entry
 from chekan.units import ARCSEC_PER_RAD
 from inference.map import fit_map
 from inference.params import Param, ParamSpace
@@ -181,18 +181,10 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     summ = summarize_draws(draws, hdi_prob=hp)
     ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
     units = {"a": "mGal/pix^2", "sigma_theta_arcsec": "arcsec", "sigma_e_mgal": "mGal"}
-    params = {}
-    for name in ("b1", "b2", "a", "sigma_theta_arcsec", "sigma_e_mgal"):
-        s = summ[name]
-        params[name] = {
-            "mean": s["mean"],
-            "sd": s["sd"],
-            "hdi_low": s["hdi_low"],
-            "hdi_high": s["hdi_high"],
-            "unit": units.get(name, "mGal/pix"),
-            "r_hat": s["r_hat"],
-            "ess_bulk": s["ess_bulk"],
-        }
+    params = {
+        name: posterior_entry(summ[name], units.get(name, "mGal/pix"))
+        for name in ("b1", "b2", "a", "sigma_theta_arcsec", "sigma_e_mgal")
+    }
     rounds = [
         {
             f"b{j + 1}": {

@@ -77,6 +77,16 @@ def param_entry(mean: float, sd: float | None, hdi_prob: float, unit: str = "", 
     return e
 
 
+def posterior_entry(summary_row: dict, unit: str = "") -> dict:
+    """A parameter entry from a posterior summary row (mean, sd, HDI, R-hat, bulk ESS)."""
+    keys = ("mean", "sd", "hdi_low", "hdi_high")
+    e = {k: summary_row[k] for k in keys}
+    e["unit"] = unit
+    e["r_hat"] = summary_row["r_hat"]
+    e["ess_bulk"] = summary_row["ess_bulk"]
+    return e
+
+
 def _clean(obj: Any) -> Any:
     """NumPy → JSON types; NaN/inf → None (JSON has no NaN)."""
     if isinstance(obj, dict):
