@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     _, h, hist = bayes.fit_map_em(prob, init)
     rows.append(
         (
-            "MAP warm (4 EM passes)",
+            f"MAP warm ({len(hist)} EM passes)",
             f"{time.perf_counter() - t:.2f} s",
             f"{sum(p['steps'] for p in hist)} LM steps",
         )
