@@ -35,6 +35,7 @@ from chekan.classical import fit_classical, increments_from_holds
 from chekan.errors import ChekanError
 from chekan.holds import segment_record
 from chekan.result import param_entry, posterior_entry
+from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 from inference.map import fit_map
 from inference.normal_eq import draw_beta_normal
 
@@ -390,16 +391,14 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
             K_pix_per_rad=float(np.sqrt(g / 2 / flat["a"][i])) if flat["a"][i] > 0 else cm.K_DESIGN,
             b_mgal_per_pix=[flat["b1"][i], flat["b2"][i]],
             m_level_pix=flat["m_level_pix"][i],
-            eps_rad=np.array([flat["eps1_arcmin"][i], flat["eps2_arcmin"][i]]) / 3437.7467707849396,
-            gamma_rad=flat["dgamma_arcmin"][i] / 3437.7467707849396,
+            eps_rad=np.array([flat["eps1_arcmin"][i], flat["eps2_arcmin"][i]]) / ARCMIN_PER_RAD,
+            gamma_rad=flat["dgamma_arcmin"][i] / ARCMIN_PER_RAD,
         )
         E = np.asarray(fm.equilibrium_readings(sp, holds.tilt_x_rad, holds.tilt_y_rad))
         S = np.asarray(fm.reading_sensitivity_to_tilt(sp, holds.tilt_x_rad, holds.tilt_y_rad))
-        if holds.axis == "x":
-            S = S * 0.0 + S  # sensitivity about the program axis is close enough for a replicate
         drift = P @ flat["drift_coeffs"][i].T
         o = rng.normal(0, flat["sigma_hold_pix"][i], E.shape)
-        d = rng.normal(0, flat["sigma_theta_arcsec"][i], E.shape[0]) / 206264.80624709636
+        d = rng.normal(0, flat["sigma_theta_arcsec"][i], E.shape[0]) / ARCSEC_PER_RAD
         noise = rng.normal(0, 1, E.shape) * np.array([flat["sigma1_pix"][i], flat["sigma2_pix"][i]])
         y = E + drift + o - S * d[:, None] + noise / np.sqrt(np.maximum(holds.n_used, 1))[:, None]
         rep = holds.__class__(**{**holds.__dict__, "m_mean_pix": y})

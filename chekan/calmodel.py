@@ -71,7 +71,6 @@ from inference.problem import LeastSquaresProblem
 
 K_DESIGN = 60428.0
 BIN_EDGES_S = (0.0, 15.0, 40.0, 90.0, 180.0)
-HYPER_NAMES = ("noise_scale", "sigma_theta_arcsec", "sigma_hold_pix", "slew_error")
 
 
 def nonlinear_params(b_loc=(6.9, 6.9)) -> list[Param]:
