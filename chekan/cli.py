@@ -3,6 +3,7 @@
 chekan simulate --out rec.csv [--seed N] [--truth truth.json]
 chekan calibrate REC_OR_PROTOCOL --method classical|map|bayes --json result.json
 chekan program [FILE]
+chekan design [FILE] [--search] [--out best.toml] (expected precision of a tilt program)
 chekan emulate …      chekan acquire …      (hardware layer)
 chekan demo --out DIR (the main job end to end on the built-in emulator)
 """
@@ -91,6 +92,12 @@ def _cmd_program(args) -> int:
     return 0
 
 
+def _cmd_design(args) -> int:
+    from chekan.design import run_design_command
+
+    return run_design_command(args)
+
+
 def _cmd_demo(args) -> int:
     from chekan.demo import run_demo
 
@@ -140,6 +147,22 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("program", help="show a tilt program (default: the paper's)")
     p.add_argument("file", nargs="?", help="program TOML file")
     p.set_defaults(func=_cmd_program)
+
+    p = sub.add_parser(
+        "design", help="expected precision of a tilt program; search for a better one"
+    )
+    p.add_argument("program", nargs="?", help="program TOML file (default: the paper's)")
+    p.add_argument("--search", action="store_true", help="search programs of the same duration")
+    p.add_argument("--budget-h", type=float, help="clock-time budget with slews (default: given)")
+    p.add_argument(
+        "--objective", choices=("b_mean", "b_max", "a"), default="b_mean", help="what to minimise"
+    )
+    p.add_argument("--min-dwell-s", type=float, default=180.0, help="shortest dwell (180 s)")
+    p.add_argument("--min-settle-s", type=float, default=120.0, help="shortest settle (120 s)")
+    p.add_argument("--top", type=int, default=15, help="rows of the ranked table (15)")
+    p.add_argument("--out", help="write the best program here (TOML; implies --search)")
+    p.add_argument("--json", help="write the expected sds and the ranked table here")
+    p.set_defaults(func=_cmd_design)
 
     p = sub.add_parser("demo", help="the main job end to end on the built-in emulator")
     p.add_argument("--out", default="demo", help="output folder (default ./demo)")

@@ -1,0 +1,265 @@
+"""Tilt-program design (``chekan.design``): the expected information against independent
+computations, the estimator, and the search and command line."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from chekan import design as d
+from chekan.program import PAPER_ANGLES, build_program, load_program, parse_angle_deg
+from chekan.simulate import Truth
+from chekan.units import ARCMIN_PER_RAD
+
+PAPER_DEG = [parse_angle_deg(a) for a in PAPER_ANGLES]
+
+
+def white_noise_only(**truth) -> d.DesignValues:
+    """No random effects, no drift, τ known and tiny (every bin settled), flat priors."""
+    return d.DesignValues(
+        truth=Truth(tau_s=1e-3, **truth),
+        hold_offsets=False,
+        angle_errors=False,
+        drift=False,
+        estimate_tau=False,
+        priors=False,
+        slew_error=0.0,
+    )
+
+
+def test_white_noise_information_equals_independent_least_squares():
+    """(a) Hold means of n samples, σ²/n each: OLS covariance σ²(JᵀNJ)⁻¹ with J from central
+    differences of the forward model itself (not the design's splines or lag operator)."""
+    import chekan.model as fm
+
+    prog = build_program(PAPER_DEG[::2], dwell_s=300, settle_s=200, rounds=1)
+    vals = white_noise_only(noise_pix=(0.15, 0.25))
+    t = vals.truth
+    tx = np.array([s.tilt_x_rad for s in prog.steps])
+    ty = np.array([s.tilt_y_rad for s in prog.steps])
+    u0 = np.array(
+        [*t.b_mgal_per_pix, math.log(t.K_pix_per_rad), *t.eps_arcmin, t.dgamma_arcmin], float
+    )
+
+    def readings(u):
+        p = fm.make_params(
+            g_mgal=t.g_local_mgal,
+            K_pix_per_rad=math.exp(u[2]),
+            b_mgal_per_pix=u[:2],
+            m_level_pix=t.m_level_pix,
+            eps_rad=np.asarray(u[3:5]) / ARCMIN_PER_RAD,
+            gamma_rad=u[5] / ARCMIN_PER_RAD,
+        )
+        return np.asarray(fm.equilibrium_readings(p, tx, ty))  # (H, 2)
+
+    steps = np.array([1e-6, 1e-6, 1e-6, 1e-3, 1e-3, 1e-2])
+    J = np.zeros((len(tx), 2, 8))
+    for i, h in enumerate(steps):
+        e = np.zeros(6)
+        e[i] = h
+        J[:, :, i] = (readings(u0 + e) - readings(u0 - e)) / (2 * h)
+    J[:, 0, 6] = J[:, 1, 7] = 1.0  # level offsets c₁, c₂
+    n = np.array([s.dwell_s for s in prog.steps])  # 1 Hz samples per hold
+    info = sum((J[:, j, :] * (n / t.noise_pix[j] ** 2)[:, None]).T @ J[:, j, :] for j in range(2))
+    sd_ols = np.sqrt(np.diag(np.linalg.inv(info)))
+
+    prec = d.expected_precision(prog, vals)
+    assert prec.sd["b1"] == pytest.approx(sd_ols[0], rel=2e-4)
+    assert prec.sd["b2"] == pytest.approx(sd_ols[1], rel=2e-4)
+    assert prec.sd["K"] == pytest.approx(sd_ols[2] * t.K_pix_per_rad, rel=2e-4)
+    assert prec.sd["dgamma_arcmin"] == pytest.approx(sd_ols[5], rel=2e-3)
+    assert prec.sd["b2"] > prec.sd["b1"]
+
+
+def test_doubling_rounds_shrinks_sd_by_sqrt2():
+    """(b) Identical rounds, white noise only: exactly 1/√2. With every nuisance: hold
+    offsets and angle errors are independent per hold while c, drift and θ are shared,
+    so doubling can only do as well as 1/√2 or better (up to the lag carry across the
+    round boundary, < 0.5 %); from 1 to 2 rounds much better (one ascending sweep
+    confounds angle with drift)."""
+    ratios = {}
+    for label, vals in (("white", white_noise_only()), ("full", d.DesignValues())):
+        for r in (1, 2):
+            one = d.expected_precision(
+                build_program(PAPER_DEG, dwell_s=300, settle_s=200, rounds=r), vals
+            )
+            two = d.expected_precision(
+                build_program(PAPER_DEG, dwell_s=300, settle_s=200, rounds=2 * r), vals
+            )
+            ratios[label, r] = {k: two.sd[k] / one.sd[k] * math.sqrt(2) for k in ("b1", "b2", "a")}
+    for r in (1, 2):
+        for k in ("b1", "b2", "a"):
+            assert ratios["white", r][k] == pytest.approx(1.0, abs=1e-7)
+            assert ratios["full", r][k] < 1.005
+    assert ratios["full", 2]["b1"] > 0.9  # roughly 1/√2 once drift is separated
+    assert ratios["full", 1]["b1"] < 0.8
+
+
+def test_design_model_is_the_estimators_model(short_session):
+    """The layout and lag operator reproduce calmodel.linear_terms on a simulated record."""
+    import jax.numpy as jnp
+
+    from chekan import calmodel as cm
+    from chekan.demo import demo_program
+    from chekan.holds import segment_record
+
+    _, rec, truth = short_session
+    prog = demo_program(True)
+    holds = segment_record(rec, settle_s=prog.settle_s)
+    model = cm.prepare_record(rec, holds, np.asarray(truth.m_level_pix))
+    lay = d.program_layout(prog)
+    assert lay.bin_hold.size == model.n_bins
+    np.testing.assert_array_equal(lay.bin_n, np.asarray(model.data["n_t"]))
+    np.testing.assert_allclose(lay.bin_d0_s, np.asarray(model.data["d0"]))
+    np.testing.assert_allclose(lay.bin_t_mid_s, model.bin_t_s)
+    # calmodel at the commanded attitudes (the record's carry a 0.3″ jitter)
+    data = dict(model.data)
+    data["hold_tx"] = jnp.zeros(model.n_holds)
+    data["hold_ty"] = jnp.asarray(lay.theta_hold_rad)
+    M = data["mv_tx"].shape[1]
+    data["mv_tx"] = jnp.zeros_like(data["mv_tx"])
+    data["mv_ty"] = jnp.asarray(lay.slew_theta_rad[:, :M])
+    v = {
+        "b1": truth.b_mgal_per_pix[0],
+        "b2": truth.b_mgal_per_pix[1],
+        "K": truth.K_pix_per_rad,
+        "eps1_arcmin": truth.eps_arcmin[0],
+        "eps2_arcmin": truth.eps_arcmin[1],
+        "dgamma_arcmin": truth.dgamma_arcmin,
+        "tau_s": truth.tau_s,
+    }
+    f, G, s, trans = (np.asarray(x) for x in cm.linear_terms(v, data))
+    sens = d.sensitivities(truth)
+    E_h, _, S_h = sens.at(lay.theta_hold_rad)
+    E_s, _, _ = sens.at(lay.slew_theta_rad)
+    lag = d.lagged_means(lay, truth.tau_s, E_h[..., None], E_s[..., None])
+    np.testing.assert_allclose(lag.f[..., 0], f, atol=1e-9)
+    rows = np.arange(lay.bin_hold.size)
+    np.testing.assert_allclose(G[rows, lay.bin_hold], lag.g_own, atol=1e-12)
+    later = lay.bin_hold > 0
+    np.testing.assert_allclose(
+        G[rows[later], lay.bin_hold[later] - 1], lag.g_prev[later], atol=1e-12
+    )
+    np.testing.assert_allclose(-S_h / d.ARCSEC_PER_RAD, s, rtol=1e-9)
+    np.testing.assert_allclose(lag.trans, trans, atol=1e-8)
+
+
+@pytest.mark.slow
+def test_expected_sd_agrees_with_map_laplace_sd(short_session):
+    """(c) The design's sd of b₁, b₂, a for the quick program against the Laplace sds the MAP
+    reports on one simulated session of it (its EM hyperparameters scatter around the
+    design values; κ: the design keeps 0.003, the fit goes to ~1e-4: design ≈ 1.1 × MAP)."""
+    from chekan.demo import demo_program
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+
+    path, _, _ = short_session
+    res = calibrate_file(path, CalibrationOptions(method="map", progress=False))
+    prec = d.expected_precision(demo_program(True))
+    for name in ("b1", "b2", "a"):
+        ratio = prec.sd[name] / res["parameters"][name]["sd"]
+        assert abs(ratio - 1) < 0.35, (name, ratio)
+
+
+SMALL_SPACE = {
+    "n_angles": (3, 5, 8),
+    "spacing": ("dg", "angle"),
+    "lowest_arcmin": (110, 190),
+    "scheme": ("paper", "zigzag", "interleaved"),
+    "rounds": (1, 2, 4, 6),
+    "settle_s": (120.0, 200.0),
+}
+
+
+@pytest.mark.parametrize("objective", ["b_mean", "a"])
+def test_search_is_never_worse_and_respects_budget_and_limits(objective):
+    """(d) The given program is a candidate; every candidate fits the clock budget, keeps
+    its angles within ±1°50′…±5°10′ and the dwell/settle limits."""
+    from chekan.demo import demo_program
+
+    given = demo_program(True)
+    res = d.search_programs(given, objective=objective, space=SMALL_SPACE)
+    assert res.best.objective <= res.given.objective
+    assert res.budget_s == pytest.approx(d.program_clock_s(given))
+    assert len(res.ranked) > 20
+    lo, hi = math.radians(110 / 60), math.radians(310 / 60)
+    for c in res.ranked:
+        assert c.precision.clock_s <= res.budget_s + 1e-9
+        assert d.program_clock_s(c.program) == pytest.approx(c.precision.clock_s)
+        if c.spec is None:
+            continue
+        assert all(lo - 1e-12 <= a <= hi + 1e-12 for a in c.program.angles_rad)
+        assert c.program.dwell_s >= d.MIN_DWELL_S
+        assert c.program.settle_s >= d.MIN_SETTLE_S
+        assert c.program.dwell_s - c.program.settle_s >= d.MIN_SETTLED_S
+        # the longest whole-second dwell that fits: one more second per step would not
+        assert c.precision.clock_s + c.program.n_steps > res.budget_s
+    objs = [c.objective for c in res.ranked]
+    assert objs == sorted(objs)
+    # a smaller budget is respected as well
+    small = d.search_programs(given, budget_s=2 * 3600.0, space=SMALL_SPACE)
+    assert all(c.precision.clock_s <= 2 * 3600.0 for c in small.ranked if c.spec is not None)
+    assert small.best.spec is not None  # the given 3.2 h program does not fit
+    assert small.best.precision.clock_s <= 2 * 3600.0
+    with pytest.raises(d.ChekanError, match="no program fits"):
+        _ = d.search_programs(given, budget_s=600.0, space=SMALL_SPACE).best
+
+
+def test_program_toml_round_trip(tmp_path):
+    prog = build_program(
+        [1.5, 2 + 1 / 3, 4.123456789],
+        dwell_s=420,
+        settle_s=150,
+        rounds=3,
+        order="alternate",
+        sequence="as-given",
+        name="odd angles",
+    )
+    back = load_program(d.write_program_toml(tmp_path / "p.toml", prog))
+    assert back.name == prog.name
+    np.testing.assert_allclose(back.angles_rad, prog.angles_rad, rtol=1e-14)
+    assert [s.theta_rad for s in back.steps] == pytest.approx([s.theta_rad for s in prog.steps])
+    for k in ("axis", "order", "sequence", "dwell_s", "settle_s", "rounds"):
+        assert getattr(back, k) == getattr(prog, k)
+
+
+def test_cli_design_search_round_trip_and_errors(tmp_path, capsys):
+    """(e) ``chekan design PROG --search --out --json``: the TOML reads back as the best
+    program; a bad program file is an error naming the file (exit 2)."""
+    import json
+
+    from chekan.cli import main
+
+    prog = tmp_path / "short.toml"
+    prog.write_text(
+        'name = "short"\nangles = ["2°30\'", "3°40\'", "5°10\'"]\ndwell_s = 400\n'
+        "settle_s = 200\nrounds = 2\n",
+        encoding="utf-8",
+    )
+    out, js = tmp_path / "best.toml", tmp_path / "design.json"
+    rc = main(["design", str(prog), "--search", "--out", str(out), "--json", str(js)])
+    text = capsys.readouterr().out
+    assert rc == 0
+    assert "mGal/pix" in text and "ppm" in text and "<- given" in text
+    assert f"wrote {out}" in text and f"wrote {js}" in text
+    report = json.loads(js.read_text(encoding="utf-8"))
+    best = report["search"]["ranked"][0]
+    back = load_program(out)
+    assert back.name == best["name"]
+    assert back.rounds == best["rounds"] and back.dwell_s == best["dwell_s"]
+    assert back.settle_s == best["settle_s"] and back.order == best["order"]
+    assert d.program_clock_s(back) <= d.program_clock_s(load_program(prog)) + 1e-9
+    assert report["search"]["best"]["sd"]["b1"] <= report["given"]["sd"]["b1"] * 1.0001
+    assert d.expected_precision(back).sd["b1"] == pytest.approx(best["sd_b1_mgal_per_pix"])
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text('angles = ["2°30\'", "7°"]\n', encoding="utf-8")
+    assert main(["design", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "beyond" in err
+    garbage = tmp_path / "garbage.toml"
+    garbage.write_text('name = "x"\nrounds = = 2\n', encoding="utf-8")
+    assert main(["design", str(garbage), "--search"]) == 2
+    err = capsys.readouterr().err
+    assert str(garbage) in err and "not valid TOML" in err and "line 2" in err
