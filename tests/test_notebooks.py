@@ -37,8 +37,12 @@ def _client(nb, cwd: Path):
 
 @pytest.fixture
 def kernel_env(tmp_path, monkeypatch):
-    """The kernel inherits the environment: keep IPython's history out of the home folder."""
-    monkeypatch.setenv("IPYTHONDIR", str(tmp_path / ".ipython"))
+    """The kernel's working directory; the kernel inherits the environment, so its temporary
+    folders (the notebooks write into ``tempfile.mkdtemp()``) and IPython's history land under
+    ``tmp_path`` too."""
+    for var, sub in (("TMPDIR", "tmp"), ("IPYTHONDIR", ".ipython")):
+        (tmp_path / sub).mkdir()
+        monkeypatch.setenv(var, str(tmp_path / sub))
     work = tmp_path / "work"
     work.mkdir()
     return work
@@ -69,7 +73,12 @@ def test_stored_without_outputs(path):
 def test_kernel_runs_this_interpreter(kernel_env):
     """The ``python3`` kernel that runs the notebooks is the interpreter running the tests."""
     nb = nbformat.v4.new_notebook(
-        cells=[nbformat.v4.new_code_cell("import os, sys; print(sys.prefix); print(os.getcwd())")]
+        cells=[
+            nbformat.v4.new_code_cell(
+                "import os, sys, tempfile\n"
+                "print(sys.prefix, os.getcwd(), tempfile.gettempdir(), sep='\\n')"
+            )
+        ]
     )
     _client(nb, kernel_env).execute()
     out = "".join(o.get("text", "") for o in nb.cells[0].outputs).split("\n")
@@ -78,6 +87,7 @@ def test_kernel_runs_this_interpreter(kernel_env):
         "spec shadows the venv's (jupyter kernelspec list)"
     )
     assert Path(out[1]).resolve() == kernel_env.resolve()
+    assert Path(out[2]).resolve() == (kernel_env.parent / "tmp").resolve()
 
 
 def _failing_cell(nb) -> int | None:
