@@ -1,14 +1,37 @@
 """Coverage and accuracy study on simulated sessions: ``python -m chekan.validate``.
 
-For each session an instrument is drawn at random (:func:`chekan.simulate.random_truth`,
-or a hard case), a record is simulated, and both the classical method and the joint
-model (MAP + Laplace, the same likelihood as the posterior) estimate b₁, b₂, a. Printed:
-the empirical coverage of the central 50/90/95 % intervals with binomial bounds
-(p < 1e-3), the RMS error against truth, and the mean z-score² (1 when the stated
-uncertainty is honest). Written: ``validation.csv``, ``validation.json``, ``coverage.png``.
+    python -m chekan.validate --sessions 200 --out validation [--quick] [--jobs N]
+                              [--cases typical misaligned drift slow]
+                              [--methods classical map bayes] [--seed S] [--resume]
 
-Hard cases (``--cases``): ``misaligned`` (|ε| ≈ 10′, |Δγ| ≈ 20′), ``drift``
-(±0.3 pix/h), ``slow`` (τ = 90 s).
+For each session an instrument is drawn at random (:func:`chekan.simulate.random_truth`,
+or a hard case), a record of the tilt program is simulated, and each method estimates
+b₁, b₂ and a:
+
+- ``classical``: Calibr.exe's least squares (:mod:`chekan.classical`), sd from its fit;
+- ``map``: the joint model, MAP + Laplace (the posterior's likelihood), delta-method sds;
+- ``bayes``: the posterior (:func:`chekan.pipeline.calibrate_file` with ``method="bayes"``,
+  ``quick=True``) of a record written to a temporary file: ~1 min per session, for small
+  studies.
+
+Intervals: the central interval mean ± z·sd at each level (50/90/95 %) for every method,
+including ``bayes`` (its posterior mean and sd); for ``bayes`` the coverage of the stored
+95 % HDI (``hdi_low``/``hdi_high`` of ``chekan-result/1``) is reported as well. An honest
+interval at level L covers the truth in a binomially distributed number of sessions; the
+band printed beside each coverage holds 99.9 % of that distribution (a coverage outside it
+is flagged ``!``). Also: the RMS error against truth, the RMS of the stated sds and the
+mean z² = mean((estimate − truth)/sd)², which is 1 when the stated uncertainty is honest.
+
+Hard cases (``--cases``): ``misaligned`` (|ε| ≈ 8–10′, |Δγ| ≈ 15–20′), ``drift``
+(±0.3 pix/h), ``slow`` (τ = 90 s damping lag).
+
+Written into ``--out``: ``validation.csv`` (one row per session, appended as sessions
+finish, so that ``--resume`` continues an interrupted study), ``validation.json`` (the
+summary and settings), ``validation.md`` (the tables), ``coverage.png`` (nominal against
+empirical coverage per case), ``z_hist.png`` (z-scores against N(0, 1) per case) and
+``errors.png`` (error against truth, RMS error per case). Sessions are independent and
+seeded by their index (``seed·100000 + i``), so the rows do not depend on ``--jobs``;
+worker processes are spawned (JAX does not survive ``fork``) with one XLA thread each.
 """
 
 from __future__ import annotations
@@ -16,16 +39,30 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
+import os
+import sys
+import tempfile
 import time
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 CASES = ("typical", "misaligned", "drift", "slow")
 LEVELS = (0.5, 0.9, 0.95)
 PARAMS = ("b1", "b2", "a")
+METHODS = ("classical", "map", "bayes")
+DEFAULT_METHODS = ("classical", "map")
+UNITS = {"b1": "mGal/pix", "b2": "mGal/pix", "a": "mGal/pix²"}
+BAND_PROB = 0.999  # probability mass of the binomial band of an honest interval
+SEED_STRIDE = 100_000  # session i of a study with seed s is simulated with seed s·stride + i
+_INT_COLS = ("session", "seed")
+_STR_COLS = ("case", "program")
 
 
+# ---------------------------------------------------------------------------- sessions
 def _truth(case: str, rng: np.random.Generator, i: int):
     from chekan.simulate import random_truth
 
@@ -42,173 +79,701 @@ def _truth(case: str, rng: np.random.Generator, i: int):
     return random_truth(rng, serial=f"V{i}", **kw)
 
 
-def run_session(i: int, case: str, program, seed: int, settle_s: float) -> dict:
-    """One simulated session through both methods; returns estimates, sds and truth."""
-    from chekan import bayes
+def fieldnames(methods: Sequence[str] = DEFAULT_METHODS) -> list[str]:
+    """Columns of ``validation.csv`` for these methods (fixed, so rows can be appended)."""
+    cols = ["session", "case", "seed", "program"]
+    cols += [f"true_{p}" for p in PARAMS]
+    for m in methods:
+        for p in PARAMS:
+            cols += [f"{m}_{p}", f"{m}_{p}_sd"]
+            if m == "bayes":
+                cols += [f"bayes_{p}_hdi_low", f"bayes_{p}_hdi_high"]
+        if m == "map":
+            cols.append("map_converged")
+        cols += [f"{m}_seconds", f"{m}_error"]
+    return cols
+
+
+def _failed_columns(method: str, err: Exception) -> dict[str, Any]:
+    """NaN estimates and the message of a method that raised."""
+    out: dict[str, Any] = {f"{method}_error": f"{type(err).__name__}: {err}"[:300]}
+    for p in PARAMS:
+        out[f"{method}_{p}"] = out[f"{method}_{p}_sd"] = math.nan
+        if method == "bayes":
+            out[f"bayes_{p}_hdi_low"] = out[f"bayes_{p}_hdi_high"] = math.nan
+    if method == "map":
+        out["map_converged"] = False
+    return out
+
+
+def run_session(
+    i: int,
+    case: str,
+    program,
+    seed: int,
+    settle_s: float,
+    methods: Sequence[str] = DEFAULT_METHODS,
+) -> dict[str, Any]:
+    """One simulated session through ``methods``; returns estimates, sds and truth.
+
+    The classical fit always runs (it starts the MAP). A method that raises leaves NaN
+    estimates and its message in ``<method>_error``; the other methods still run.
+    """
     from chekan.classical import calibrate_record
-    from chekan.pipeline import CalibrationOptions
     from chekan.simulate import simulate_session
 
     rng = np.random.default_rng(seed)
     truth = _truth(case, rng, i)
     rec, truth = simulate_session(program, truth, seed=seed)
     t = truth.derived()
-    row = {"session": i, "case": case, "seed": seed}
+    row: dict[str, Any] = {"session": i, "case": case, "seed": seed, "program": program.name}
+    row.update({f"true_{p}": float(t[p]) for p in PARAMS})
+    t0 = time.perf_counter()
     cres, _ = calibrate_record(rec, settle_s=settle_s)
-    row.update(
-        classical_b1=cres.b_mean[0],
-        classical_b1_sd=cres.b_mean_sd[0],
-        classical_b2=cres.b_mean[1],
-        classical_b2_sd=cres.b_mean_sd[1],
-        classical_a=cres.a,
-        classical_a_sd=cres.a_sd or np.nan,
+    if "classical" in methods:
+        row.update(
+            classical_b1=float(cres.b_mean[0]),
+            classical_b1_sd=float(cres.b_mean_sd[0]),
+            classical_b2=float(cres.b_mean[1]),
+            classical_b2_sd=float(cres.b_mean_sd[1]),
+            classical_a=float(cres.a),
+            classical_a_sd=float(cres.a_sd) if cres.a_sd is not None else math.nan,
+            classical_seconds=time.perf_counter() - t0,
+            classical_error="",
+        )
+    joint = (
+        ("map", lambda: _map_columns(rec, cres, settle_s)),
+        ("bayes", lambda: _bayes_columns(rec, settle_s, seed)),
     )
+    for method, columns in joint:
+        if method not in methods:
+            continue
+        t0 = time.perf_counter()
+        try:
+            row.update(columns())
+            row[f"{method}_error"] = ""
+        except Exception as e:  # one failing session never stops a study
+            row.update(_failed_columns(method, e))
+        row[f"{method}_seconds"] = time.perf_counter() - t0
+    return row
+
+
+def _map_columns(rec, cres, settle_s: float) -> dict[str, Any]:
+    """MAP + Laplace on the in-memory record (the steps of ``chekan.bayes.estimate``)."""
+    from chekan import bayes
+    from chekan.pipeline import CalibrationOptions
+
     opts = CalibrationOptions(method="map", settle_s=settle_s, progress=False)
     _, model, prob = bayes._setup(rec, cres, opts)
     res, h, _ = bayes.fit_map_em(prob, bayes._initial_values(cres, rec.g_local_mgal))
     md = bayes._map_derived(prob, res, h, {**model.data, "hyper": h})
+    out: dict[str, Any] = {}
     for p in PARAMS:
-        row[f"map_{p}"], row[f"map_{p}_sd"] = md[p]
-        row[f"true_{p}"] = t[p]
-    row["map_converged"] = bool(res.converged)
-    return row
-
-
-def coverage_summary(rows: list[dict]) -> dict:
-    """Coverage, RMS error and mean z² per method and parameter (Gaussian intervals)."""
-    from scipy.stats import binom, norm
-
-    out: dict = {}
-    n = len(rows)
-    for method in ("classical", "map"):
-        for p in PARAMS:
-            est = np.array([r[f"{method}_{p}"] for r in rows], float)
-            sd = np.array([r[f"{method}_{p}_sd"] for r in rows], float)
-            tr = np.array([r[f"true_{p}"] for r in rows], float)
-            ok = np.isfinite(sd)
-            if not ok.any():
-                continue
-            z = (est[ok] - tr[ok]) / sd[ok]
-            entry = {
-                "n": int(ok.sum()),
-                "rms_error": float(np.sqrt(np.mean((est - tr) ** 2))),
-                "mean_z2": float(np.mean(z**2)),
-            }
-            for lev in LEVELS:
-                k = norm.ppf(0.5 + lev / 2)
-                cov = float(np.mean(np.abs(z) <= k))
-                lo, hi = binom.ppf([5e-4, 1 - 5e-4], ok.sum(), lev) / ok.sum()
-                entry[f"coverage_{int(lev * 100)}"] = cov
-                entry[f"bounds_{int(lev * 100)}"] = [float(lo), float(hi)]
-            out[f"{method}/{p}"] = entry
-    out["n_sessions"] = n
+        out[f"map_{p}"], out[f"map_{p}_sd"] = (float(v) for v in md[p])
+    out["map_converged"] = bool(res.converged)
     return out
 
 
+def _bayes_columns(rec, settle_s: float, seed: int) -> dict[str, Any]:
+    """The posterior of a record written to a temporary file, through the public pipeline."""
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.records import write_record
+
+    opts = CalibrationOptions(
+        method="bayes", quick=True, progress=False, settle_s=settle_s, seed=seed
+    )
+    with tempfile.TemporaryDirectory(prefix="chekan-validate-") as tmp:
+        path = Path(tmp) / "session.csv"
+        write_record(path, rec)
+        result = calibrate_file(path, opts)
+    out: dict[str, Any] = {}
+    for p in PARAMS:
+        e = result["parameters"].get(p, {})
+        for key, col in (
+            ("mean", ""),
+            ("sd", "_sd"),
+            ("hdi_low", "_hdi_low"),
+            ("hdi_high", "_hdi_high"),
+        ):
+            v = e.get(key)
+            out[f"bayes_{p}{col}"] = float(v) if v is not None else math.nan
+    return out
+
+
+def session_plan(n: int, cases: Sequence[str], seed: int) -> list[tuple[int, str, int]]:
+    """``(index, case, session seed)`` of every session: cases in turn, seeds by index."""
+    return [(i, cases[i % len(cases)], seed * SEED_STRIDE + i) for i in range(n)]
+
+
+# ---------------------------------------------------------------------------- summary
+def methods_in(rows: Sequence[dict]) -> list[str]:
+    """The methods that have estimate columns in ``rows``."""
+    return [m for m in METHODS if rows and f"{m}_b1" in rows[0]]
+
+
+def binomial_band(n: int, level: float, prob: float = BAND_PROB) -> tuple[float, float]:
+    """Central ``prob`` band of the coverage fraction of an honest ``level`` interval in n."""
+    from scipy.stats import binom
+
+    if n <= 0:
+        return (math.nan, math.nan)
+    lo, hi = binom.ppf([(1 - prob) / 2, (1 + prob) / 2], n, level) / n
+    return float(lo), float(hi)
+
+
+def coverage_summary(rows: Sequence[dict], methods: Sequence[str] | None = None) -> dict:
+    """Coverage, RMS error and mean z² per method and parameter.
+
+    Per ``"<method>/<param>"``: ``n`` (sessions with a finite estimate and sd),
+    ``coverage_<L>`` (fraction with |z| ≤ z_L, z = (estimate − truth)/sd, z_L the
+    two-sided normal quantile of L), ``bounds_<L>`` (:func:`binomial_band`), ``rms_error``,
+    ``bias`` (mean error), ``rms_sd`` (RMS of the stated sds), ``mean_z2``; for ``bayes``
+    also ``coverage_hdi95`` (truth inside the stored 95 % HDI). ``n_sessions``: all rows.
+    """
+    from scipy.special import ndtri
+
+    out: dict[str, Any] = {}
+    for method in methods if methods is not None else methods_in(rows):
+        for p in PARAMS:
+            est = np.array([r[f"{method}_{p}"] for r in rows], dtype=np.float64)
+            sd = np.array([r[f"{method}_{p}_sd"] for r in rows], dtype=np.float64)
+            tr = np.array([r[f"true_{p}"] for r in rows], dtype=np.float64)
+            ok = np.isfinite(est) & np.isfinite(sd) & (sd > 0)
+            if not ok.any():
+                continue
+            err = est[ok] - tr[ok]
+            z = err / sd[ok]
+            n = int(ok.sum())
+            entry: dict[str, Any] = {
+                "n": n,
+                "rms_error": float(np.sqrt(np.mean(err**2))),
+                "bias": float(np.mean(err)),
+                "rms_sd": float(np.sqrt(np.mean(sd[ok] ** 2))),
+                "mean_z2": float(np.mean(z**2)),
+            }
+            for lev in LEVELS:
+                k = float(ndtri(0.5 + lev / 2))
+                entry[f"coverage_{round(lev * 100)}"] = float(np.mean(np.abs(z) <= k))
+                entry[f"bounds_{round(lev * 100)}"] = list(binomial_band(n, lev))
+            if method == "bayes":
+                lo = np.array([r["bayes_" + p + "_hdi_low"] for r in rows], np.float64)[ok]
+                hi = np.array([r["bayes_" + p + "_hdi_high"] for r in rows], np.float64)[ok]
+                inside = (lo <= tr[ok]) & (tr[ok] <= hi)
+                entry["coverage_hdi95"] = float(np.mean(inside))
+            out[f"{method}/{p}"] = entry
+    out["n_sessions"] = len(rows)
+    return out
+
+
+def _outside(e: dict, lev: int) -> bool:
+    lo, hi = e[f"bounds_{lev}"]
+    return not lo <= e[f"coverage_{lev}"] <= hi
+
+
 def format_summary(s: dict) -> str:
+    """A plain-text table of one :func:`coverage_summary`."""
     head = (
         f"{'method/param':<16}{'n':>5}{'50 %':>8}{'90 %':>8}{'95 %':>8}"
-        f"{'RMS error':>12}{'mean z²':>9}"
+        f"{'RMS error':>12}{'RMS sd':>11}{'mean z²':>9}"
     )
     lines = [head, "-" * len(head)]
     for key, e in s.items():
         if not isinstance(e, dict):
             continue
-        cells = []
-        for lev in (50, 90, 95):
-            lo, hi = e[f"bounds_{lev}"]
-            flag = "" if lo <= e[f"coverage_{lev}"] <= hi else "!"
-            cells.append(f"{e[f'coverage_{lev}']:>7.2f}{flag:1}")
-        lines.append(
-            f"{key:<16}{e['n']:>5}{''.join(cells)}{e['rms_error']:>12.3g}{e['mean_z2']:>9.2f}"
+        cells = "".join(
+            f"{e[f'coverage_{lev}']:>7.2f}{'!' if _outside(e, lev) else ' '}"
+            for lev in (50, 90, 95)
         )
-    lines.append("! = outside the binomial 99.9 % band of an honest interval")
+        lines.append(
+            f"{key:<16}{e['n']:>5}{cells}{e['rms_error']:>12.3g}{e['rms_sd']:>11.3g}"
+            f"{e['mean_z2']:>9.2f}"
+        )
+    lines.append(f"! = outside the binomial {BAND_PROB * 100:.1f} % band of an honest interval")
     return "\n".join(lines)
 
 
-def run_study(
-    n: int, out: Path, cases=("typical",), quick: bool = False, seed: int = 0, progress: bool = True
-) -> dict:
-    from tqdm import tqdm
+def _groups(summary: dict) -> list[str]:
+    return [k for k, v in summary.items() if isinstance(v, dict) and "n_sessions" in v]
 
-    from chekan.demo import demo_program
-    from chekan.program import default_program
 
-    program = demo_program(True) if quick else default_program()
-    settle = program.settle_s
-    out.mkdir(parents=True, exist_ok=True)
-    rows = []
-    t0 = time.perf_counter()
-    jobs = [(i, cases[i % len(cases)]) for i in range(n)]
-    for i, case in tqdm(jobs, disable=not progress, desc="sessions"):
-        rows.append(run_session(i, case, program, seed * 100_000 + i, settle))
-    summary = {"all": coverage_summary(rows)}
-    for c in cases:
-        sub = [r for r in rows if r["case"] == c]
-        if len(cases) > 1 and sub:
-            summary[c] = coverage_summary(sub)
-    summary["seconds"] = time.perf_counter() - t0
-    with open(out / "validation.csv", "w", newline="", encoding="utf-8") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+def markdown_report(summary: dict, settings: dict, figures: Sequence[str] = ()) -> str:
+    """``validation.md``: settings, the honest-interval bands, one table per case and overall."""
+    st = settings
+    cases = ", ".join(st["cases"]) + (" in turn" if len(st["cases"]) > 1 else "")
+    lines = [
+        "# Coverage and accuracy on simulated sessions",
+        "",
+        f"`{st['command']}`",
+        "",
+        "| setting | value |",
+        "|---|---|",
+        f"| sessions | {st['sessions']} ({cases}) |",
+        f"| methods | {', '.join(st['methods'])} |",
+        f"| program | {st['program']} |",
+        f"| seed | {st['seed']} (session i: seed·{SEED_STRIDE} + i) |",
+        f"| worker processes | {st['jobs']} |",
+        f"| seconds | {st['seconds']:.0f} wall ({st['sessions_run']} sessions run now, "
+        f"{st['sessions'] - st['sessions_run']} taken from an earlier run) |",
+    ]
+    for m in st["methods"]:
+        lines.append(
+            f"| {m}: mean seconds per session, failures | "
+            f"{st['mean_seconds'].get(m, math.nan):.2f}, {st['failures'].get(m, 0)} |"
+        )
+    if "map_not_converged" in st:
+        lines.append(
+            f"| map: sessions not converged (kept in the tables) | {st['map_not_converged']} |"
+        )
+    lines += [
+        "",
+        "Intervals are central, estimate ± z·sd with z the two-sided normal quantile of the "
+        "level; for `bayes` the estimate and sd are the posterior mean and sd, and the column "
+        "*95 % HDI* is the coverage of the stored highest-density interval. "
+        "An honest interval at level L covers the truth in a binomial number of the n "
+        f"sessions: the coverage falls in the band below with probability {BAND_PROB * 100:.1f} %; "
+        "a coverage outside it is **bold** with `!`. "
+        "mean z² = mean((estimate − truth)/sd)² is 1 for an honest sd; "
+        "RMS sd is the RMS of the stated sds (≈ RMS error when honest).",
+        "",
+    ]
+    for g in _groups(summary):
+        s = summary[g]
+        entries = {k: v for k, v in s.items() if isinstance(v, dict)}
+        lines += [f"## {g} ({s['n_sessions']} sessions)", ""]
+        if not entries:
+            lines += ["no estimates", ""]
+            continue
+        n0 = next(iter(entries.values()))["n"]
+        band = ", ".join(
+            f"{lev} %: [{b[0]:.2f}, {b[1]:.2f}]"
+            for lev in (50, 90, 95)
+            for b in [binomial_band(n0, lev / 100)]
+        )
+        with_hdi = any("coverage_hdi95" in e for e in entries.values())
+        lines += [
+            f"Honest band for n = {n0}: {band}.",
+            "",
+            "| method | parameter | n | 50 % | 90 % | 95 % |"
+            + (" 95 % HDI |" if with_hdi else "")
+            + " RMS error | bias | RMS sd | mean z² |",
+            "|---|---|" + "--:|" * (8 + with_hdi),
+        ]
+        for key, e in entries.items():
+            method, p = key.split("/")
+            cov = []
+            for lev in (50, 90, 95):
+                c = f"{e[f'coverage_{lev}']:.3f}"
+                cov.append(f"**{c}** !" if _outside(e, lev) else c)
+            if with_hdi:
+                cov.append(f"{e['coverage_hdi95']:.3f}" if "coverage_hdi95" in e else "—")
+            lines.append(
+                f"| {method} | {p} ({UNITS[p]}) | {e['n']} | {' | '.join(cov)} "
+                f"| {e['rms_error']:.3g} | {e['bias']:.3g} | {e['rms_sd']:.3g} "
+                f"| {e['mean_z2']:.3g} |"
+            )
+        lines.append("")
+    if figures:
+        lines += ["## Figures", ""]
+        lines += [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
+        lines.append("")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------- rows on disk
+def _parse_row(raw: dict[str, str]) -> dict[str, Any]:
+    row: dict[str, Any] = {}
+    for k, v in raw.items():
+        if k in _INT_COLS:
+            row[k] = int(v)
+        elif k in _STR_COLS or k.endswith("_error"):
+            row[k] = v
+        elif k.endswith("_converged"):
+            row[k] = v == "True"
+        else:
+            row[k] = float(v) if v != "" else math.nan
+    return row
+
+
+def read_rows(path: str | os.PathLike) -> list[dict[str, Any]]:
+    """Rows of a ``validation.csv`` with numbers as float64 (NaN for failures)."""
+    with open(path, newline="", encoding="utf-8") as f:
+        return [_parse_row(r) for r in csv.DictReader(f)]
+
+
+def _resumable(path: Path, cols: list[str], plan, program_name: str) -> dict[int, dict]:
+    """Rows of an earlier run that match the plan (same columns, case, seed, program)."""
+    if not path.is_file():
+        return {}
+    with open(path, newline="", encoding="utf-8") as f:
+        header = next(csv.reader(f), None)
+    if header != cols:
+        print(f"{path}: other columns (other --methods?); starting afresh")
+        return {}
+    want = {i: (case, s) for i, case, s in plan}
+    keep = {}
+    for r in read_rows(path):
+        i = r["session"]
+        if want.get(i) == (r["case"], r["seed"]) and r["program"] == program_name:
+            keep[i] = r
+    return keep
+
+
+def _write_csv(path: Path, cols: list[str], rows: Iterable[dict]) -> None:
+    tmp = path.with_suffix(".csv.tmp")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=cols)
         w.writeheader()
         w.writerows(rows)
-    (out / "validation.json").write_text(json.dumps(summary, indent=2), encoding="utf-8")
-    _plot(rows, out / "coverage.png")
+    tmp.replace(path)
+
+
+def _run_sessions(
+    plan: Sequence[tuple[int, str, int]],
+    program,
+    methods: Sequence[str],
+    jobs: int,
+    progress: bool,
+    on_row: Callable[[dict], None],
+) -> None:
+    """Run the planned sessions in this process (``jobs`` ≤ 1) or in spawned workers."""
+    from tqdm.auto import tqdm
+
+    settle = program.settle_s
+    with tqdm(total=len(plan), desc="sessions", unit="session", disable=not progress) as bar:
+        if jobs <= 1 or len(plan) <= 1:
+            for i, case, s in plan:
+                on_row(run_session(i, case, program, s, settle, methods))
+                bar.update()
+            return
+        import concurrent.futures as cf
+        import multiprocessing as mp
+
+        from chekan.archive.reanalyze import configure_worker_env
+
+        ctx = mp.get_context("spawn")  # JAX's threads do not survive fork
+        with cf.ProcessPoolExecutor(
+            max_workers=min(jobs, len(plan)), mp_context=ctx, initializer=configure_worker_env
+        ) as ex:
+            futs = [
+                ex.submit(run_session, i, case, program, s, settle, methods) for i, case, s in plan
+            ]
+            for fut in cf.as_completed(futs):
+                on_row(fut.result())
+                bar.update()
+
+
+# ---------------------------------------------------------------------------- the study
+def run_study(
+    n: int,
+    out: str | os.PathLike,
+    cases: Sequence[str] = ("typical",),
+    quick: bool = False,
+    seed: int = 0,
+    progress: bool = True,
+    *,
+    methods: Sequence[str] = DEFAULT_METHODS,
+    jobs: int = 1,
+    program=None,
+    resume: bool = False,
+    figures: bool = True,
+    command: str | None = None,
+) -> dict:
+    """Run the study and write its files into ``out``; returns the summary.
+
+    ``program``: a :class:`chekan.program.TiltProgram` (default: the paper's 9 h program,
+    or its 3 h variant with ``quick``). ``resume``: keep the rows of an earlier run in
+    ``out/validation.csv`` that match this plan and run only the others. ``figures``: write
+    the three PNG files (a few seconds). The summary holds
+    ``all`` and one entry per case (each a :func:`coverage_summary`), ``settings``,
+    ``seconds`` and ``paths`` (every file written).
+    """
+    from chekan.demo import demo_program
+
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise ValueError(f"methods must be among {', '.join(METHODS)}, not {list(methods)}")
+    methods = [m for m in METHODS if m in methods]
+    if program is None:
+        program = demo_program(quick)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / "validation.csv"
+    cols = fieldnames(methods)
+    plan = session_plan(n, tuple(cases), seed)
+    done = _resumable(csv_path, cols, plan, program.name) if resume else {}
+    todo = [p for p in plan if p[0] not in done]
+    t0 = time.perf_counter()
+    _write_csv(csv_path, cols, done.values())  # rows appended as sessions finish
+    with open(csv_path, "a", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=cols)
+
+        def on_row(row: dict) -> None:
+            done[row["session"]] = row
+            writer.writerow(row)
+            f.flush()
+
+        _run_sessions(todo, program, methods, jobs, progress, on_row)
+    rows = [done[i] for i, _, _ in plan]
+    _write_csv(csv_path, cols, rows)  # sorted by session
+    seconds = time.perf_counter() - t0
+
+    summary: dict[str, Any] = {"all": coverage_summary(rows, methods)}
+    for c in dict.fromkeys(cases):
+        sub = [r for r in rows if r["case"] == c]
+        if len(set(cases)) > 1 and sub:
+            summary[c] = coverage_summary(sub, methods)
+    settings = {
+        "command": command or f"run_study({n}, {str(out)!r}, cases={tuple(cases)})",
+        "sessions": n,
+        "sessions_run": len(todo),
+        "cases": list(dict.fromkeys(cases)),
+        "methods": list(methods),
+        "program": program.describe(),
+        "program_name": program.name,
+        "seed": seed,
+        "jobs": jobs,
+        "seconds": seconds,
+        "mean_seconds": {
+            m: float(np.nanmean([r[f"{m}_seconds"] for r in rows])) if rows else math.nan
+            for m in methods
+        },
+        "failures": {m: sum(1 for r in rows if r.get(f"{m}_error")) for m in methods},
+    }
+    if "map" in methods:
+        settings["map_not_converged"] = sum(
+            1 for r in rows if not r["map_converged"] and not r["map_error"]
+        )
+    summary["settings"] = settings
+    summary["seconds"] = seconds
+    pngs = []
+    if figures:
+        pngs = [
+            _plot_coverage(summary, out / "coverage.png"),
+            _plot_z(rows, summary, methods, out / "z_hist.png"),
+            _plot_errors(rows, methods, out / "errors.png"),
+        ]
+    md = out / "validation.md"
+    md.write_text(markdown_report(summary, settings, pngs), encoding="utf-8")
+    js = out / "validation.json"
+    summary["paths"] = [str(p) for p in (csv_path, js, md, *pngs)]
+    js.write_text(json.dumps(_finite(summary), indent=2, allow_nan=False), encoding="utf-8")
     return summary
 
 
-def _plot(rows, path: Path) -> None:
+def _finite(obj: Any) -> Any:
+    """NaN and ±inf → None, recursively (JSON has no NaN)."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+# ---------------------------------------------------------------------------- figures
+_COLORS = {"classical": "tab:orange", "map": "tab:blue", "bayes": "tab:green"}
+_MARKERS = {"typical": "o", "misaligned": "s", "drift": "^", "slow": "v"}
+
+
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.5))
-    for ax, p in zip(axes, PARAMS, strict=True):
-        for method, color in (("classical", "tab:orange"), ("map", "tab:blue")):
-            z = np.array(
-                [(r[f"{method}_{p}"] - r[f"true_{p}"]) / r[f"{method}_{p}_sd"] for r in rows], float
-            )
-            z = z[np.isfinite(z)]
-            if z.size:
-                ax.hist(
-                    np.clip(z, -6, 6),
-                    bins=24,
-                    range=(-6, 6),
-                    alpha=0.5,
-                    color=color,
-                    density=True,
-                    label=method,
-                )
-        x = np.linspace(-6, 6, 200)
-        ax.plot(x, np.exp(-x * x / 2) / np.sqrt(2 * np.pi), "k-", lw=1, label="N(0, 1)")
-        ax.set_title(f"z = (estimate − truth)/sd, {p}")
-        ax.legend(fontsize=8)
+    return plt
+
+
+def _plot_coverage(summary: dict, path: Path) -> Path:
+    """Nominal against empirical coverage per group (rows) and parameter (columns)."""
+    plt = _pyplot()
+    groups = _groups(summary)
+    fig, axes = plt.subplots(
+        len(groups), len(PARAMS), figsize=(4 * len(PARAMS), 3 * len(groups)), squeeze=False
+    )
+    levels = np.array(LEVELS) * 100
+    for gi, g in enumerate(groups):
+        s = summary[g]
+        for pi, p in enumerate(PARAMS):
+            ax = axes[gi, pi]
+            ax.plot([45, 100], [0.45, 1.0], "k:", lw=1, label="nominal")
+            entries = [(k.split("/")[0], e) for k, e in s.items() if k.endswith(f"/{p}")]
+            for mi, (m, e) in enumerate(entries):
+                lo_hi = np.array([e[f"bounds_{round(lev)}"] for lev in levels])
+                if mi == 0:  # one band per group: n is the same for every method
+                    for lev, (lo, hi) in zip(levels, lo_hi, strict=True):
+                        ax.fill_between(
+                            [lev - 1.5, lev + 1.5], lo, hi, color="0.85", lw=0, zorder=0
+                        )
+                cov = [e[f"coverage_{round(lev)}"] for lev in levels]
+                x = levels + (mi - (len(entries) - 1) / 2) * 0.8
+                ax.plot(x, cov, "o-", color=_COLORS[m], label=m, ms=5)
+            ax.set_xlim(45, 100)
+            ax.set_ylim(-0.02, 1.02)
+            ax.set_title(f"{g}: {p} (n = {s['n_sessions']})", fontsize=9)
+            if gi == len(groups) - 1:
+                ax.set_xlabel("nominal level, %")
+            if pi == 0:
+                ax.set_ylabel("empirical coverage")
+            if gi == 0 and pi == 0:
+                ax.legend(fontsize=7, loc="lower right")
+    fig.suptitle(
+        f"coverage of central intervals; grey: {BAND_PROB * 100:.1f} % band of an honest interval",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+    return path
 
 
-def main(argv=None) -> int:
+def _z(rows: Sequence[dict], m: str, p: str) -> np.ndarray:
+    z = np.array(
+        [(r[f"{m}_{p}"] - r[f"true_{p}"]) / r[f"{m}_{p}_sd"] for r in rows], dtype=np.float64
+    )
+    return z[np.isfinite(z)]
+
+
+def _plot_z(rows: Sequence[dict], summary: dict, methods: Sequence[str], path: Path) -> Path:
+    """Histograms of z = (estimate − truth)/sd against N(0, 1), per group and parameter."""
+    plt = _pyplot()
+    groups = _groups(summary)
+    fig, axes = plt.subplots(
+        len(groups), len(PARAMS), figsize=(4 * len(PARAMS), 2.8 * len(groups)), squeeze=False
+    )
+    x = np.linspace(-6, 6, 200)
+    for gi, g in enumerate(groups):
+        sub = rows if g == "all" else [r for r in rows if r["case"] == g]
+        for pi, p in enumerate(PARAMS):
+            ax = axes[gi, pi]
+            for m in methods:
+                z = _z(sub, m, p)
+                if z.size:
+                    ax.hist(
+                        np.clip(z, -6, 6),
+                        bins=24,
+                        range=(-6, 6),
+                        alpha=0.45,
+                        color=_COLORS[m],
+                        density=True,
+                        label=m,
+                    )
+            ax.plot(x, np.exp(-x * x / 2) / np.sqrt(2 * np.pi), "k-", lw=1, label="N(0, 1)")
+            ax.set_title(f"{g}: z of {p} (clipped to ±6)", fontsize=9)
+            if gi == 0 and pi == 0:
+                ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _plot_errors(rows: Sequence[dict], methods: Sequence[str], path: Path) -> Path:
+    """Top: estimate − truth against truth (colour: method, marker: case).
+    Bottom: RMS error per case and method (log scale)."""
+    plt = _pyplot()
+    cases = list(dict.fromkeys(r["case"] for r in rows))
+    fig, axes = plt.subplots(2, len(PARAMS), figsize=(4.2 * len(PARAMS), 7), squeeze=False)
+    width = 0.8 / max(len(methods), 1)
+    for pi, p in enumerate(PARAMS):
+        ax = axes[0, pi]
+        for m in methods:
+            for c in cases:
+                sub = [r for r in rows if r["case"] == c]
+                tr = np.array([r[f"true_{p}"] for r in sub], dtype=np.float64)
+                err = np.array([r[f"{m}_{p}"] for r in sub], dtype=np.float64) - tr
+                ax.scatter(
+                    tr,
+                    err,
+                    s=12,
+                    alpha=0.7,
+                    color=_COLORS[m],
+                    marker=_MARKERS.get(c, "o"),
+                    label=f"{m}, {c}",
+                )
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.set_xlabel(f"true {p}, {UNITS[p]}")
+        ax.set_ylabel(f"estimate − truth, {UNITS[p]}")
+        if pi == 0:
+            ax.legend(fontsize=6, ncol=2)
+        ax = axes[1, pi]
+        for mi, m in enumerate(methods):
+            rms = []
+            for c in cases:
+                sub = [r for r in rows if r["case"] == c]
+                err = np.array([r[f"{m}_{p}"] - r[f"true_{p}"] for r in sub], dtype=np.float64)
+                err = err[np.isfinite(err)]
+                rms.append(np.sqrt(np.mean(err**2)) if err.size else np.nan)
+            pos = np.arange(len(cases)) + (mi - (len(methods) - 1) / 2) * width
+            ax.bar(pos, rms, width=width, color=_COLORS[m], label=m)
+        ax.set_xticks(np.arange(len(cases)), cases, fontsize=8)
+        ax.set_yscale("log")
+        ax.set_ylabel(f"RMS error of {p}, {UNITS[p]}")
+        if pi == 0:
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ---------------------------------------------------------------------------- command
+def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
-        prog="python -m chekan.validate", description=__doc__.split("\n\n")[0]
+        prog="python -m chekan.validate",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("\n\n", 2)[2],
     )
-    ap.add_argument("--sessions", type=int, default=200)
-    ap.add_argument("--out", default="validation")
+    ap.add_argument("--sessions", type=int, default=200, help="sessions (default 200)")
+    ap.add_argument("--out", default="validation", help="folder for the files (created)")
     ap.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
+    ap.add_argument(
+        "--methods",
+        nargs="+",
+        choices=METHODS,
+        default=list(DEFAULT_METHODS),
+        help="estimators to compare (bayes: ~1 min per session)",
+    )
     ap.add_argument("--quick", action="store_true", help="3 h program instead of the paper's 9 h")
+    ap.add_argument("--program", help="a tilt program file (TOML) instead of the paper's")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--resume", action="store_true", help="keep matching rows of validation.csv")
+    ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
+    if args.sessions < 1:
+        ap.error("--sessions must be at least 1")
+    program = None
+    if args.program:
+        from chekan.errors import ChekanError
+        from chekan.program import load_program
+
+        try:
+            program = load_program(args.program)
+        except ChekanError as e:
+            print(e, file=sys.stderr)
+            return 2
     s = run_study(
-        args.sessions, Path(args.out), cases=tuple(args.cases), quick=args.quick, seed=args.seed
+        args.sessions,
+        Path(args.out),
+        cases=tuple(args.cases),
+        quick=args.quick,
+        seed=args.seed,
+        progress=not args.no_progress,
+        methods=tuple(args.methods),
+        jobs=args.jobs,
+        program=program,
+        resume=args.resume,
+        command="python -m chekan.validate " + " ".join(sys.argv[1:] if argv is None else argv),
     )
-    for key, sub in s.items():
-        if isinstance(sub, dict):
-            print(f"\n== {key} ==")
-            print(format_summary(sub))
-    print(
-        f"\nwrote {args.out}/validation.csv, validation.json, coverage.png ({s['seconds']:.0f} s)"
-    )
+    for key in _groups(s):
+        print(f"\n== {key} ==")
+        print(format_summary(s[key]))
+    print(f"\n{s['settings']['program']}; {s['seconds']:.0f} s")
+    for p in s["paths"]:
+        print(f"wrote {p}")
     return 0
 
 
