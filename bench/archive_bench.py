@@ -1,14 +1,15 @@
 """Batch re-analysis throughput: sessions per second, classical and MAP.
 
-    python bench/archive_bench.py --n 1000 [--jobs J] [--map-n M] [--keep DIR]
+    python bench/archive_bench.py --n 1000 [--jobs J] [--map-n M] [--ref-n R] [--keep DIR]
 
 Simulates N SHORT sessions (4 angles, 120 s dwell, one round; 60 kB records) of N/20
-instruments over ten years, then times ``reanalyze`` into a fresh archive: classical on
-all N, the skip pass (everything already archived), and MAP (only when ``chekan/bayes.py``
-exists) on ``--map-n`` of them (default all N: expect ~30 s per record per core).
+instruments over ten years, then times ``chekan.archive.reanalyze.reanalyze`` into a fresh
+archive: classical on all N, the skip pass (everything already archived), and MAP on
+``--map-n`` of them (default all N; 0 skips it). The reference for each method, measured in the same
+run, is the plain loop a user would write: ``chekan.pipeline.calibrate_file`` on each
+file in this one process, no archive (``--ref-n`` files, default all of the pass; MAP's
+first call here compiles or loads the persistent cache, as each worker's does).
 ``--keep DIR`` keeps (and reuses) the simulated records; the archive is new every run.
-Worker processes use the persistent JAX compilation cache; the first MAP call of each
-worker compiles.
 """
 
 from __future__ import annotations
@@ -17,10 +18,15 @@ import argparse
 import concurrent.futures as cf
 import multiprocessing as mp
 import shutil
+import statistics
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.table import Row, environment, environment_line, format_table
 
 SESSIONS_PER_INSTRUMENT = 20
 
@@ -43,6 +49,7 @@ def _generate(args: tuple[str, int, int, int]) -> int:
 
 
 def generate(root: Path, n: int, jobs: int, seed: int = 0) -> float:
+    """Simulate ``n`` records under ``root`` in ``jobs`` spawned processes; seconds."""
     t0 = time.perf_counter()
     step = max(1, -(-n // (4 * jobs)))
     tasks = [(str(root), lo, min(n, lo + step), seed) for lo in range(0, n, step)]
@@ -52,6 +59,7 @@ def generate(root: Path, n: int, jobs: int, seed: int = 0) -> float:
 
 
 def timed_reanalyze(root: Path, method: str, db: Path, jobs: int):
+    """``(seconds, BatchReport)`` of one ``reanalyze`` call."""
     from chekan.archive.reanalyze import reanalyze
 
     t0 = time.perf_counter()
@@ -59,9 +67,118 @@ def timed_reanalyze(root: Path, method: str, db: Path, jobs: int):
     return time.perf_counter() - t0, rep
 
 
-def line(label: str, n: int, dt: float, extra: str = "") -> str:
-    rate = n / dt if dt > 0 else float("inf")
-    return f"  {label:<10} {n:6d} sessions {dt:9.1f} s {rate:10.2f} sessions/s  {extra}"
+def timed_loop(paths: list[Path], method: str) -> list[float | None]:
+    """The reference: ``calibrate_file`` on each path in this process; seconds per file
+    (``None`` where it failed, as ``reanalyze`` counts its failures)."""
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+
+    opts = CalibrationOptions(method=method, progress=False)
+    out: list[float | None] = []
+    for p in paths:
+        t0 = time.perf_counter()
+        try:
+            calibrate_file(p, opts)
+            out.append(time.perf_counter() - t0)
+        except Exception:
+            out.append(None)
+    return out
+
+
+def _rate(n: int, dt: float) -> float:
+    return n / dt if dt > 0 else float("nan")
+
+
+def _pass_row(
+    label: str, n_done: int, n_failed: int, dt: float, loop: list[float | None], jobs: int
+) -> Row:
+    """A row for one re-analysis pass beside the plain loop's seconds per file."""
+    note = f"{n_done} sessions in {dt:.1f} s, {jobs} worker(s), {n_failed} failed"
+    values = {"sessions": n_done, "seconds": dt, "sessions_per_s": _rate(n_done, dt)}
+    ok = [t for t in loop if t is not None]
+    rdt = sum(ok)
+    note += f"; loop: {len(ok)}/{len(loop)} files in {rdt:.1f} s, 1 process, no archive"
+    if len(ok) > 1:  # the first call compiles (or loads the persistent cache)
+        note += f" (first {ok[0]:.2f} s, then median {statistics.median(ok[1:]):.2f} s)"
+    values.update(
+        reference_seconds=rdt,
+        reference_sessions=len(ok),
+        reference_sessions_per_s=_rate(len(ok), rdt),
+        reference_seconds_per_file=loop,
+    )
+    return Row(
+        label, f"{_rate(n_done, dt):.2f}/s", f"{_rate(len(ok), rdt):.2f}/s plain loop", note, values
+    )
+
+
+def run(
+    n: int = 200,
+    jobs: int | None = None,
+    map_n: int | None = None,
+    ref_n: int | None = None,
+    keep: str | None = None,
+    seed: int = 0,
+) -> list[Row]:
+    """Measure the figures (see the module docstring); returns the rows."""
+    from chekan.archive.reanalyze import default_jobs
+
+    jobs = jobs or default_jobs()
+    work = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="chekan-bench-"))
+    work.mkdir(parents=True, exist_ok=True)
+    records = work / "records"
+    rows: list[Row] = []
+    try:
+        if not records.exists():
+            dt = generate(records, n, jobs, seed)
+            rows.append(
+                Row(
+                    f"simulate {n} short records",
+                    f"{dt:.1f} s",
+                    note=f"{jobs} process(es); 4 angles × 120 s, one round",
+                    values={"seconds": dt, "sessions": n},
+                )
+            )
+        store = work / "store"  # a fresh archive every run (records are kept with --keep)
+        shutil.rmtree(store, ignore_errors=True)
+        db = store / "archive.sqlite"
+        paths = sorted(records.rglob("*.csv"))
+
+        dt, rep = timed_reanalyze(records, "classical", db, jobs)
+        k = min(ref_n or len(paths), len(paths))
+        loop = timed_loop(paths[:k], "classical")
+        rows.append(
+            _pass_row("re-analysis classical", len(rep.done), len(rep.failed), dt, loop, jobs)
+        )
+        dt, rep = timed_reanalyze(records, "classical", db, jobs)
+        rows.append(
+            Row(
+                "re-analysis skip pass",
+                f"{_rate(len(rep.skipped), dt):.2f}/s",
+                note=f"{len(rep.skipped)} already archived, {dt:.1f} s",
+                values={"sessions": len(rep.skipped), "seconds": dt},
+            )
+        )
+
+        n_map = min(len(paths) if map_n is None else map_n, len(paths))
+        if n_map <= 0:
+            rows.append(Row("re-analysis MAP", "skipped", note="--map-n 0"))
+            return rows
+        sub = work / f"map_{n_map}"
+        if not sub.exists():
+            sub.mkdir()
+            for p in paths[:n_map]:
+                shutil.copy(p, sub / p.name)
+        dt, rep = timed_reanalyze(sub, "map", db, jobs)
+        k = min(ref_n or n_map, n_map)
+        loop = timed_loop(sorted(sub.glob("*.csv"))[:k], "map")
+        row = _pass_row("re-analysis MAP", len(rep.done), len(rep.failed), dt, loop, jobs)
+        reasons = sorted({f.reason.split(": ", 1)[-1] for f in rep.failed})[:3]
+        if reasons:
+            row.note += f"; {'; '.join(reasons)}"
+        rows.append(row)
+    finally:
+        if not keep:
+            shutil.rmtree(work, ignore_errors=True)
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -70,45 +187,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--n", type=int, default=1000, help="sessions to simulate and re-analyse")
     ap.add_argument("--jobs", type=int, default=default_jobs(), help="worker processes")
-    ap.add_argument("--map-n", type=int, help="sessions for the MAP pass (default: all N)")
+    ap.add_argument("--map-n", type=int, help="sessions for the MAP pass (default: all N; 0: none)")
+    ap.add_argument("--ref-n", type=int, help="files for the plain-loop reference (default all)")
     ap.add_argument("--keep", help="keep the records and the archive in this folder")
+    ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-
-    import chekan
-
-    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="chekan-bench-"))
-    work.mkdir(parents=True, exist_ok=True)
-    records = work / "records"
-    try:
-        print(
-            f"archive bench: {args.n} short sessions, {args.jobs} worker(s), "
-            f"chekan {chekan.__version__}, {work}"
-        )
-        if not records.exists():
-            dt = generate(records, args.n, args.jobs)
-            print(f"  {'simulate':<10} {args.n:6d} records  {dt:9.1f} s")
-        store = work / "store"  # a fresh archive every run (records are kept with --keep)
-        shutil.rmtree(store, ignore_errors=True)
-        db = store / "archive.sqlite"
-        dt, rep = timed_reanalyze(records, "classical", db, args.jobs)
-        print(line("classical", len(rep.done), dt, f"({len(rep.failed)} failed)"))
-        dt, rep = timed_reanalyze(records, "classical", db, args.jobs)
-        print(line("skip", len(rep.skipped), dt, "(all already archived)"))
-        if not (Path(chekan.__file__).parent / "bayes.py").exists():
-            print("  map: chekan/bayes.py not present, skipped")
-            return 0
-        n_map = min(args.map_n or args.n, args.n)
-        sub = work / f"map_{n_map}"
-        if not sub.exists():
-            sub.mkdir()
-            for p in sorted(records.rglob("*.csv"))[:n_map]:
-                shutil.copy(p, sub / p.name)
-        dt, rep = timed_reanalyze(sub, "map", db, args.jobs)
-        reasons = sorted({f.reason.split(": ", 1)[-1] for f in rep.failed})[:3]
-        print(line("map", len(rep.done), dt, f"({len(rep.failed)} failed) {'; '.join(reasons)}"))
-    finally:
-        if not args.keep:
-            shutil.rmtree(work, ignore_errors=True)
+    env = environment()
+    rows = run(args.n, args.jobs, args.map_n, args.ref_n, args.keep, args.seed)
+    print(format_table(rows, f"archive bench ({args.jobs} worker(s))"))
+    print(environment_line(env))
     return 0
 
 
