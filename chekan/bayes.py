@@ -2,7 +2,8 @@
 
 ``map``: optimistix Levenberg–Marquardt on the joint least-squares problem in
 (θ, β) with the hyperparameters fixed, alternated three times with their EM updates
-(σ_o² = mean(o² + var o), σ_θ² = mean(δ² + var δ), sⱼ² ← sⱼ²·mean(rⱼ²)); the
+(σ_o² = mean(o² + var o), σ_θ² = mean(δ² + var δ), noise scales and κ from the expected
+squared residuals); the
 Laplace covariance (JᵀJ)⁻¹ gives the standard errors.
 
 ``bayes``: emcee on the 11-dimensional marginal posterior p(θ, h | y) (β integrated
@@ -63,20 +64,25 @@ PARAM_UNITS = {
 # ----------------------------------------------------------------------------- set-up
 
 
-def _setup(record, classical, options):
+def prepare(record, options) -> tuple:
+    """Segment the record into holds and lay it out for the joint model."""
     settle = options.settle_s
     if settle is None:
         settle = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle)
     m_ref = np.nanmean(holds.m_mean_pix[holds.is_level], axis=0)
-    model = cm.prepare_record(record, holds, m_ref, encoder=options.encoder_error)
-    return holds, model, _problem_for(model)
+    return holds, cm.prepare_record(record, holds, m_ref, encoder=options.encoder_error)
+
+
+def _setup(record, classical, options):
+    holds, model = prepare(record, options)
+    return holds, model, problem_for(model)
 
 
 _PROBLEMS: dict = {}
 
 
-def _problem_for(model: cm.RecordModel) -> cm.CalibrationProblem:
+def problem_for(model: cm.RecordModel) -> cm.CalibrationProblem:
     """One problem object per model structure, so compiled solvers are reused across
     records of the same shape (batch re-analysis, validation studies)."""
     key = (
@@ -94,7 +100,7 @@ def _problem_for(model: cm.RecordModel) -> cm.CalibrationProblem:
     )
 
 
-def _initial_values(classical, g: float) -> dict:
+def initial_values(classical, g: float) -> dict:
     a = classical.a
     K = float(np.sqrt(g / (2 * a))) if a > 0 else cm.K_DESIGN
     eps = classical.eps_arcmin if classical.eps_arcmin is not None else np.zeros(2)
@@ -113,76 +119,122 @@ def fit_map_em(prob: cm.CalibrationProblem, init: dict, *, progress: bool = Fals
     """MAP with EM updates of the hyperparameters; returns (MapResult, hyper dict, history).
 
     Each pass is an LM solve over θ (β projected out); between passes
-    σ_o² ← mean(ô² + var o), σ_θ² ← mean(δ̂² + var δ), sⱼ² ← sⱼ²·mean(rⱼ²) with the
-    conditional variances of β from M⁻¹.
+    σ_o² ← mean(ô² + var o), σ_θ² ← mean(δ̂² + var δ) with the conditional variances of β
+    from M⁻¹, and (s₁, s₂, κ) from the expected squared residuals r̂² + leverage of all
+    bins (:func:`em_update`).
     """
     model = prob.model
-    space = prob.map_space
     h = cm.hyper_dict()
-    z0 = space.to_z(init)
-    blocks = model.beta_blocks
-    mask = np.asarray(model.data["mask"])
+    z0 = prob.map_space.to_z(init)
     history = []
     res = None
     for it in range(EM_ITERATIONS + 1):
         data = dict(model.data)
         data["hyper"] = h
         res = fit_map(prob.lsq, data, z0)
-        history.append(
-            {"iteration": it, "converged": res.converged, "steps": res.num_steps, "cost": res.cost}
-        )
-        if progress:
-            print(
-                f"  MAP pass {it + 1}: {'converged' if res.converged else 'NOT converged'} "
-                f"in {res.num_steps} steps, cost {res.cost:.1f}"
-            )
+        history.append(_pass_entry(it, res.converged, res.num_steps, res.cost, progress))
         if it == EM_ITERATIONS:
             break
-        rw, beta, var, base, trans = _beta_at(prob, res, h, data)
-        o, vo = beta[blocks["hold_offset"]], var[blocks["hold_offset"]]
-        d, vd = beta[blocks["angle_error"]], var[blocks["angle_error"]]
-        r = rw.reshape(mask.shape)
-        nv = base + (float(h["slew_error"]) * trans) ** 2
-        raw2 = np.where(mask, r**2 * nv, 0.0)  # squared residuals in pix²
-        settled = mask & (trans < 1e-3)
-        ms = np.array(
-            [
-                np.sum(raw2[settled[:, j], j] / base[settled[:, j], j])
-                / max(settled[:, j].sum(), 1)
-                for j in range(2)
-            ]
-        )
-        t4 = np.sum(np.where(mask, trans**4, 0.0))
-        excess = np.where(mask, raw2 - base * ms[None, :], 0.0)
-        kappa2 = np.sum(excess * trans**2) / t4 if t4 > 0 else 0.0
-        h = cm.hyper_dict(
-            noise_scale=np.clip(np.asarray(h["noise_scale"]) * np.sqrt(ms), 0.05, 50.0),
-            sigma_theta_arcsec=float(np.clip(np.sqrt(np.mean(d**2 + vd)), 0.05, 30.0)),
-            sigma_hold_pix=float(np.clip(np.sqrt(np.mean(o**2 + vo)), 1e-3, 5.0)),
-            slew_error=float(np.clip(np.sqrt(max(kappa2, 0.0)), 1e-4, 0.5)),
-        )
+        h = em_update(prob, res.z, h, data)
         z0 = res.z
     return res, h, history
+
+
+def _pass_entry(it: int, converged, steps, cost, progress: bool) -> dict:
+    if progress:
+        print(
+            f"  MAP pass {it + 1}: {'converged' if converged else 'NOT converged'} "
+            f"in {int(steps)} steps, cost {float(cost):.1f}"
+        )
+    return {
+        "iteration": it,
+        "converged": bool(converged),
+        "steps": int(steps),
+        "cost": float(cost),
+    }
+
+
+def em_update(prob: cm.CalibrationProblem, z, h: dict, data: dict) -> dict:
+    """One EM update of the hyperparameters at θ = z (real holds and bins only)."""
+    blocks = prob.model.beta_blocks
+    mask = np.asarray(data["mask"])
+    hold = np.asarray(data["hold_mask"])
+    rw, beta, var, base, trans, lev = _beta_at(prob, z, h, data)
+    o_sel = blocks["hold_offset"][np.tile(hold, 2)]
+    d_sel = blocks["angle_error"][hold]
+    o, vo = beta[o_sel], var[o_sel]
+    d, vd = beta[d_sel], var[d_sel]
+    r = rw.reshape(mask.shape)
+    nv = base + (float(h["slew_error"]) * trans) ** 2
+    e2 = np.where(mask, (r**2 + lev) * nv, 0.0)  # E[squared residual | y] in pix²
+    scale, kappa = _noise_m_step(e2, base / np.asarray(h["noise_scale"])[None, :] ** 2, trans, mask)
+    return cm.hyper_dict(
+        noise_scale=scale,
+        sigma_theta_arcsec=float(np.clip(np.sqrt(np.mean(d**2 + vd)), 0.05, 30.0)),
+        sigma_hold_pix=float(np.clip(np.sqrt(np.mean(o**2 + vo)), 1e-3, 5.0)),
+        slew_error=kappa,
+    )
+
+
+def _noise_m_step(e2, b0, trans, mask) -> tuple[np.ndarray, float]:
+    """(s₁, s₂, κ) maximising Σ −½(log v + E[e²]/v) + log-priors, v = sⱼ² b₀ + κ² t².
+
+    All bins at once: settled bins (t = 0) fix sⱼ, the settling ones then fix κ. Priors
+    as in :func:`chekan.calmodel.hyper_params` (log s ~ N(0, 0.5), log κ ~ N(log 0.003, 1.5)).
+    """
+    from scipy.optimize import minimize
+
+    m = mask.astype(float)
+    t2 = trans**2
+    k_loc, k_sd, s_sd = np.log(0.003), 1.5, 0.5
+
+    def f(x):
+        ls, lk = x[:2], x[2]
+        v = np.exp(2 * ls)[None, :] * b0 + np.exp(2 * lk) * t2
+        v = np.where(mask, v, 1.0)
+        q = m * (1.0 / v - e2 / v**2)  # ∂(log v + e²/v)/∂v
+        val = 0.5 * np.sum(m * (np.log(v) + e2 / v))
+        val += 0.5 * np.sum((ls / s_sd) ** 2) + 0.5 * ((lk - k_loc) / k_sd) ** 2
+        g_s = np.sum(q * np.exp(2 * ls)[None, :] * b0, axis=0) + ls / s_sd**2
+        g_k = np.sum(q * np.exp(2 * lk) * t2) + (lk - k_loc) / k_sd**2
+        return val, np.concatenate([g_s, [g_k]])
+
+    x0 = np.array([0.0, 0.0, k_loc])
+    bounds = [(np.log(0.05), np.log(50.0))] * 2 + [(np.log(1e-5), np.log(0.5))]
+    res = minimize(f, x0, jac=True, method="L-BFGS-B", bounds=bounds)
+    return np.exp(res.x[:2]), float(np.exp(res.x[2]))
 
 
 _BETA_FNS: dict = {}
 
 
-def _beta_at(prob, res, h, data):
-    """β̂, its conditional variances diag(M⁻¹) and the whitened residuals at the MAP."""
+def _beta_at(prob, z, h, data):
+    """β̂, its conditional variances diag(M⁻¹), the whitened residuals, the base noise
+    variance, the transient amplitudes and the bins' leverages at θ = z."""
     key = id(prob.lsq)
     if key not in _BETA_FNS:
 
         def fn(z, h, data):
             v = prob.map_space.to_values(z)
-            rw, beta, L = cm.solve_beta(v, h, prob.model, data)
+            rw, beta, L, extras = cm.solve_beta(v, h, prob.model, data, extras=True)
             Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
-            _, _, _, trans = cm.linear_terms(v, data)
-            return rw, beta, jnp.sum(Linv**2, axis=0), cm.noise_var(h, data), trans
+            # leverage of each bin: (Ã M⁻¹ Ãᵀ)ᵢᵢ with Ã the whitened design (E[r²] = r̂² + lev)
+            A = cm.predict(v, prob.model, data)[1]  # (N, 2, p)
+            sw = jnp.where(data["mask"], 1.0 / jnp.sqrt(extras[5]), 0.0)
+            X = jnp.einsum("qp,njp->njq", Linv, A * sw[..., None])
+            lev = jnp.sum(X**2, axis=-1)
+            return (
+                rw,
+                beta,
+                jnp.sum(Linv**2, axis=0),
+                cm.noise_var(h, data),
+                extras[-1],
+                lev,
+            )
 
         _BETA_FNS[key] = (prob, jax.jit(fn))
-    rw, beta, var, base, trans = _BETA_FNS[key][1](jnp.asarray(res.z), h, data)
-    return np.asarray(rw), np.asarray(beta), np.asarray(var), np.asarray(base), np.asarray(trans)
+    out = _BETA_FNS[key][1](jnp.asarray(z), h, data)
+    return tuple(np.asarray(x) for x in out)
 
 
 # ----------------------------------------------------------------------------- derived
@@ -419,13 +471,19 @@ def estimate(data, *, kind: str, classical, base: dict, options) -> dict:
     t_start = time.perf_counter()
     record = data
     holds, model, prob = _setup(record, classical, options)
-    init = _initial_values(classical, record.g_local_mgal)
+    init = initial_values(classical, record.g_local_mgal)
     if options.progress:
         print(
             f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
             f"{model.n_beta} marginalised linear parameters"
         )
     res, h, history = fit_map_em(prob, init, progress=options.progress)
+    return after_map(prob, holds, res, h, history, base, options, t_start, record)
+
+
+def after_map(prob, holds, res, h, history, base, options, t_start, record) -> dict:
+    """From the MAP (θ̂, hyperparameters) to the ``map`` result, or on to the sampler."""
+    model = prob.model
     mdata = dict(model.data)
     mdata["hyper"] = h
     out = dict(base)
@@ -491,8 +549,35 @@ def _budget_entries(budget_raw: dict, params: dict) -> dict:
     return out
 
 
+def sampler_config(options, **overrides):
+    """The sampler settings of ``--method bayes``.
+
+    Four independent ensembles (for R̂) of 26 walkers; independence MH (0.7) with a t
+    proposal at the Laplace approximation of the marginal posterior (hyperparameters
+    included) + DE (0.3), whose τ on this posterior is a few steps (DE alone: ~40–90).
+    Stop at ≥ 150 steps, ≥ 25 τ and emcee's ESS estimate ≥ 1000 (bulk ESS ≥ 400 per
+    parameter with margin); keep ≤ 1000 draws per chain.
+    """
+    from inference.sampling import SamplerConfig
+
+    kw = {
+        "n_chains": 4,
+        "moves": "de-independence",
+        "min_steps": 150,
+        "max_steps": 3000 if options.quick else 10000,
+        "check_every": 50,
+        "tau_factor": 25.0,
+        "target_ess": 1000.0,
+        "max_draws": 1000,
+        "seed": options.seed,
+        "progress": options.progress,
+    }
+    kw.update(overrides)
+    return SamplerConfig(**kw)
+
+
 def _sample(prob, model, holds, res, h, out, diag, budget_raw, options, t_start, record):
-    from inference.sampling import SamplerConfig, sample
+    from inference.sampling import sample
 
     space = prob.bayes_space
     ntheta = prob.theta_space.size
@@ -503,16 +588,7 @@ def _sample(prob, model, holds, res, h, out, diag, budget_raw, options, t_start,
     ct = np.asarray(res.cov_z)[:ntheta, :ntheta]
     if np.all(np.isfinite(ct)):
         cov[:ntheta, :ntheta] = ct
-    cfg = SamplerConfig(
-        n_chains=4,
-        target_ess=1000.0,  # emcee's estimate; bulk ESS ≥ 400 per parameter with margin
-        min_steps=600,
-        max_steps=6000 if options.quick else 20000,
-        check_every=100,
-        tau_factor=25.0,  # 25 τ per chain × 4 independent chains
-        seed=options.seed,
-        progress=options.progress,
-    )
+    cfg = sampler_config(options)
     if options.progress:
         print("sampling the posterior (emcee, 4 independent ensembles)…")
     data = model.data
@@ -638,3 +714,5 @@ def _write_netcdf(path, draws, samp, model, rep, cols) -> Path:
 
 
 __all__ = ["ChekanError", "estimate", "fit_map_em"]
+_initial_values = initial_values  # TEMPORARY aliases while validate/bench move to the new names
+_problem_for = problem_for

@@ -244,27 +244,99 @@ def prepare_record(
         "drift_basis": jnp.asarray(P),
         "enc_basis": jnp.asarray(enc),
         "sigma_base": jnp.asarray(_robust_sigma(record, holds)),
+        "hold_mask": jnp.ones(H, dtype=bool),  # False for padding (see pad_model)
     }
-    D = drift_degree
+    return RecordModel(
+        data=data,
+        n_holds=H,
+        n_bins=N,
+        drift_degree=drift_degree,
+        encoder_degree=L,
+        hold_steps=holds.step,
+        bin_t_s=t_mid,
+        t_span_s=(t0, t1),
+        beta_blocks=_beta_blocks(H, drift_degree, L),
+    )
+
+
+def _beta_blocks(H: int, D: int, L: int) -> dict[str, np.ndarray]:
+    """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e)."""
     q = 1 + D  # per system: level offset cⱼ then drift dⱼ
     o0, a0, e0 = 2 * q, 2 * q + 2 * H, 2 * q + 3 * H
-    blocks = {
+    return {
         "c": np.array([0, q]),
         "drift": np.concatenate([np.arange(1, q), q + np.arange(1, q)]),
         "hold_offset": np.arange(o0, o0 + 2 * H),  # system 1's holds, then system 2's
         "angle_error": np.arange(a0, a0 + H),
         "encoder": np.arange(e0, e0 + L),
     }
+
+
+# padding values per data key: the axes that are padded and the fill value
+_PAD = {
+    "hold_tx": ("H", 0.0),
+    "hold_ty": ("H", 0.0),
+    "hold_T": ("H", 0.0),
+    "hold_mask": ("H", False),
+    "enc_basis": ("H", 0.0),
+    "own": ("NH", 0.0),
+    "prev": ("NH", 0.0),
+    "d0": ("N", 1e9),
+    "dstep": ("N", 1.0),
+    "n_t": ("N", 1.0),
+    "y": ("N", 0.0),
+    "cnt": ("N", 0.0),
+    "mask": ("N", False),
+    "drift_basis": ("N", 0.0),
+    "mv_tx": ("HM", 0.0),
+    "mv_ty": ("HM", 0.0),
+    "mv_lag": ("HM", 0.0),
+    "mv_mask": ("HM", False),
+}
+
+
+def padded_shape(models: list[RecordModel]) -> tuple[int, int, int]:
+    """(H, N, M) that holds every model, rounded up (H to 4, N and M to 16) so that
+    chunks of similar records share one compiled solver."""
+
+    def up(x: int, m: int) -> int:
+        return -(-x // m) * m
+
+    H = max(m.n_holds for m in models)
+    N = max(m.n_bins for m in models)
+    M = max(int(m.data["mv_tx"].shape[1]) for m in models)
+    return up(H, 4), up(N, 16), up(M, 16)
+
+
+def pad_model(model: RecordModel, H: int, N: int, M: int) -> RecordModel:
+    """The same record laid out for H holds, N bins and M slew samples.
+
+    Exact: padded bins have ``mask`` False (zero weight), padded holds have no bins
+    (``own``/``prev`` columns zero, so their β is its prior mean 0 and adds nothing to
+    the residuals) and sit after the real ones (the unsettled-carry scan runs forwards),
+    padded slew samples have ``mv_mask`` False. ``hold_mask`` marks the real holds.
+    """
+    h0, n0, m0 = model.n_holds, model.n_bins, int(model.data["mv_tx"].shape[1])
+    if (H, N, M) == (h0, n0, m0):
+        return model
+    if H < h0 or N < n0 or M < m0:
+        raise ValueError(f"cannot pad ({h0}, {n0}, {m0}) down to ({H}, {N}, {M})")
+    extra = {"H": H - h0, "N": N - n0, "M": M - m0}
+    data = dict(model.data)
+    for key, (axes, fill) in _PAD.items():
+        x = np.asarray(data[key])
+        widths = [(0, extra[a]) for a in axes] + [(0, 0)] * (x.ndim - len(axes))
+        data[key] = jnp.asarray(np.pad(x, widths, constant_values=fill))
     return RecordModel(
         data=data,
         n_holds=H,
         n_bins=N,
-        drift_degree=D,
-        encoder_degree=L,
-        hold_steps=holds.step,
-        bin_t_s=t_mid,
-        t_span_s=(t0, t1),
-        beta_blocks=blocks,
+        drift_degree=model.drift_degree,
+        encoder_degree=model.encoder_degree,
+        hold_steps=model.hold_steps,
+        bin_t_s=model.bin_t_s,
+        t_span_s=model.t_span_s,
+        beta_blocks=_beta_blocks(H, model.drift_degree, model.encoder_degree),
     )
 
 
@@ -487,16 +559,22 @@ class CalibrationProblem:
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
 
-def solve_beta(v: dict, h: dict, model: RecordModel, data: dict):
+def solve_beta(v: dict, h: dict, model: RecordModel, data: dict, extras: bool = False):
     """β̂(θ) = argmin ‖N^{-1/2}(y − f − Aβ)‖² + ‖Λ^{-1/2}β‖² and the whitened residuals.
 
-    Returns ``(r_w (2N,), beta_hat (p,), L)`` with LLᵀ = M = AᵀN⁻¹A + Λ⁻¹.
+    Returns ``(r_w (2N,), beta_hat (p,), L)`` with LLᵀ = M = AᵀN⁻¹A + Λ⁻¹, and with
+    ``extras`` also the pieces ``(f, G, s, r, W, nv, trans)`` of :func:`normal_equations`.
     """
     from inference.normal_eq import posterior_beta_normal
 
-    ne, (_, G, s, r, W, _, _) = normal_equations(v, h, model, data)
+    ne, pieces = normal_equations(v, h, model, data)
+    _, G, s, r, _, nv, _ = pieces
     beta, L = posterior_beta_normal(ne, beta_prior_var(h, model))
-    rw = jnp.sqrt(W) * (r - apply_A(beta, G, s, model, data))
+    # not sqrt(W): its derivative is infinite where W = 0 (masked bins), giving 0·∞ = NaN
+    sqrt_w = jnp.where(data["mask"], 1.0 / jnp.sqrt(nv), 0.0)
+    rw = sqrt_w * (r - apply_A(beta, G, s, model, data))
+    if extras:
+        return rw.reshape(-1), beta, L, pieces
     return rw.reshape(-1), beta, L
 
 

@@ -31,6 +31,19 @@ class CalibrationOptions:
 def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) -> dict:
     """Calibrate a record or a legacy protocol with the chosen method; return the result dict."""
     opts = options or CalibrationOptions()
+    data, kind, cres, result = classical_stage(path, opts)
+    if opts.method == "classical":
+        return result
+    from chekan.bayes import estimate  # heavy imports only when needed
+
+    return estimate(data, kind=kind, classical=cres, base=result, options=opts)
+
+
+def classical_stage(path: str | Path, opts: CalibrationOptions):
+    """Read the input and run the classical method: ``(data, kind, classical fit, result)``.
+
+    Every method starts here (the classical fit seeds the MAP and is reported beside it).
+    """
     if opts.method not in METHODS:
         raise ChekanError(f"unknown method {opts.method!r}; choose one of {', '.join(METHODS)}")
     data = read_input(path)
@@ -68,8 +81,4 @@ def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) 
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
-    if opts.method == "classical":
-        return result
-    from chekan.bayes import estimate  # heavy imports only when needed
-
-    return estimate(data, kind=kind, classical=cres, base=result, options=opts)
+    return data, kind, cres, result

@@ -70,7 +70,7 @@ def test_normal_equations_equal_dense_marginal(short_session, encoder):
 def test_map_recovers_truth(short_session):
     _, rec, truth = short_session
     cres, _, model, prob = _setup(rec)
-    res, h, history = bayes.fit_map_em(prob, bayes._initial_values(cres, rec.g_local_mgal))
+    res, h, history = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
     assert res.converged and all(p["converged"] for p in history)
     md = bayes._map_derived(prob, res, h, {**model.data, "hyper": h})
     t = truth.derived()

@@ -151,23 +151,35 @@ def _options(opts: dict[str, Any]):
 def solve_many_map(paths: Sequence[str | os.PathLike], options=None) -> list[dict | Exception]:
     """MAP calibration of many inputs → one result dict (or the exception raised) per path.
 
-    HOOK for the batched MAP solve: today this calls :func:`chekan.pipeline.calibrate_file`
-    once per file. It is the single place where a vmapped solve over the chunk (same data
-    shapes padded together, per-lane failures) is to be plugged in; callers already hand it
-    whole chunks and accept per-path exceptions.
+    Records are solved together (:func:`chekan.map_batch.estimate_map_many`: padded to
+    one shape, one vmapped LM per EM pass); legacy protocols one by one. A bad input
+    fails on its own.
     """
     from dataclasses import replace
 
-    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.pipeline import CalibrationOptions, classical_stage
 
     opts = replace(options or CalibrationOptions(), method="map", progress=False)
-    out: list[dict | Exception] = []
-    for p in paths:
+    out: list[dict | Exception | None] = [None] * len(paths)
+    records = []  # (index, (record, classical fit, base result))
+    for i, p in enumerate(paths):
         try:
-            out.append(calibrate_file(p, opts))
+            data, kind, cres, base = classical_stage(p, opts)
+            if kind == "record":
+                records.append((i, (data, cres, base)))
+            else:
+                from chekan.bayes import estimate
+
+                out[i] = estimate(data, kind=kind, classical=cres, base=base, options=opts)
         except Exception as e:  # one bad input never spoils the chunk
-            out.append(e)
-    return out
+            out[i] = e
+    if records:
+        from chekan.map_batch import estimate_map_many
+
+        results = estimate_map_many([x for _, x in records], opts)
+        for (i, _), r in zip(records, results, strict=True):
+            out[i] = r
+    return out  # type: ignore[return-value]
 
 
 def analyse_chunk(
