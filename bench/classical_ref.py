@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
+from chekan.units import ARCSEC_PER_RAD
 
 
 def numpy_classical_fit(record, settle_s: float) -> tuple[np.ndarray, float]:

@@ -488,6 +488,7 @@ def run_study(
     ``seconds`` and ``paths`` (every file written).
     """
     from chekan.demo import demo_program
+    from chekan.result import _clean  # NaN → None: JSON has no NaN
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
@@ -556,19 +557,8 @@ def run_study(
     md.write_text(markdown_report(summary, settings, pngs), encoding="utf-8")
     js = out / "validation.json"
     summary["paths"] = [str(p) for p in (csv_path, js, md, *pngs)]
-    js.write_text(json.dumps(_finite(summary), indent=2, allow_nan=False), encoding="utf-8")
+    js.write_text(json.dumps(_clean(summary), indent=2, allow_nan=False), encoding="utf-8")
     return summary
-
-
-def _finite(obj: Any) -> Any:
-    """NaN and ±inf → None, recursively (JSON has no NaN)."""
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 
 
 # ---------------------------------------------------------------------------- figures

@@ -217,6 +217,6 @@ def test_refine_mode_stays_put_outside_a_finite_support() -> None:
     def logp(z):  # finite only for z₀ > 0: the first FD stencil already leaves the support
         return np.where(z[:, 0] > 0, -0.5 * np.sum(z**2, axis=1), -np.inf)
 
-    z, c, info = refine_mode(logp, np.array([0.01, 1.0]), np.eye(2))
+    z, _, info = refine_mode(logp, np.array([0.01, 1.0]), np.eye(2))
     np.testing.assert_array_equal(z, [0.01, 1.0])
     assert not info["laplace"]
