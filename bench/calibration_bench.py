@@ -88,8 +88,8 @@ def run(seed: int = 0, skip_bayes: bool = False, quick: bool = False) -> list[Ro
     )
 
     opts = CalibrationOptions(method="map", settle_s=settle, progress=False)
-    _, model, prob = bayes._setup(rec, cres, opts)
-    init = bayes._initial_values(cres, rec.g_local_mgal)
+    _, model, prob = bayes.setup(rec, cres, opts)
+    init = bayes.initial_values(cres, rec.g_local_mgal)
     t = time.perf_counter()
     bayes.fit_map_em(prob, init)
     dt_first = time.perf_counter() - t

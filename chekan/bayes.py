@@ -74,7 +74,8 @@ def prepare(record, options) -> tuple:
     return holds, cm.prepare_record(record, holds, m_ref, encoder=options.encoder_error)
 
 
-def _setup(record, classical, options):
+def setup(record, classical, options):
+    """Holds, the record model and its (shared, compiled) problem."""
     holds, model = prepare(record, options)
     return holds, model, problem_for(model)
 
@@ -313,52 +314,68 @@ def _in_chunks(fn, zs: np.ndarray, keys, data, chunk: int = 512) -> dict:
     return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}
 
 
-def _map_derived(prob, res, h, data):
+_DERIVED_FNS: dict = {}
+
+
+def _map_derived_core(prob):
+    """Jitted (z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂), one per structure
+    (eager ``jacfwd`` would compile op by op in every new process, uncached)."""
+    key = id(prob.lsq)
+    if key in _DERIVED_FNS:
+        return _DERIVED_FNS[key][1]
+    model = prob.model
+    space = prob.map_space
+    blocks = model.beta_blocks
+    D = model.drift_degree
+    ends = jnp.asarray([1.0 - (-1.0) ** ell for ell in range(1, D + 1)])
+
+    def core(z, h, data, dur_h):
+        def g(z, beta):
+            v = space.to_values(z)
+            sp = cm.sensor_params(v, data, beta[blocks["c"]])
+            b0 = fm.scale_factor_at_centre(sp)
+            slope = beta[blocks["drift"]].reshape(2, D) @ ends / dur_h
+            return jnp.stack(
+                [
+                    v["b1"],
+                    v["b2"],
+                    jnp.mean(fm.quadratic_coefficient(sp, sp.m_level_pix)),
+                    b0[0],
+                    b0[1],
+                    v["eps1_arcmin"],
+                    v["eps2_arcmin"],
+                    v["dgamma_arcmin"],
+                    v["tau_s"],
+                    slope[0],
+                    slope[1],
+                ]
+            )
+
+        def beta_hat(z):
+            return cm.solve_beta(space.to_values(z), h, model, data)[1]
+
+        _, beta, L = cm.solve_beta(space.to_values(z), h, model, data)
+        Jz = jax.jacfwd(lambda zz: g(zz, beta_hat(zz)))(z)
+        Jb = jax.jacfwd(lambda bb: g(z, bb))(beta)
+        Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
+        return g(z, beta), Jz, Jb, Linv.T @ Linv, beta
+
+    _DERIVED_FNS[key] = (prob, jax.jit(core))
+    return _DERIVED_FNS[key][1]
+
+
+def map_derived(prob, res, h, data):
     """Derived quantities at the MAP with delta-method sds.
 
     With θ ~ N(θ̂, C) and β | θ ~ N(β̂(θ), M⁻¹):
     var g = (∂g/∂θ + ∂g/∂β ∂β̂/∂θ) C (…)ᵀ + ∂g/∂β M⁻¹ (∂g/∂β)ᵀ.
     """
     model = prob.model
-    space = prob.map_space
     blocks = model.beta_blocks
-    D = model.drift_degree
     dur_h = (model.t_span_s[1] - model.t_span_s[0]) / 3600.0
-    ends = jnp.asarray([1.0 - (-1.0) ** ell for ell in range(1, D + 1)])
     names = list(PARAM_UNITS)[:11]  # b1 … drift2_pix_per_h, in the order g() stacks them
-
-    def g(z, beta):
-        v = space.to_values(z)
-        sp = cm.sensor_params(v, data, beta[blocks["c"]])
-        b0 = fm.scale_factor_at_centre(sp)
-        slope = beta[blocks["drift"]].reshape(2, D) @ ends / dur_h
-        return jnp.stack(
-            [
-                v["b1"],
-                v["b2"],
-                jnp.mean(fm.quadratic_coefficient(sp, sp.m_level_pix)),
-                b0[0],
-                b0[1],
-                v["eps1_arcmin"],
-                v["eps2_arcmin"],
-                v["dgamma_arcmin"],
-                v["tau_s"],
-                slope[0],
-                slope[1],
-            ]
-        )
-
-    def beta_hat(z):
-        return cm.solve_beta(space.to_values(z), h, model, data)[1]
-
-    z = jnp.asarray(res.z)
-    beta = beta_hat(z)
-    val = np.asarray(g(z, beta))
-    Jz = np.asarray(jax.jacfwd(lambda zz: g(zz, beta_hat(zz)))(z))
-    Jb = np.asarray(jax.jacfwd(lambda bb: g(z, bb))(beta))
-    L = np.asarray(cm.solve_beta(space.to_values(z), h, model, data)[2])
-    Linv = np.linalg.solve(L, np.eye(L.shape[0]))
-    Minv = Linv.T @ Linv
+    out_j = _map_derived_core(prob)(jnp.asarray(res.z), h, data, dur_h)
+    val, Jz, Jb, Minv, beta = (np.asarray(x) for x in out_j)
     cov = np.asarray(res.cov_z)
     finite = np.isfinite(np.diag(cov))
     cz = np.where(np.isfinite(cov), cov, 0.0)
@@ -381,7 +398,10 @@ def uncertainty_budget(prob, res, data) -> dict:
     """Split var(b̂) by the source of each row of the whitened MAP Jacobian (module doc)."""
     space = prob.map_space
     model = prob.model
-    J = np.asarray(jax.jacfwd(lambda z: prob.lsq.stacked_residuals(z, data))(jnp.asarray(res.z)))
+    key = ("jac", id(prob.lsq))
+    if key not in _DERIVED_FNS:
+        _DERIVED_FNS[key] = (prob, jax.jit(jax.jacfwd(prob.lsq.stacked_residuals)))
+    J = np.asarray(_DERIVED_FNS[key][1](jnp.asarray(res.z), data))
     n_data = int(np.asarray(data["mask"]).size)
     nb = model.n_beta
     blocks = model.beta_blocks
@@ -470,7 +490,7 @@ def estimate(data, *, kind: str, classical, base: dict, options) -> dict:
         return estimate_protocol(data, classical=classical, base=base, options=options)
     t_start = time.perf_counter()
     record = data
-    holds, model, prob = _setup(record, classical, options)
+    holds, model, prob = setup(record, classical, options)
     init = initial_values(classical, record.g_local_mgal)
     if options.progress:
         print(
@@ -490,7 +510,7 @@ def after_map(prob, holds, res, h, history, base, options, t_start, record) -> d
     out["method"] = options.method
     out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2") if k in base["parameters"]}
     budget_raw = uncertainty_budget(prob, res, mdata)
-    md = _map_derived(prob, res, h, mdata)
+    md = map_derived(prob, res, h, mdata)
     diag = {
         "converged": bool(res.converged),
         "map_steps": int(res.num_steps),
@@ -713,6 +733,13 @@ def _write_netcdf(path, draws, samp, model, rep, cols) -> Path:
     return save_netcdf(idata, path)
 
 
-__all__ = ["ChekanError", "estimate", "fit_map_em"]
-_initial_values = initial_values  # TEMPORARY aliases while validate/bench move to the new names
-_problem_for = problem_for
+__all__ = [
+    "ChekanError",
+    "estimate",
+    "fit_map_em",
+    "initial_values",
+    "map_derived",
+    "prepare",
+    "problem_for",
+    "setup",
+]

@@ -277,7 +277,7 @@ def _derived(u, fixed):
     """(a, b₁,₀, b₂,₀) at the design values and their gradient in (u, c), (3,), (3, 8).
 
     a = mean_j a_j(m_h + c) (eq. 10), b_{j,0} = b_j + 2a_j(m₀ − m_h − c) (eq. 24), as
-    :func:`chekan.bayes._map_derived` reports them.
+    :func:`chekan.bayes.map_derived` reports them.
     """
 
     def q(uc):

@@ -164,9 +164,9 @@ def _map_columns(rec, cres, settle_s: float) -> dict[str, Any]:
     from chekan.pipeline import CalibrationOptions
 
     opts = CalibrationOptions(method="map", settle_s=settle_s, progress=False)
-    _, model, prob = bayes._setup(rec, cres, opts)
-    res, h, _ = bayes.fit_map_em(prob, bayes._initial_values(cres, rec.g_local_mgal))
-    md = bayes._map_derived(prob, res, h, {**model.data, "hyper": h})
+    _, model, prob = bayes.setup(rec, cres, opts)
+    res, h, _ = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
+    md = bayes.map_derived(prob, res, h, {**model.data, "hyper": h})
     out: dict[str, Any] = {}
     for p in PARAMS:
         out[f"map_{p}"], out[f"map_{p}_sd"] = (float(v) for v in md[p])

@@ -22,7 +22,7 @@ TRUTH_VALUES = {
 def _setup(rec, encoder=False):
     cres, _ = calibrate_record(rec, settle_s=200)
     opts = CalibrationOptions(method="map", settle_s=200, encoder_error=encoder)
-    return cres, *bayes._setup(rec, cres, opts)
+    return cres, *bayes.setup(rec, cres, opts)
 
 
 @pytest.mark.parametrize("encoder", [False, True])
@@ -72,7 +72,7 @@ def test_map_recovers_truth(short_session):
     cres, _, model, prob = _setup(rec)
     res, h, history = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
     assert res.converged and all(p["converged"] for p in history)
-    md = bayes._map_derived(prob, res, h, {**model.data, "hyper": h})
+    md = bayes.map_derived(prob, res, h, {**model.data, "hyper": h})
     t = truth.derived()
     for k in ("b1", "b2", "a", "b1_0", "b2_0", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin"):
         mean, sd = md[k]
