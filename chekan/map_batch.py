@@ -25,6 +25,11 @@ from chekan import bayes
 from chekan import calmodel as cm
 from inference.map import fit_map_batch
 
+# vmapped lanes per solve: the XLA CPU runtime (jax 0.10) deadlocks on this model's
+# vmapped LM at 4 lanes and more (measured; see inference.map.fit_map_batch); on CPU a
+# vmapped solve costs about the sum of its lanes anyway, so pairs lose nothing
+MAX_LANES = 2
+
 
 def _stack(trees: list[dict]) -> dict:
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *trees)
@@ -43,7 +48,7 @@ def fit_map_em_batch(prob: cm.CalibrationProblem, models: list, inits: list[dict
     batch = None
     for it in range(bayes.EM_ITERATIONS + 1):
         datas = [{**m.data, "hyper": h} for m, h in zip(models, hs, strict=True)]
-        batch = fit_map_batch(prob.lsq, _stack(datas), z0)
+        batch = fit_map_batch(prob.lsq, _stack(datas), z0, max_lanes=MAX_LANES)
         for i in range(B):
             histories[i].append(
                 bayes._pass_entry(

@@ -304,6 +304,36 @@ def fit_map(
     )
 
 
+def _in_groups(run, z0, data_batch, data_axes, batch: int, lanes: int):
+    """``run`` over groups of ``lanes`` lanes, outputs concatenated back to ``batch``."""
+
+    def take(ix):
+        def pick(ax, sub):
+            if ax is None:
+                return sub
+            return jax.tree_util.tree_map(lambda leaf: jnp.take(leaf, ix, axis=ax), sub)
+
+        return pick
+
+    outs = []
+    for start in range(0, batch, lanes):
+        ix = jnp.asarray(np.minimum(np.arange(start, start + lanes), batch - 1))
+        if isinstance(data_axes, int):
+            d = jax.tree_util.tree_map(
+                lambda leaf, ix=ix: jnp.take(leaf, ix, axis=data_axes), data_batch
+            )
+        else:
+            d = jax.tree_util.tree_map(take(ix), data_axes, data_batch, is_leaf=lambda x: x is None)
+        outs.append(run(z0[ix], d))
+    n_real = [min(lanes, batch - start) for start in range(0, batch, lanes)]
+
+    def join(*parts):
+        return jnp.concatenate([x[:n] for x, n in zip(parts, n_real, strict=True)])
+
+    # pytrees (optimistix's RESULTS is one), joined leaf by leaf
+    return tuple(jax.tree_util.tree_map(join, *[o[k] for o in outs]) for k in range(len(outs[0])))
+
+
 def fit_map_batch(
     problem: LeastSquaresProblem,
     data_batch: Any,
@@ -315,6 +345,7 @@ def fit_map_batch(
     max_steps: int = 256,
     solver: SolverName = "lm",
     rcond: float = DEFAULT_RCOND,
+    max_lanes: int | None = None,
 ) -> MapBatchResult:
     """MAP for B datasets at once (``jax.vmap`` over the leading axis of ``data_batch``).
 
@@ -322,11 +353,20 @@ def fit_map_batch(
     residuals exactly 0). ``data_axes`` is the vmap ``in_axes`` prefix for the data: use
     ``None`` for leaves shared by all lanes, e.g. ``{"t": None, "y": 0}``. ``z0_batch``: (B, p)
     or None (prior loc). Compiled once per problem and data shapes.
+
+    ``max_lanes``: solve in vmapped groups of at most this many lanes (the last group padded
+    by repeating its last lane, so one compile serves all groups). On the XLA CPU runtime
+    of jax 0.10 a vmapped solve of a large model over 4 or more lanes can deadlock in the
+    intra-op thread pool (all threads idle, never returns); groups of 2 do not.
     """
     space = problem.space
     batch = _batch_size(data_batch, data_axes, z0_batch)
     run = _compiled(problem, solver, rtol, atol, max_steps, batched=True, data_axes=data_axes)
-    z, result, steps, r, s, vt = run(_z0(space, z0_batch, batch), data_batch)
+    z0 = _z0(space, z0_batch, batch)
+    if max_lanes is None or max_lanes >= batch:
+        z, result, steps, r, s, vt = run(z0, data_batch)
+    else:
+        z, result, steps, r, s, vt = _in_groups(run, z0, data_batch, data_axes, batch, max_lanes)
     z = np.asarray(z)
     r = np.asarray(r)
     s = np.asarray(s)

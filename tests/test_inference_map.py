@@ -118,6 +118,12 @@ def test_batch_equals_individual_fits_and_does_not_retrace() -> None:
     assert batch2.converged[ok].all() and np.isnan(batch2.sd["A"][3])
     np.testing.assert_allclose(batch2.z[ok], batch.z[ok], atol=1e-8)
 
+    # in vmapped groups of 3 lanes (the last group padded): the same answers, lane by lane
+    grouped = fit_map_batch(problem, batch_data, data_axes=axes, max_lanes=3)
+    np.testing.assert_allclose(grouped.z, batch.z, atol=1e-10)
+    np.testing.assert_array_equal(grouped.converged, batch.converged)
+    assert len(grouped.messages) == 8
+
     assert batch.converged.all(), batch.messages
     for i, d in enumerate(datasets):
         single = fit_map(problem, d)

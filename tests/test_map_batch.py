@@ -51,7 +51,7 @@ def test_batched_map_equals_one_by_one(short_program, short_session, tmp_path) -
     broken = tmp_path / "broken.csv"
     broken.write_text(path7.read_text(encoding="utf-8").replace("\n", "\nnot,a,row\n", 30)[:5000])
     opts = CalibrationOptions(method="map", progress=False)
-    many = solve_many_map([path7, broken, path8], opts)
+    many = solve_many_map([path7, broken, path8], opts, batched=True)
     assert isinstance(many[1], Exception) and "broken.csv" in str(many[1])
     for path, got in ((path7, many[0]), (path8, many[2])):
         want = calibrate_file(path, opts)

@@ -148,13 +148,21 @@ def _options(opts: dict[str, Any]):
     return CalibrationOptions(**opts)
 
 
-def solve_many_map(paths: Sequence[str | os.PathLike], options=None) -> list[dict | Exception]:
+def solve_many_map(
+    paths: Sequence[str | os.PathLike], options=None, batched: bool | None = None
+) -> list[dict | Exception]:
     """MAP calibration of many inputs → one result dict (or the exception raised) per path.
 
-    Records are solved together (:func:`chekan.map_batch.estimate_map_many`: padded to
-    one shape, one vmapped LM per EM pass); legacy protocols one by one. A bad input
-    fails on its own.
+    ``batched`` (default: on an accelerator, not on CPU): records are solved together
+    (:func:`chekan.map_batch.estimate_map_many`: padded to one shape, one vmapped LM per
+    EM pass). On CPU a vmapped solve costs the sum of its lanes plus the padding, so one
+    record at a time is faster there (measured: 3.2 s against 1.3 s per short record).
+    Legacy protocols go one by one. A bad input fails on its own.
     """
+    if batched is None:
+        import jax
+
+        batched = jax.default_backend() != "cpu"
     from dataclasses import replace
 
     from chekan.pipeline import CalibrationOptions, classical_stage
@@ -165,7 +173,7 @@ def solve_many_map(paths: Sequence[str | os.PathLike], options=None) -> list[dic
     for i, p in enumerate(paths):
         try:
             data, kind, cres, base = classical_stage(p, opts)
-            if kind == "record":
+            if kind == "record" and batched:
                 records.append((i, (data, cres, base)))
             else:
                 from chekan.bayes import estimate
