@@ -6,8 +6,10 @@
 squared residuals); the
 Laplace covariance (JᵀJ)⁻¹ gives the standard errors.
 
-``bayes``: emcee on the 11-dimensional marginal posterior p(θ, h | y) (β integrated
-out in closed form), started from the MAP with its Laplace covariance, four
+``bayes``: emcee on the 12-dimensional marginal posterior p(θ, h | y) (β integrated
+out in closed form): the MAP is refined to the marginal mode and its Laplace
+approximation (:func:`inference.mode.refine_mode`), which seeds the walkers and an
+independence-MH t proposal mixed with DE moves (:func:`sampler_config`); four
 independent ensembles for R-hat, burn-in and thinning from the integrated
 autocorrelation time; β | θ, y is drawn for every retained draw, so drift, angle
 errors, a and b₀ have posteriors too. Convergence (R-hat ≤ 1.01, bulk ESS ≥ 400)

@@ -30,7 +30,7 @@ round, δₖ += Σₗ eₗ Pₗ(θₖ/θ_max) (Legendre, l = 1…3; prior eₗ ~
 
 The readings are linear in β = (c, d, o, δ, e), so β is marginalised in closed form
 (:mod:`inference.linear`): the sampler sees only θ = (b₁, b₂, log K, ε₁, ε₂, Δγ, log τ)
-and the hyperparameters (log s₁, log s₂, log σ_θ, log σ_o), 11 dimensions.
+and the hyperparameters (log s₁, log s₂, log σ_θ, log σ_o, log κ), 12 dimensions.
 
 **Priors** (values in the units of the parameter):
 
@@ -549,7 +549,7 @@ class CalibrationProblem:
     lsq: LeastSquaresProblem
 
     def log_density(self, z, data):
-        """log p(θ, h | y) up to a constant, β marginalised (11-dim z)."""
+        """log p(θ, h | y) up to a constant, β marginalised (12-dim z)."""
         from inference.normal_eq import marginal_loglik_normal
 
         v = self.bayes_space.to_values(z)
