@@ -577,20 +577,21 @@ def sampler_config(options, **overrides):
     Four independent ensembles (for R̂) of 26 walkers; independence MH (0.7) with a t
     proposal at the Laplace approximation of the marginal posterior (hyperparameters
     included) + DE (0.3), whose τ on this posterior is a few steps (DE alone: ~40–90).
-    Stop at ≥ 150 steps, ≥ 25 τ and emcee's ESS estimate ≥ 1000 (bulk ESS ≥ 400 per
-    parameter with margin); keep ≤ 1000 draws per chain.
+    Stop at ≥ 200 steps, ≥ 25 τ and emcee's ESS estimate ≥ 1000 (bulk ESS ≥ 400 per
+    parameter with margin); keep ≤ 2000 draws per chain (1000 left the tail ESS of the
+    hyperparameters near 400 on 3 h records).
     """
     from inference.sampling import SamplerConfig
 
     kw = {
         "n_chains": 4,
         "moves": "de-independence",
-        "min_steps": 150,
+        "min_steps": 200,
         "max_steps": 3000 if options.quick else 10000,
         "check_every": 50,
         "tau_factor": 25.0,
         "target_ess": 1000.0,
-        "max_draws": 1000,
+        "max_draws": 2000,
         "seed": options.seed,
         "progress": options.progress,
     }
