@@ -88,7 +88,7 @@ def run(seed: int = 0, skip_bayes: bool = False, quick: bool = False) -> list[Ro
     )
 
     opts = CalibrationOptions(method="map", settle_s=settle, progress=False)
-    _, model, prob = bayes.setup(rec, cres, opts)
+    _, model, prob = bayes.setup(rec, opts)
     init = bayes.initial_values(cres, rec.g_local_mgal)
     t = time.perf_counter()
     bayes.fit_map_em(prob, init)

@@ -76,7 +76,7 @@ def prepare(record, options) -> tuple:
     return holds, cm.prepare_record(record, holds, m_ref, encoder=options.encoder_error)
 
 
-def setup(record, classical, options):
+def setup(record, options):
     """Holds, the record model and its (shared, compiled) problem."""
     holds, model = prepare(record, options)
     return holds, model, problem_for(model)
@@ -208,35 +208,38 @@ def _noise_m_step(e2, b0, trans, mask) -> tuple[np.ndarray, float]:
     return np.exp(res.x[:2]), float(np.exp(res.x[2]))
 
 
-_BETA_FNS: dict = {}
+_JITTED: dict = {}
+
+
+def _jitted_for(prob: cm.CalibrationProblem, name: str, make):
+    """``jax.jit(make(prob))``, built once per problem structure (``problem_for`` shares
+    ``prob.lsq`` between records of one shape; the entry keeps ``prob`` alive, so its id
+    is never reused)."""
+    key = (name, id(prob.lsq))
+    if key not in _JITTED:
+        _JITTED[key] = (prob, jax.jit(make(prob)))
+    return _JITTED[key][1]
+
+
+def _beta_at_fn(prob):
+    def fn(z, h, data):
+        v = prob.map_space.to_values(z)
+        rw, beta, L, (_, G, s, _, _, nv, trans) = cm.solve_beta(v, h, prob.model, data, extras=True)
+        Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
+        # leverage of each bin: (Ã M⁻¹ Ãᵀ)ᵢᵢ with Ã the whitened design (E[r²] = r̂² + lev)
+        A = cm.dense_design(G, s, prob.model, data)  # (N, 2, p)
+        sw = jnp.where(data["mask"], 1.0 / jnp.sqrt(nv), 0.0)
+        X = jnp.einsum("qp,njp->njq", Linv, A * sw[..., None])
+        lev = jnp.sum(X**2, axis=-1)
+        return rw, beta, jnp.sum(Linv**2, axis=0), cm.noise_var(h, data), trans, lev
+
+    return fn
 
 
 def _beta_at(prob, z, h, data):
     """β̂, its conditional variances diag(M⁻¹), the whitened residuals, the base noise
     variance, the transient amplitudes and the bins' leverages at θ = z."""
-    key = id(prob.lsq)
-    if key not in _BETA_FNS:
-
-        def fn(z, h, data):
-            v = prob.map_space.to_values(z)
-            rw, beta, L, extras = cm.solve_beta(v, h, prob.model, data, extras=True)
-            Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
-            # leverage of each bin: (Ã M⁻¹ Ãᵀ)ᵢᵢ with Ã the whitened design (E[r²] = r̂² + lev)
-            A = cm.predict(v, prob.model, data)[1]  # (N, 2, p)
-            sw = jnp.where(data["mask"], 1.0 / jnp.sqrt(extras[5]), 0.0)
-            X = jnp.einsum("qp,njp->njq", Linv, A * sw[..., None])
-            lev = jnp.sum(X**2, axis=-1)
-            return (
-                rw,
-                beta,
-                jnp.sum(Linv**2, axis=0),
-                cm.noise_var(h, data),
-                extras[-1],
-                lev,
-            )
-
-        _BETA_FNS[key] = (prob, jax.jit(fn))
-    out = _BETA_FNS[key][1](jnp.asarray(z), h, data)
+    out = _jitted_for(prob, "beta_at", _beta_at_fn)(jnp.asarray(z), h, data)
     return tuple(np.asarray(x) for x in out)
 
 
@@ -316,15 +319,9 @@ def _in_chunks(fn, zs: np.ndarray, keys, data, chunk: int = 512) -> dict:
     return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}
 
 
-_DERIVED_FNS: dict = {}
-
-
 def _map_derived_core(prob):
-    """Jitted (z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂), one per structure
+    """(z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂), jitted by the caller
     (eager ``jacfwd`` would compile op by op in every new process, uncached)."""
-    key = id(prob.lsq)
-    if key in _DERIVED_FNS:
-        return _DERIVED_FNS[key][1]
     model = prob.model
     space = prob.map_space
     blocks = model.beta_blocks
@@ -362,8 +359,7 @@ def _map_derived_core(prob):
         Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
         return g(z, beta), Jz, Jb, Linv.T @ Linv, beta
 
-    _DERIVED_FNS[key] = (prob, jax.jit(core))
-    return _DERIVED_FNS[key][1]
+    return core
 
 
 def map_derived(prob, res, h, data):
@@ -376,7 +372,7 @@ def map_derived(prob, res, h, data):
     blocks = model.beta_blocks
     dur_h = (model.t_span_s[1] - model.t_span_s[0]) / 3600.0
     names = list(PARAM_UNITS)[:11]  # b1 … drift2_pix_per_h, in the order g() stacks them
-    out_j = _map_derived_core(prob)(jnp.asarray(res.z), h, data, dur_h)
+    out_j = _jitted_for(prob, "map_derived", _map_derived_core)(jnp.asarray(res.z), h, data, dur_h)
     val, Jz, Jb, Minv, beta = (np.asarray(x) for x in out_j)
     cov = np.asarray(res.cov_z)
     finite = np.isfinite(np.diag(cov))
@@ -400,10 +396,8 @@ def uncertainty_budget(prob, res, data) -> dict:
     """Split var(b̂) by the source of each row of the whitened MAP Jacobian (module doc)."""
     space = prob.map_space
     model = prob.model
-    key = ("jac", id(prob.lsq))
-    if key not in _DERIVED_FNS:
-        _DERIVED_FNS[key] = (prob, jax.jit(jax.jacfwd(prob.lsq.stacked_residuals)))
-    J = np.asarray(_DERIVED_FNS[key][1](jnp.asarray(res.z), data))
+    jac = _jitted_for(prob, "jacobian", lambda p: jax.jacfwd(p.lsq.stacked_residuals))
+    J = np.asarray(jac(jnp.asarray(res.z), data))
     n_data = int(np.asarray(data["mask"]).size)
     nb = model.n_beta
     blocks = model.beta_blocks
@@ -492,7 +486,7 @@ def estimate(data, *, kind: str, classical, base: dict, options) -> dict:
         return estimate_protocol(data, classical=classical, base=base, options=options)
     t_start = time.perf_counter()
     record = data
-    holds, model, prob = setup(record, classical, options)
+    holds, model, prob = setup(record, options)
     init = initial_values(classical, record.g_local_mgal)
     if options.progress:
         print(

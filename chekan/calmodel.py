@@ -500,6 +500,11 @@ def normal_equations(v: dict, h: dict, model: RecordModel, data: dict):
 def predict(v: dict, model: RecordModel, data: dict):
     """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
     f, G, s, _ = linear_terms(v, data)
+    return f, dense_design(G, s, model, data)
+
+
+def dense_design(G, s, model: RecordModel, data: dict) -> jax.Array:
+    """The design ``A`` (N, 2, p) formed from the pieces of :func:`linear_terms`."""
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data["drift_basis"]], axis=1)
     N = G.shape[0]
     cols = []
@@ -507,7 +512,7 @@ def predict(v: dict, model: RecordModel, data: dict):
         X = _local_columns(G, s[:, j], Q, data["enc_basis"])
         A = jnp.zeros((N, model.n_beta)).at[:, _beta_index(model, j)].add(X)
         cols.append(A)
-    return f, jnp.stack(cols, axis=1)
+    return jnp.stack(cols, axis=1)
 
 
 def beta_prior_var(h: dict, model: RecordModel) -> jax.Array:

@@ -164,7 +164,7 @@ def _map_columns(rec, cres, settle_s: float) -> dict[str, Any]:
     from chekan.pipeline import CalibrationOptions
 
     opts = CalibrationOptions(method="map", settle_s=settle_s, progress=False)
-    _, model, prob = bayes.setup(rec, cres, opts)
+    _, model, prob = bayes.setup(rec, opts)
     res, h, _ = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
     md = bayes.map_derived(prob, res, h, {**model.data, "hyper": h})
     out: dict[str, Any] = {}

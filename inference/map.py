@@ -318,12 +318,8 @@ def _in_groups(run, z0, data_batch, data_axes, batch: int, lanes: int):
     outs = []
     for start in range(0, batch, lanes):
         ix = jnp.asarray(np.minimum(np.arange(start, start + lanes), batch - 1))
-        if isinstance(data_axes, int):
-            d = jax.tree_util.tree_map(
-                lambda leaf, ix=ix: jnp.take(leaf, ix, axis=data_axes), data_batch
-            )
-        else:
-            d = jax.tree_util.tree_map(take(ix), data_axes, data_batch, is_leaf=lambda x: x is None)
+        # data_axes is a prefix of data_batch (an int alone covers the whole tree)
+        d = jax.tree_util.tree_map(take(ix), data_axes, data_batch, is_leaf=lambda x: x is None)
         outs.append(run(z0[ix], d))
     n_real = [min(lanes, batch - start) for start in range(0, batch, lanes)]
 

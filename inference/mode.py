@@ -11,9 +11,11 @@ central differences with step :math:`h` give
     H_{ii} = \frac{f(he_i) - 2f(0) + f(-he_i)}{h^2},\quad
     H_{ij} = \frac{f(h e_i + h e_j) - f(he_i - he_j) - f(-he_i + he_j) + f(-he_i - he_j)}{4h^2},
 
-all :math:`2d^2 + 1` points in one batch. A damped Newton step
-:math:`u = (-H)^{-1} g` (length ≤ ``max_step``; halved until :math:`f` increases) and
-:math:`\Sigma_{k+1} = L(-H)^{-1}L^\top` (eigenvalues of :math:`-H` floored) are iterated.
+all :math:`2d^2 + 1` points in one batch. A trust-region Newton step
+:math:`u = (A + \mu I)^{-1} g`, :math:`A = -H` (shifted if not positive definite, μ the
+smallest keeping ‖u‖ within the radius; the radius grows on success and shrinks until
+:math:`f` increases) and, where A is positive definite,
+:math:`\Sigma_{k+1} = L A^{-1} L^\top` are iterated.
 """
 
 from __future__ import annotations

@@ -274,9 +274,10 @@ class IndependenceMove(emcee.moves.MHMove):
     Every walker proposes :math:`x' \sim t_\nu(\mu, \Sigma)` regardless of where it is and
     accepts with :math:`\min(1, \pi(x')q(x)/\pi(x)q(x'))`,
     :math:`\log q(x) = -\tfrac{\nu+d}{2}\log(1 + (x-\mu)^\top\Sigma^{-1}(x-\mu)/\nu)`.
-    With :math:`(\mu, \Sigma)` fitted to a pilot run (a near-Gaussian posterior) most
-    proposals are accepted and successive draws are nearly independent; the t tails keep
-    the weights :math:`\pi/q` bounded where the posterior is heavier than a Gaussian.
+    With :math:`(\mu, \Sigma)` the mode and Laplace covariance of a near-Gaussian posterior
+    (:func:`inference.mode.refine_mode`) most proposals are accepted and successive draws
+    are nearly independent; the t tails keep the weights :math:`\pi/q` bounded where the
+    posterior is heavier than a Gaussian.
     """
 
     def __init__(self, mean: ArrayLike, cov: ArrayLike, df: float = 5.0):
@@ -298,7 +299,7 @@ class IndependenceMove(emcee.moves.MHMove):
 
 
 def _moves(kind: str, proposal: tuple[np.ndarray, np.ndarray] | None = None, df: float = 5.0):
-    if proposal is not None:  # "de-independence"
+    if kind == "de-independence":
         return [(IndependenceMove(*proposal, df=df), 0.7), (emcee.moves.DEMove(), 0.3)]
     if kind == "stretch":
         return emcee.moves.StretchMove()
@@ -392,31 +393,24 @@ def sample(
         raise ValueError("log_density(z_init) is not finite: start from a point in the support")
 
     rng = np.random.default_rng(config.seed)
-    cov = _regularised_cov(init_cov, ndim)
+    start, cov = z_init, _regularised_cov(init_cov, ndim)
+    lnp_sampler, proposal = lnp, None
+    if config.moves == "de-independence":
+        # the proposal evaluates all walkers at once: keep to the compiled half-batch size
+        lnp_sampler = partial(_eval_any, lnp, batch=nw // 2)
+        start, cov, _info = refine_mode(lnp_sampler, z_init, cov)
+        proposal = (start, cov * config.proposal_scale**2)
     samplers, states = [], []
-    for _ in range(nc if config.moves != "de-independence" else 0):
-        coords, lp = _initial_walkers(lnp, z_init, cov, nw, rng)
+    for _ in range(nc):
+        coords, lp = _initial_walkers(lnp, start, cov, nw, rng)
         rs = np.random.RandomState(rng.integers(2**31 - 1))
-        samplers.append(
-            emcee.EnsembleSampler(nw, ndim, lnp, moves=_moves(config.moves), vectorize=True)
-        )
+        moves = _moves(config.moves, proposal, config.proposal_df)
+        samplers.append(emcee.EnsembleSampler(nw, ndim, lnp_sampler, moves=moves, vectorize=True))
         states.append(emcee.State(coords, log_prob=lp, random_state=rs.get_state()))
 
     from tqdm.auto import tqdm
 
     show = config.progress and sys.stderr.isatty()
-    if config.moves == "de-independence":
-        # the proposal evaluates all walkers at once: keep to the compiled half-batch size
-        lnp_all = partial(_eval_any, lnp, batch=nw // 2)
-        mode, lap, _info = refine_mode(lnp_all, z_init, cov)
-        proposal = (mode, lap * config.proposal_scale**2)
-        samplers, states = [], []
-        for _ in range(nc):
-            coords, lp = _initial_walkers(lnp, mode, lap, nw, rng)
-            rs = np.random.RandomState(rng.integers(2**31 - 1))
-            moves = _moves("", proposal, config.proposal_df)
-            samplers.append(emcee.EnsembleSampler(nw, ndim, lnp_all, moves=moves, vectorize=True))
-            states.append(emcee.State(coords, log_prob=lp, random_state=rs.get_state()))
     bar = tqdm(total=config.max_steps, disable=not show, desc="emcee", unit="step")
     n_steps = 0
     tau = np.full(ndim, np.nan)

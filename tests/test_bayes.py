@@ -22,7 +22,7 @@ TRUTH_VALUES = {
 def _setup(rec, encoder=False):
     cres, _ = calibrate_record(rec, settle_s=200)
     opts = CalibrationOptions(method="map", settle_s=200, encoder_error=encoder)
-    return cres, *bayes.setup(rec, cres, opts)
+    return cres, *bayes.setup(rec, opts)
 
 
 @pytest.mark.parametrize("encoder", [False, True])
