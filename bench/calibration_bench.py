@@ -107,10 +107,10 @@ def run(seed: int = 0, skip_bayes: bool = False, quick: bool = False) -> list[Ro
     )
     rows.append(
         Row(
-            f"MAP warm ({len(hist)} EM passes)",
+            f"MAP warm ({len(hist)} LM passes)",
             f"{dt_warm:.2f} s",
             note=f"{steps} LM steps, {model.n_holds} holds",
-            values={"seconds": dt_warm, "em_passes": len(hist), "lm_steps": steps},
+            values={"seconds": dt_warm, "lm_passes": len(hist), "lm_steps": steps},
         )
     )
 

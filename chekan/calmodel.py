@@ -47,7 +47,8 @@ K (pix/rad)             log K ~ N(log 60428, 0.25)         optics F = 150 mm, δ
 s₁, s₂                  log s ~ N(0, 0.5)                  noise estimated from the data
 σ_θ (arcsec)            log σ_θ ~ N(log 2, 0.5)            platform readout error ≤ 3″
 σ_o (pix)               log σ_o ~ N(log 0.05, 1)           weak
-c (pix)                 N(0, 1)                            around the classical m_h
+c (pix)                 N(0, 1)                            around m_ref (classical m_h, then
+                                                           the estimate: bayes.recentre_level)
 d (pix)                 N(0, 2²) per coefficient           drift over a session ≲ a few pixels
 ======================  =================================  ===================================
 """

@@ -46,19 +46,25 @@ def fit_map_em_batch(prob: cm.CalibrationProblem, models: list, inits: list[dict
     z0 = np.stack([space.to_z(i) for i in inits])
     histories: list[list[dict]] = [[] for _ in range(B)]
     batch = None
-    for it in range(bayes.EM_ITERATIONS + 1):
+    for it in range(bayes.MAP_PASSES):
         datas = [{**m.data, "hyper": h} for m, h in zip(models, hs, strict=True)]
         batch = fit_map_batch(prob.lsq, _stack(datas), z0, max_lanes=MAX_LANES)
+        z0 = batch.z
         for i in range(B):
+            updates = 0
+            if it < bayes.MAP_PASSES - 1:
+                lane = cm.CalibrationProblem(
+                    models[i], prob.theta_space, prob.bayes_space, prob.map_space, prob.lsq
+                )
+                bayes.recentre_level(lane, batch.z[i], hs[i])
+                hs[i], updates = bayes.converge_hyper(
+                    lane, batch.z[i], hs[i], {**models[i].data, "hyper": hs[i]}
+                )
             histories[i].append(
                 bayes._pass_entry(
-                    it, batch.converged[i], batch.num_steps[i], batch.cost[i], progress=False
+                    it, batch.converged[i], batch.num_steps[i], batch.cost[i], False, updates
                 )
             )
-        if it == bayes.EM_ITERATIONS:
-            break
-        hs = [bayes.em_update(prob, batch.z[i], hs[i], datas[i]) for i in range(B)]
-        z0 = batch.z
     return [(batch.item(i), hs[i], histories[i]) for i in range(B)]
 
 

@@ -50,6 +50,8 @@ from typing import Any
 
 import numpy as np
 
+from chekan.plotting import new_figure
+
 CASES = ("typical", "misaligned", "drift", "slow")
 LEVELS = (0.5, 0.9, 0.95)
 PARAMS = ("b1", "b2", "a")
@@ -566,22 +568,11 @@ _COLORS = {"classical": "tab:orange", "map": "tab:blue", "bayes": "tab:green"}
 _MARKERS = {"typical": "o", "misaligned": "s", "drift": "^", "slow": "v"}
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _plot_coverage(summary: dict, path: Path) -> Path:
     """Nominal against empirical coverage per group (rows) and parameter (columns)."""
-    plt = _pyplot()
     groups = _groups(summary)
-    fig, axes = plt.subplots(
-        len(groups), len(PARAMS), figsize=(4 * len(PARAMS), 3 * len(groups)), squeeze=False
-    )
+    fig = new_figure((4 * len(PARAMS), 3 * len(groups)))
+    axes = fig.subplots(len(groups), len(PARAMS), squeeze=False)
     levels = np.array(LEVELS) * 100
     for gi, g in enumerate(groups):
         s = summary[g]
@@ -614,7 +605,6 @@ def _plot_coverage(summary: dict, path: Path) -> Path:
     )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -627,11 +617,9 @@ def _z(rows: Sequence[dict], m: str, p: str) -> np.ndarray:
 
 def _plot_z(rows: Sequence[dict], summary: dict, methods: Sequence[str], path: Path) -> Path:
     """Histograms of z = (estimate − truth)/sd against N(0, 1), per group and parameter."""
-    plt = _pyplot()
     groups = _groups(summary)
-    fig, axes = plt.subplots(
-        len(groups), len(PARAMS), figsize=(4 * len(PARAMS), 2.8 * len(groups)), squeeze=False
-    )
+    fig = new_figure((4 * len(PARAMS), 2.8 * len(groups)))
+    axes = fig.subplots(len(groups), len(PARAMS), squeeze=False)
     x = np.linspace(-6, 6, 200)
     for gi, g in enumerate(groups):
         sub = rows if g == "all" else [r for r in rows if r["case"] == g]
@@ -655,16 +643,15 @@ def _plot_z(rows: Sequence[dict], summary: dict, methods: Sequence[str], path: P
                 ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
 def _plot_errors(rows: Sequence[dict], methods: Sequence[str], path: Path) -> Path:
     """Top: estimate − truth against truth (colour: method, marker: case).
     Bottom: RMS error per case and method (log scale)."""
-    plt = _pyplot()
     cases = list(dict.fromkeys(r["case"] for r in rows))
-    fig, axes = plt.subplots(2, len(PARAMS), figsize=(4.2 * len(PARAMS), 7), squeeze=False)
+    fig = new_figure((4.2 * len(PARAMS), 7))
+    axes = fig.subplots(2, len(PARAMS), squeeze=False)
     width = 0.8 / max(len(methods), 1)
     for pi, p in enumerate(PARAMS):
         ax = axes[0, pi]
@@ -704,7 +691,6 @@ def _plot_errors(rows: Sequence[dict], methods: Sequence[str], path: Path) -> Pa
             ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 

@@ -13,6 +13,7 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import ClassVar
 
+import numpy as np
 import pytest
 
 from chekan.archive.cli import main as archive_main
@@ -187,6 +188,32 @@ def test_history_cli_plot_and_json(run1, tmp_path, capsys):
     assert archive_main(["history", "C-303", "--db", str(db), "--tolerance-ppm", "1200"]) == 4
     assert "ALARM: b1: change" in capsys.readouterr().out
     assert archive_main(["history", "nope", "--db", str(db)]) == 2
+
+
+def test_history_fits_and_plot_leave_matplotlib_alone(run1, tmp_path):
+    """The fitted model is public (``fits``, not in the JSON); drawing the plot does not
+    switch the process's matplotlib backend (a notebook's inline plots keep working)."""
+    import matplotlib
+
+    from chekan.archive.history import plot_history, stability_history, write_history_json
+
+    db, _ = run1
+    with Archive(db) as archive:
+        hist = stability_history(archive, "A-101", at="2021-01-01")
+    b1 = hist["parameters"]["b1"]
+    mean_ppm, sd_ppm = hist["fits"]["b1"].predict(np.array([0.0]))
+    first = b1["points"][0]
+    # the model's value at the first session lies within a few of that session's sd
+    value = b1["reference"] * (1 + 1e-6 * mean_ppm[0])
+    assert abs(value - first["mean"]) < 4 * first["sd"] and sd_ppm[0] > 0
+    before = matplotlib.get_backend()
+    matplotlib.use("svg")  # a backend other than Agg
+    try:
+        plot_history(hist, tmp_path / "h.png")
+        assert matplotlib.get_backend() == "svg"
+    finally:
+        matplotlib.use(before)
+    assert "fits" not in json.loads(write_history_json(tmp_path / "h.json", hist).read_text())
 
 
 def test_dask_executor(tree, run1, tmp_path):

@@ -82,6 +82,29 @@ def test_map_recovers_truth(short_session):
     assert 0.03 < float(h["sigma_hold_pix"]) < 0.15  # true 0.08 pix
 
 
+def test_map_slow_damping_recentres_level_and_converges_em(short_program):
+    """τ = 90 s: the level holds have not settled, so the classical m_h that the model
+    starts from is pixels off. The MAP moves its level reference to the estimate (b is
+    dG/dm about it) and runs the EM of the hyperparameters to its fixed point."""
+    from chekan.simulate import Truth, simulate_session
+
+    rec, truth = simulate_session(short_program, Truth(serial="T-slow", tau_s=90.0), seed=11)
+    cres, _, model, prob = _setup(rec)
+    m_true = np.asarray(truth.m_level_pix)
+    m_classical = np.asarray(model.data["m_ref"]).copy()
+    assert np.all(np.abs(m_classical - m_true) > 3.0), m_classical - m_true
+    res, h, _ = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
+    np.testing.assert_allclose(np.asarray(model.data["m_ref"]), m_true, atol=0.3)
+    h2, _ = bayes.converge_hyper(prob, res.z, h, {**model.data, "hyper": h})
+    for k in ("sigma_theta_arcsec", "sigma_hold_pix"):
+        assert abs(np.log(float(h2[k]) / float(h[k]))) < 0.02, (k, h[k], h2[k])
+    md = bayes.map_derived(prob, res, h, {**model.data, "hyper": h})
+    t = truth.derived()
+    for k in ("b1", "b2", "a"):
+        mean, sd = md[k]
+        assert abs(mean - t[k]) < 3 * sd, (k, mean, sd, t[k])
+
+
 def test_posterior_end_to_end(short_session, tmp_path):
     path, _, truth = short_session
     nc = tmp_path / "post.nc"

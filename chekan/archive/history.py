@@ -456,10 +456,12 @@ def stability_history(
     hdi_prob: float = 0.95,
     extra_error: bool = True,
 ) -> dict:
-    """The whole history report of ``serial`` as a JSON-ready dict (see :func:`format_history`).
+    """The whole history report of ``serial`` as a dict (see :func:`format_history`).
 
     ``archive``: an open :class:`~chekan.archive.db.Archive`. ``at``: date of the prediction
-    (default today).
+    (default today). Everything but ``fits`` is the ``chekan-history/1`` JSON
+    (:func:`write_history_json`); ``fits`` maps each parameter to its :class:`HistoryFit`,
+    whose ``predict(tau_years)`` gives the posterior of the true value at any date.
     """
     from chekan.result import UNITS
 
@@ -498,7 +500,7 @@ def stability_history(
             out["notes"].append(f"{p}: sessions on one date only: no trend, the prediction is it")
         out["parameters"][p] = asdict(h)
         out["alarms"].extend(h.alarms)
-    out["_fits"] = fits  # for plotting; dropped by write_history_json
+    out["fits"] = fits  # the fitted models, for plots and predictions; not written to JSON
     return out
 
 
@@ -507,7 +509,7 @@ def write_history_json(path: str | Path, hist: dict) -> Path:
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    data = {k: v for k, v in hist.items() if not k.startswith("_")}
+    data = {k: v for k, v in hist.items() if k != "fits"}
     path.write_text(json.dumps(_clean(data), indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     return path
 
@@ -553,20 +555,16 @@ def format_history(hist: dict) -> str:
 
 def plot_history(hist: dict, path: str | Path) -> Path:
     """One panel per parameter: sessions ± sd, the posterior of b(t) with its band, alarms."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from chekan.plotting import new_figure
 
     names = list(hist["parameters"])
-    fig, axes = plt.subplots(
-        max(len(names), 1), 1, figsize=(9, 2.8 * max(len(names), 1)), sharex=True, squeeze=False
-    )
+    fig = new_figure((9, 2.8 * max(len(names), 1)))
+    axes = fig.subplots(max(len(names), 1), 1, sharex=True, squeeze=False)
     at = _dt.date.fromisoformat(hist["at"])
     z = None
     for ax, name in zip(axes[:, 0], names, strict=False):
         h = hist["parameters"][name]
-        fit: HistoryFit | None = hist.get("_fits", {}).get(name)
+        fit: HistoryFit | None = hist.get("fits", {}).get(name)
         dates = [_dt.date.fromisoformat(p["date"]) for p in h["points"]]
         ys = np.array([p["mean"] for p in h["points"]])
         ss = np.array([p["sd"] for p in h["points"]])
@@ -609,5 +607,4 @@ def plot_history(hist: dict, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path

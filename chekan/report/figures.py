@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from chekan.plotting import new_figure
 from chekan.report.i18n import param_name
 
 Translator = Callable[..., str]
@@ -29,15 +30,6 @@ RC = {
     "axes.formatter.useoffset": False,
 }
 PAIR_VARS = ("b1", "b2", "a", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin")
-
-
-def _new(figsize: tuple[float, float], *, constrained: bool = True):
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=figsize, layout="constrained" if constrained else None)
-    FigureCanvasAgg(fig)
-    return fig
 
 
 def _png(fig) -> bytes:
@@ -58,7 +50,7 @@ def record_figure(record: Any, holds: Any, t: Translator) -> bytes:
     stride = max(1, th.size // 8000)
     sl = slice(None, None, stride)
     with _rc():
-        fig = _new((7.0, 4.4))
+        fig = new_figure((7.0, 4.4), constrained=True)
         ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2, 1]})
         for s, m in enumerate((record.m1_pix, record.m2_pix)):
             ax1.plot(
@@ -112,7 +104,7 @@ def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> b
     grid = np.linspace(-lim, lim, 401)
     rounds = np.asarray(holds.round)
     with _rc():
-        fig = _new((7.0, 4.6))
+        fig = new_figure((7.0, 4.6), constrained=True)
         ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1]})
         for s in range(2):
             m = np.asarray(holds.m_mean_pix[:, s], dtype=float)
@@ -176,7 +168,7 @@ def residual_figure(
     x = np.arange(len(labels), dtype=float)
     offs = np.linspace(-0.27, 0.27, len(cols)) if len(cols) > 1 else np.zeros(1)
     with _rc():
-        fig = _new((7.0, 3.4))
+        fig = new_figure((7.0, 3.4), constrained=True)
         ax = fig.subplots()
         for j, c in enumerate(cols):
             s = 1 if c.endswith("s2") else 0
@@ -267,7 +259,7 @@ def pair_figure(draws: Mapping[str, np.ndarray], lang: str, *, max_points: int =
     idx = np.linspace(0, n - 1, min(n, max_points)).astype(int)
     size = 1.25 * k + 0.6
     with _rc():
-        fig = _new((min(size, 7.0), min(size, 7.0)), constrained=False)  # fast for k² axes
+        fig = new_figure((min(size, 7.0), min(size, 7.0)))  # unconstrained: fast for k² axes
         fig.subplots_adjust(left=0.11, bottom=0.11, right=0.98, top=0.98, wspace=0.12, hspace=0.12)
         axes = fig.subplots(k, k, squeeze=False)
         for i in range(k):
@@ -305,7 +297,7 @@ def drift_figure(curve: Mapping[str, Sequence[float]], t: Translator) -> bytes:
     """The estimated drift of both systems over time with its band."""
     th = np.asarray(curve["t_h"], dtype=float)
     with _rc():
-        fig = _new((7.0, 2.8))
+        fig = new_figure((7.0, 2.8), constrained=True)
         ax = fig.subplots()
         for s in range(2):
             key = f"m{s + 1}"
