@@ -144,10 +144,16 @@ def fit_map_em(prob: cm.CalibrationProblem, init: dict, *, progress: bool = Fals
         z = res.z
         updates = 0
         if it < MAP_PASSES - 1:
-            recentre_level(prob, z, h)
-            h, updates = converge_hyper(prob, z, h, {**model.data, "hyper": h})
+            h, updates = between_passes(prob, z, h)
         history.append(_pass_entry(it, res.converged, res.num_steps, res.cost, progress, updates))
     return res, h, history
+
+
+def between_passes(prob: cm.CalibrationProblem, z, h: dict) -> tuple[dict, int]:
+    """What follows every LM pass but the last: :func:`recentre_level`, then
+    :func:`converge_hyper`. Returns the new hyperparameters and the number of EM updates."""
+    recentre_level(prob, z, h)
+    return converge_hyper(prob, z, h)
 
 
 def recentre_level(prob: cm.CalibrationProblem, z, h: dict) -> np.ndarray:
@@ -169,13 +175,13 @@ def recentre_level(prob: cm.CalibrationProblem, z, h: dict) -> np.ndarray:
     return c
 
 
-def converge_hyper(prob: cm.CalibrationProblem, z, h: dict, data: dict) -> tuple[dict, int]:
+def converge_hyper(prob: cm.CalibrationProblem, z, h: dict) -> tuple[dict, int]:
     """EM updates (:func:`em_update`) at fixed θ = z until no log-hyperparameter moves by
     more than ``HYPER_TOL``: the hyperparameters of largest marginal likelihood given θ.
     Returns them and the number of updates made."""
     n, change = 0, np.inf
     while change >= HYPER_TOL and n < HYPER_MAX_UPDATES:
-        new = em_update(prob, z, h, {**data, "hyper": h})
+        new = em_update(prob, z, h, {**prob.model.data, "hyper": h})
         change = max(float(np.max(np.abs(np.log(new[k]) - np.log(h[k])))) for k in h)
         h, n = new, n + 1
     return h, n

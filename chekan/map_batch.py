@@ -52,13 +52,9 @@ def fit_map_em_batch(prob: cm.CalibrationProblem, models: list, inits: list[dict
         z0 = batch.z
         for i in range(B):
             updates = 0
-            if it < bayes.MAP_PASSES - 1:
-                lane = cm.CalibrationProblem(
-                    models[i], prob.theta_space, prob.bayes_space, prob.map_space, prob.lsq
-                )
-                bayes.recentre_level(lane, batch.z[i], hs[i])
-                hs[i], updates = bayes.converge_hyper(
-                    lane, batch.z[i], hs[i], {**models[i].data, "hyper": hs[i]}
+            if it < bayes.MAP_PASSES - 1:  # per lane: its own model, the shared solvers
+                hs[i], updates = bayes.between_passes(
+                    bayes.problem_for(models[i]), batch.z[i], hs[i]
                 )
             histories[i].append(
                 bayes._pass_entry(

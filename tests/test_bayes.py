@@ -95,7 +95,7 @@ def test_map_slow_damping_recentres_level_and_converges_em(short_program):
     assert np.all(np.abs(m_classical - m_true) > 3.0), m_classical - m_true
     res, h, _ = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
     np.testing.assert_allclose(np.asarray(model.data["m_ref"]), m_true, atol=0.3)
-    h2, _ = bayes.converge_hyper(prob, res.z, h, {**model.data, "hyper": h})
+    h2, _ = bayes.converge_hyper(prob, res.z, h)
     for k in ("sigma_theta_arcsec", "sigma_hold_pix"):
         assert abs(np.log(float(h2[k]) / float(h[k]))) < 0.02, (k, h[k], h2[k])
     md = bayes.map_derived(prob, res, h, {**model.data, "hyper": h})
