@@ -1,0 +1,61 @@
+"""Durable files: what every writer of the project uses so that a crash loses nothing.
+
+- :func:`fsync_dir` makes a new or renamed name survive a crash (POSIX).
+- :func:`atomic_output` writes a whole file to a temporary file in the same folder and
+  renames it into place, so an interrupted command never leaves a half-written result,
+  certificate or record behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+PathArg = str | os.PathLike[str]
+
+
+def fsync_dir(path: PathArg) -> None:
+    """fsync the directory holding ``path`` so that a new name survives a crash (POSIX).
+
+    Best effort: a file system that cannot fsync a directory is left as it is.
+    """
+    d = os.path.dirname(os.path.abspath(path))
+    try:
+        fd = os.open(d, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_output(path: PathArg, mode: str = "w", **open_kw) -> Iterator:
+    """Open a temporary file beside ``path``; on success fsync it and rename it into place.
+
+    On any exception the temporary file is removed and ``path`` is left as it was.
+    ``mode`` is ``"w"`` (text, UTF-8 unless ``encoding`` is given) or ``"wb"``.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_output writes whole files: mode 'w' or 'wb', not {mode!r}")
+    out = Path(path)
+    if "b" not in mode:
+        open_kw.setdefault("encoding", "utf-8")
+    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, mode, **open_kw) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, out)
+        fsync_dir(out)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
