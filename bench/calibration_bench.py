@@ -48,10 +48,9 @@ def run(seed: int = 0, skip_bayes: bool = False, quick: bool = False) -> list[Ro
     from scipy.optimize import least_squares
 
     from bench.classical_ref import numpy_classical_fit
-    from chekan import bayes
     from chekan.classical import calibrate_record
     from chekan.demo import demo_program
-    from chekan.pipeline import CalibrationOptions
+    from chekan.joint import fit_map_em, initial_values, prepare, problem_for
     from chekan.simulate import simulate_session
     from inference.map import fit_map
 
@@ -87,15 +86,16 @@ def run(seed: int = 0, skip_bayes: bool = False, quick: bool = False) -> list[Ro
         )
     )
 
-    opts = CalibrationOptions(method="map", settle_s=settle, progress=False)
-    _, model, prob = bayes.setup(rec, opts)
-    init = bayes.initial_values(cres, rec.g_local_mgal)
+    _, model = prepare(rec, settle)
+    prob = problem_for(model.structure)
+    init = initial_values(cres, rec.g_local_mgal)
     t = time.perf_counter()
-    bayes.fit_map_em(prob, init)
+    fit_map_em(model, init)
     dt_first = time.perf_counter() - t
     t = time.perf_counter()
-    _, h, hist = bayes.fit_map_em(prob, init)
+    fit = fit_map_em(model, init)
     dt_warm = time.perf_counter() - t
+    h, hist = fit.hyper, fit.history
     steps = sum(p["steps"] for p in hist)
     rows.append(
         Row(
@@ -114,7 +114,7 @@ def run(seed: int = 0, skip_bayes: bool = False, quick: bool = False) -> list[Ro
         )
     )
 
-    data = {**model.data, "hyper": h}  # fit_map_em compiled fit_map for these shapes
+    data = (fit.model.data, h)  # fit_map_em compiled fit_map for these shapes
     z0 = prob.map_space.to_z(init)
     t = time.perf_counter()
     one = fit_map(prob.lsq, data, z0)
@@ -158,7 +158,7 @@ def run(seed: int = 0, skip_bayes: bool = False, quick: bool = False) -> list[Ro
     )
 
     if not skip_bayes:
-        from chekan.pipeline import calibrate_file
+        from chekan.pipeline import CalibrationOptions, calibrate_file
         from chekan.records import write_record
 
         with tempfile.TemporaryDirectory(prefix="chekan-bench-") as tmp:

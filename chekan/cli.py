@@ -11,6 +11,7 @@ chekan demo --out DIR (the main job end to end on the built-in emulator)
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import warnings
 from pathlib import Path
@@ -61,7 +62,7 @@ def _cmd_calibrate(args) -> int:
     json_path = Path(args.json) if args.json else None
     if args.method == "bayes":
         nc = args.netcdf or (json_path.with_suffix(".nc") if json_path else None)
-        opts.netcdf = nc
+        opts = dataclasses.replace(opts, netcdf=nc)
     res = calibrate_file(args.input, opts)
     if not args.quiet:
         print(format_summary(res))

@@ -5,27 +5,12 @@ Used by ``chekan calibrate``, batch re-analysis and the demo, so they agree.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 from chekan.errors import ChekanError
 from chekan.inputs import read_input
+from chekan.options import METHODS, CalibrationOptions
 from chekan.result import base_result, classical_result
-
-METHODS = ("classical", "map", "bayes")
-
-
-@dataclass
-class CalibrationOptions:
-    method: str = "classical"
-    hdi_prob: float = 0.95
-    settle_s: float | None = None  # None: the record's program_settle_s, else 300 s
-    a_fixed: float | None = None  # record convention, mGal/pix²
-    netcdf: str | Path | None = None  # bayes: where to write the ArviZ posterior
-    seed: int = 0
-    progress: bool = True
-    encoder_error: bool = False  # bayes/map: smooth systematic angle error per commanded angle
-    quick: bool = False  # bayes: cap the sampler at 6000 steps (tests, demos)
 
 
 def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) -> dict:
@@ -34,7 +19,7 @@ def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) 
     data, kind, cres, result = classical_stage(path, opts)
     if opts.method == "classical":
         return result
-    from chekan.bayes import estimate  # heavy imports only when needed
+    from chekan.joint import estimate  # heavy imports only when needed
 
     return estimate(data, kind=kind, classical=cres, base=result, options=opts)
 

@@ -17,21 +17,13 @@ import numpy as np
 
 import chekan
 from chekan.errors import FormatError
+from chekan.parameters import PARAMETER_UNITS
 
 FORMAT = "chekan-result/1"
 METHODS = ("classical", "map", "bayes")
 REQUIRED_KEYS = ("format", "serial", "record", "method", "g_local_mgal", "parameters")
 PARAM_FIELDS = ("mean", "sd", "hdi_low", "hdi_high")
-UNITS = {
-    "b1": "mGal/pix",
-    "b2": "mGal/pix",
-    "b1_0": "mGal/pix",
-    "b2_0": "mGal/pix",
-    "a": "mGal/pix^2",
-    "eps1_arcmin": "arcmin",
-    "eps2_arcmin": "arcmin",
-    "dgamma_arcmin": "arcmin",
-}
+UNITS = PARAMETER_UNITS  # one table: chekan.parameters
 META_KEYS = (
     "instrument",
     "model",

@@ -161,18 +161,17 @@ def run_session(
 
 
 def _map_columns(rec, cres, settle_s: float) -> dict[str, Any]:
-    """MAP + Laplace on the in-memory record (the steps of ``chekan.bayes.estimate``)."""
-    from chekan import bayes
-    from chekan.pipeline import CalibrationOptions
+    """MAP + Laplace on the in-memory record (the steps of ``chekan.joint.estimate``)."""
+    from chekan.joint import fit_map_em, initial_values, prepare
+    from chekan.joint.derived import map_derived
 
-    opts = CalibrationOptions(method="map", settle_s=settle_s, progress=False)
-    _, model, prob = bayes.setup(rec, opts)
-    res, h, _ = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
-    md = bayes.map_derived(prob, res, h, {**model.data, "hyper": h})
+    _, model = prepare(rec, settle_s)
+    fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
+    md = map_derived(fit)
     out: dict[str, Any] = {}
     for p in PARAMS:
         out[f"map_{p}"], out[f"map_{p}_sd"] = (float(v) for v in md[p])
-    out["map_converged"] = bool(res.converged)
+    out["map_converged"] = bool(fit.result.converged)
     return out
 
 

@@ -5,9 +5,11 @@ import json
 import numpy as np
 import pytest
 
-from chekan import bayes
-from chekan import calmodel as cm
+from chekan import joint
 from chekan.classical import calibrate_record
+from chekan.joint import em
+from chekan.joint import likelihood as cm
+from chekan.joint.derived import map_derived
 from chekan.pipeline import CalibrationOptions, calibrate_file
 from inference.linear import marginal_loglik
 from inference.normal_eq import marginal_loglik_normal
@@ -21,8 +23,8 @@ TRUTH_VALUES = {
 
 def _setup(rec, encoder=False):
     cres, _ = calibrate_record(rec, settle_s=200)
-    opts = CalibrationOptions(method="map", settle_s=200, encoder_error=encoder)
-    return cres, *bayes.setup(rec, opts)
+    holds, model = joint.prepare(rec, 200, encoder=encoder)
+    return cres, holds, model, joint.problem_for(model.structure)
 
 
 @pytest.mark.parametrize("encoder", [False, True])
@@ -42,37 +44,38 @@ def test_normal_equations_equal_dense_marginal(short_session, encoder):
     }
     v = prob.bayes_space.to_values(prob.bayes_space.to_z(vals))
     data = model.data
-    f, A = cm.predict(v, model, data)
+    f, A = cm.predict(v, model.structure, data)
     dense = marginal_loglik(
-        (data["y"] - f).reshape(-1),
+        (data.y - f).reshape(-1),
         A.reshape(-1, A.shape[-1]),
         cm.noise_var(v, data, cm.linear_terms(v, data)[3]).reshape(-1),
         0.0,
-        cm.beta_prior_var(v, model),
-        mask=data["mask"].reshape(-1),
+        cm.beta_prior_var(v, model.structure),
+        mask=data.mask.reshape(-1),
     )
-    ne, _ = cm.normal_equations(v, v, model, data)
-    fast = marginal_loglik_normal(ne, cm.beta_prior_var(v, model))
+    ne, _ = cm.normal_equations(v, v, model.structure, data)
+    fast = marginal_loglik_normal(ne, cm.beta_prior_var(v, model.structure))
     assert float(fast) == pytest.approx(float(dense), rel=1e-10)
     # β̂ from the normal equations solves the dense regularised least squares
-    _, beta, _ = cm.solve_beta(v, v, model, data)
+    _, beta, _ = cm.solve_beta(v, v, model.structure, data)
     W = np.where(
-        np.asarray(data["mask"]),
+        np.asarray(data.mask),
         1 / np.asarray(cm.noise_var(v, data, cm.linear_terms(v, data)[3])),
         0,
     ).reshape(-1)
     A2 = np.asarray(A).reshape(-1, A.shape[-1])
-    r = np.where(np.asarray(data["mask"]), np.asarray(data["y"] - f), 0).reshape(-1)
-    lhs = A2.T @ (W[:, None] * A2) + np.diag(1 / np.asarray(cm.beta_prior_var(v, model)))
+    r = np.where(np.asarray(data.mask), np.asarray(data.y - f), 0).reshape(-1)
+    lhs = A2.T @ (W[:, None] * A2) + np.diag(1 / np.asarray(cm.beta_prior_var(v, model.structure)))
     np.testing.assert_allclose(lhs @ np.asarray(beta), A2.T @ (W * r), rtol=1e-8, atol=1e-8)
 
 
 def test_map_recovers_truth(short_session):
     _, rec, truth = short_session
-    cres, _, model, prob = _setup(rec)
-    res, h, history = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
+    cres, _, model, _ = _setup(rec)
+    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
+    res, h, history = fit.result, fit.hyper, fit.history
     assert res.converged and all(p["converged"] for p in history)
-    md = bayes.map_derived(prob, res, h, {**model.data, "hyper": h})
+    md = map_derived(fit)
     t = truth.derived()
     for k in ("b1", "b2", "a", "b1_0", "b2_0", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin"):
         mean, sd = md[k]
@@ -89,16 +92,17 @@ def test_map_slow_damping_recentres_level_and_converges_em(short_program):
     from chekan.simulate import Truth, simulate_session
 
     rec, truth = simulate_session(short_program, Truth(serial="T-slow", tau_s=90.0), seed=11)
-    cres, _, model, prob = _setup(rec)
+    cres, _, model, _ = _setup(rec)
     m_true = np.asarray(truth.m_level_pix)
-    m_classical = np.asarray(model.data["m_ref"]).copy()
+    m_classical = np.asarray(model.data.m_ref).copy()
     assert np.all(np.abs(m_classical - m_true) > 3.0), m_classical - m_true
-    res, h, _ = bayes.fit_map_em(prob, bayes.initial_values(cres, rec.g_local_mgal))
-    np.testing.assert_allclose(np.asarray(model.data["m_ref"]), m_true, atol=0.3)
-    h2, _ = bayes.converge_hyper(prob, res.z, h)
+    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
+    res, h = fit.result, fit.hyper
+    np.testing.assert_allclose(np.asarray(fit.model.data.m_ref), m_true, atol=0.3)
+    h2, _ = em.converge_hyper(fit.model, res.z, h)
     for k in ("sigma_theta_arcsec", "sigma_hold_pix"):
         assert abs(np.log(float(h2[k]) / float(h[k]))) < 0.02, (k, h[k], h2[k])
-    md = bayes.map_derived(prob, res, h, {**model.data, "hyper": h})
+    md = map_derived(fit)
     t = truth.derived()
     for k in ("b1", "b2", "a"):
         mean, sd = md[k]

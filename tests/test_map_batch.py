@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from chekan import calmodel as cm
+from chekan import joint
+from chekan.joint import likelihood as cm
 from chekan.pipeline import CalibrationOptions, calibrate_file
 
 
@@ -13,19 +14,18 @@ def test_pad_model_is_exact(short_session) -> None:
     """Padded bins, holds and slew samples add nothing to the residuals."""
     import jax.numpy as jnp
 
-    from chekan import bayes
     from chekan.classical import calibrate_record
 
     _, rec, _ = short_session
     opts = CalibrationOptions(method="map", progress=False)
     cres, _ = calibrate_record(rec, settle_s=opts.settle_s)
-    _, model = bayes.prepare(rec, opts)
-    padded = cm.pad_model(model, model.n_holds + 3, model.n_bins + 5, 40)
+    _, model = joint.prepare(rec, opts.settle_s)
+    padded = model.pad(model.n_holds + 3, model.n_bins + 5, 40)
     assert padded.n_beta == model.n_beta + 9  # 3 holds × (o₁, o₂, δ)
-    v = {k: jnp.asarray(x) for k, x in bayes.initial_values(cres, rec.g_local_mgal).items()}
-    h = cm.hyper_dict(noise_scale=(1.2, 0.8), slew_error=0.01)
-    rw, beta, _ = cm.solve_beta(v, h, model, model.data)
-    rw_p, beta_p, _ = cm.solve_beta(v, h, padded, padded.data)
+    v = {k: jnp.asarray(x) for k, x in joint.initial_values(cres, rec.g_local_mgal).items()}
+    h = joint.default_hyper(noise_scale=(1.2, 0.8), slew_error=0.01)
+    rw, beta, _ = cm.solve_beta(v, h, model.structure, model.data)
+    rw_p, beta_p, _ = cm.solve_beta(v, h, padded.structure, padded.data)
     N = model.n_bins
     np.testing.assert_allclose(np.asarray(rw_p)[: 2 * N], np.asarray(rw), rtol=1e-9, atol=1e-12)
     np.testing.assert_array_equal(np.asarray(rw_p)[2 * N :], 0.0)
@@ -35,7 +35,7 @@ def test_pad_model_is_exact(short_session) -> None:
         np.testing.assert_allclose(got[: want.size], want, rtol=1e-8, atol=1e-12)
         np.testing.assert_array_equal(got[want.size :], 0.0)
     with pytest.raises(ValueError, match="cannot pad"):
-        cm.pad_model(model, model.n_holds - 1, model.n_bins, 40)
+        model.pad(model.n_holds - 1, model.n_bins, 40)
 
 
 @pytest.mark.slow

@@ -176,13 +176,13 @@ def solve_many_map(
             if kind == "record" and batched:
                 records.append((i, (data, cres, base)))
             else:
-                from chekan.bayes import estimate
+                from chekan.joint import estimate
 
                 out[i] = estimate(data, kind=kind, classical=cres, base=base, options=opts)
         except Exception as e:  # one bad input never spoils the chunk
             out[i] = e
     if records:
-        from chekan.map_batch import estimate_map_many
+        from chekan.joint.batch import estimate_map_many
 
         results = estimate_map_many([x for _, x in records], opts)
         for (i, _), r in zip(records, results, strict=True):

@@ -1,0 +1,46 @@
+"""The joint calibration of a record: both quartz systems, all rounds, one likelihood.
+
+=================  ==========================================================
+module             what it does
+=================  ==========================================================
+``layout``         the static structure (what compiles) and the data pytree
+``binning``        record → holds → bin means and slews (the data)
+``likelihood``     f(θ) + A(θ)β, normal equations, β̂ (the physics of the bins)
+``problem``        parameters and priors; MAP least squares; marginal density
+``em``             between LM passes: level re-centring, EM of hyperparameters
+``map``            MAP + EM for one record or a batch → :class:`MapFit`
+``derived``        a, b₀, drift slope: one function for map, bayes and design
+``budget``         the uncertainty budget of b and U (k = 2)
+``sampling``       emcee on the marginal posterior
+``outputs``        posterior predictive, drift curve, NetCDF
+``estimate``       the ``map`` and ``bayes`` results
+``batch``          padded, vmapped MAP of many records (re-analysis)
+``protocol``       the same for legacy protocols (per-round characteristic)
+=================  ==========================================================
+"""
+
+from chekan.joint.binning import BIN_EDGES_S, prepare, prepare_record
+from chekan.joint.estimate import estimate, map_result, posterior_result
+from chekan.joint.layout import ModelStructure, RecordData, RecordModel, padded_shape
+from chekan.joint.map import MapFit, fit_map_em, fit_map_em_many, initial_values
+from chekan.joint.problem import CalibrationProblem, default_hyper, problem_for
+
+__all__ = [
+    "BIN_EDGES_S",
+    "CalibrationProblem",
+    "MapFit",
+    "ModelStructure",
+    "RecordData",
+    "RecordModel",
+    "default_hyper",
+    "estimate",
+    "fit_map_em",
+    "fit_map_em_many",
+    "initial_values",
+    "map_result",
+    "padded_shape",
+    "posterior_result",
+    "prepare",
+    "prepare_record",
+    "problem_for",
+]

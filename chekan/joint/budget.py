@@ -1,0 +1,102 @@
+"""The uncertainty budget of b: var(b̂) split by the source of each whitened row of the
+MAP Jacobian, var b̂ = Σ_rows hᵣ², h = e_bᵀ(JᵀJ)⁻¹Jᵀ.
+
+Groups: noise (data rows), level offset, drift, hold offsets, angle readout (δ and e
+prior rows), a (the prior of K), other priors; scaled to the reported sd (GUM: the
+components are Type A where the data inform them, Type B where a prior does).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from chekan.joint.layout import ModelStructure
+from chekan.joint.map import MapFit
+from chekan.joint.problem import problem_for
+
+PRIOR_SD = {"eps1_arcmin": 10.0, "eps2_arcmin": 10.0, "dgamma_arcmin": 10.0}
+
+
+@functools.cache
+def _jacobian_jit(structure: ModelStructure):
+    return jax.jit(jax.jacfwd(problem_for(structure).lsq.stacked_residuals))
+
+
+def uncertainty_budget(fit: MapFit) -> dict:
+    """Linearised sd of b₁, b₂ per source group, and ``total_linearised``."""
+    model, res = fit.model, fit.result
+    structure = model.structure
+    space = problem_for(structure).map_space
+    J = np.asarray(_jacobian_jit(structure)(jnp.asarray(res.z), (model.data, fit.hyper)))
+    n_data = int(np.asarray(model.data.mask).size)
+    nb = structure.n_beta
+    blocks = structure.beta_blocks
+    groups = {"noise": np.arange(n_data)}
+    off = n_data
+    for name, key in (
+        ("level_offset", "c"),
+        ("drift", "drift"),
+        ("hold_offsets", "hold_offset"),
+        ("angle_readout", "angle_error"),
+        ("angle_readout", "encoder"),
+    ):
+        groups.setdefault(name, np.zeros(0, int))
+        groups[name] = np.concatenate([groups[name], off + blocks[key]])
+    off += nb
+    idx = off
+    for p in (p for p in space.params if p.has_prior):
+        key = "a" if p.name == "K" else "other_priors"
+        groups.setdefault(key, np.zeros(0, int))
+        groups[key] = np.concatenate([groups[key], np.arange(idx, idx + p.size)])
+        idx += p.size
+    JtJ = J.T @ J
+    H = np.linalg.pinv(JtJ) @ J.T  # (nz, rows)
+    step = space.step
+    out = {}
+    for name in ("b1", "b2"):
+        i = space.flat_indices([name])[0]
+        h = H[i] * step[i]
+        total = float(np.sum(h**2))
+        out[name] = {
+            g: float(np.sqrt(np.sum(h[rows] ** 2))) for g, rows in groups.items() if rows.size
+        }
+        out[name]["total_linearised"] = float(np.sqrt(total))
+    return out
+
+
+def budget_entries(budget_raw: dict, params: dict) -> dict:
+    """The result's ``uncertainty_budget``: each group scaled so that they add up (in
+    quadrature) to the reported sd; the total and U = 2·sd (k = 2)."""
+    out = {}
+    for name in ("b1", "b2"):
+        raw = dict(budget_raw[name])
+        lin = raw.pop("total_linearised")
+        sd = params[name]["sd"]
+        scale = sd / lin if lin > 0 and sd else 1.0
+        e = {k: v * scale for k, v in raw.items()}
+        e["total"] = sd
+        e["expanded_k2"] = 2.0 * sd if sd is not None else None
+        out[name] = e
+    return out
+
+
+def flag_prior_dominated(params: dict, diag: dict) -> dict:
+    """``diag`` with ``prior_dominated`` (and notes): a posterior sd above half the prior
+    sd means this program cannot separate the parameter."""
+    dominated = [
+        n for n, psd in PRIOR_SD.items() if n in params and (params[n]["sd"] or 0) > 0.5 * psd
+    ]
+    notes = list(diag.get("notes", []))
+    for n in dominated:
+        notes.append(
+            f"{n} is prior-dominated (sd {params[n]['sd']:.3g} vs prior sd {PRIOR_SD[n]:g}): "
+            "this program cannot separate it"
+        )
+    out = {**diag, "prior_dominated": dominated}
+    if notes:
+        out["notes"] = notes
+    return out

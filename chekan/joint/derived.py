@@ -1,0 +1,174 @@
+"""The quantities a calibration reports, derived from (θ, β): one function for map,
+bayes and design.
+
+    a = mean over systems of a(m_h) (eq. 10 at the level reading),
+    bⱼ,₀ = b at the CCD centre (eq. 24), drift slope = Σₗ dⱼₗ (Pₗ(1) − Pₗ(−1)) / duration.
+
+:func:`map_derived` adds delta-method sds at the MAP; :func:`posterior_draws` evaluates
+them for every posterior draw, with β drawn given θ.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import chekan.jaxconfig  # noqa: F401
+from chekan import model as fm
+from chekan.joint.layout import ModelStructure, RecordData
+from chekan.joint.likelihood import (
+    apply_A,
+    beta_prior_var,
+    normal_equations,
+    sensor_params,
+    solve_beta,
+)
+from chekan.joint.map import MapFit
+from chekan.joint.problem import problem_for
+from chekan.parameters import PARAMETER_UNITS
+from inference.normal_eq import draw_beta_normal
+
+PHYSICAL = tuple(PARAMETER_UNITS)[:11]
+"""Reported quantities that are functions of (θ, β): b1 … drift2_pix_per_h."""
+
+
+def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordData, dur_h):
+    """``PHYSICAL`` as named scalars at parameter values ``v`` and linear block ``beta``
+    (also the level readings m_ref + c and the drift coefficients)."""
+    blocks = structure.beta_blocks
+    D = structure.drift_degree
+    ends = jnp.asarray([1.0 - (-1.0) ** ell for ell in range(1, D + 1)])  # P_l(1) − P_l(−1)
+    sp = sensor_params(v, data, beta[blocks["c"]])
+    b0 = fm.scale_factor_at_centre(sp)
+    dr = beta[blocks["drift"]].reshape(2, D)
+    slope = dr @ ends / dur_h
+    out = {
+        "b1": v["b1"],
+        "b2": v["b2"],
+        "a": jnp.mean(fm.quadratic_coefficient(sp, sp.m_level_pix)),
+        "b1_0": b0[0],
+        "b2_0": b0[1],
+        "eps1_arcmin": v["eps1_arcmin"],
+        "eps2_arcmin": v["eps2_arcmin"],
+        "dgamma_arcmin": v["dgamma_arcmin"],
+        "tau_s": v["tau_s"],
+        "drift1_pix_per_h": slope[0],
+        "drift2_pix_per_h": slope[1],
+    }
+    return out, sp.m_level_pix, dr
+
+
+@functools.cache
+def _map_derived_jit(structure: ModelStructure):
+    """(z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂), jitted once per structure
+    (eager ``jacfwd`` would compile op by op in every new process, uncached)."""
+    space = problem_for(structure).map_space
+
+    def core(z, h, data, dur_h):
+        def g(z, beta):
+            q, _, _ = physical_quantities(space.to_values(z), beta, structure, data, dur_h)
+            return jnp.stack([q[n] for n in PHYSICAL])
+
+        def beta_hat(z):
+            return solve_beta(space.to_values(z), h, structure, data)[1]
+
+        _, beta, L = solve_beta(space.to_values(z), h, structure, data)
+        Jz = jax.jacfwd(lambda zz: g(zz, beta_hat(zz)))(z)
+        Jb = jax.jacfwd(lambda bb: g(z, bb))(beta)
+        Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
+        return g(z, beta), Jz, Jb, Linv.T @ Linv, beta
+
+    return jax.jit(core)
+
+
+def map_derived(fit: MapFit) -> dict:
+    """Derived quantities at the MAP with delta-method sds: ``{name: (value, sd)}``.
+
+    With θ ~ N(θ̂, C) and β | θ ~ N(β̂(θ), M⁻¹):
+    var g = (∂g/∂θ + ∂g/∂β ∂β̂/∂θ) C (…)ᵀ + ∂g/∂β M⁻¹ (∂g/∂β)ᵀ.
+    Hyperparameters are reported at their EM values (sd None); ``_m_level`` holds the
+    estimated level readings.
+    """
+    model, res, h = fit.model, fit.result, fit.hyper
+    data = model.data
+    blocks = model.structure.beta_blocks
+    jitted = _map_derived_jit(model.structure)
+    out_j = jitted(jnp.asarray(res.z), h, data, model.duration_h)
+    val, Jz, Jb, Minv, beta = (np.asarray(x) for x in out_j)
+    cov = np.asarray(res.cov_z)
+    finite = np.isfinite(np.diag(cov))
+    cz = np.where(np.isfinite(cov), cov, 0.0)
+    var = np.einsum("ij,jk,ik->i", Jz, cz, Jz) + np.einsum("ij,jk,ik->i", Jb, Minv, Jb)
+    sd = np.sqrt(np.maximum(var, 0.0))
+    if not finite.all():
+        sd = np.where(np.abs(Jz[:, ~finite]).sum(axis=1) > 0, np.inf, sd)
+    out = {n: (float(val[i]), float(sd[i])) for i, n in enumerate(PHYSICAL)}
+    s = np.asarray(h["noise_scale"]) * np.asarray(data.sigma_base)
+    out["sigma1_pix"] = (float(s[0]), None)
+    out["sigma2_pix"] = (float(s[1]), None)
+    out["sigma_theta_arcsec"] = (float(h["sigma_theta_arcsec"]), None)
+    out["sigma_hold_pix"] = (float(h["sigma_hold_pix"]), None)
+    out["slew_error"] = (float(h["slew_error"]), None)
+    out["_m_level"] = np.asarray(data.m_ref) + np.asarray(beta)[blocks["c"]]
+    return out
+
+
+@functools.cache
+def _draws_jit(structure: ModelStructure, dur_h: float):
+    """(z_bayes, key, data) → named draws of everything reported (β drawn given θ)."""
+    space = problem_for(structure).bayes_space
+    blocks = structure.beta_blocks
+
+    def one(z, key, data: RecordData):
+        v = space.to_values(z)
+        ne, (_, G, s_ang, r, _, nv, _) = normal_equations(v, v, structure, data)
+        beta = draw_beta_normal(key, ne, beta_prior_var(v, structure))
+        # pointwise log-likelihood of each bin mean given this draw's (θ, β): conditional,
+        # because the marginal over β does not factorise over bins
+        res_b = r - apply_A(beta, G, s_ang, structure, data)
+        loglik = jnp.where(data.mask, -0.5 * (res_b**2 / nv + jnp.log(2 * jnp.pi * nv)), 0.0)
+        q, m_level, dr = physical_quantities(v, beta, structure, data, dur_h)
+        delta = beta[blocks["angle_error"]]
+        if structure.encoder_degree:
+            delta = delta + data.enc_basis @ beta[blocks["encoder"]]
+        sig = v["noise_scale"] * data.sigma_base
+        return {
+            **q,
+            "sigma1_pix": sig[0],
+            "sigma2_pix": sig[1],
+            "sigma_theta_arcsec": v["sigma_theta_arcsec"],
+            "sigma_hold_pix": v["sigma_hold_pix"],
+            "slew_error": v["slew_error"],
+            "m_level_pix": m_level,
+            "drift_coeffs": dr,
+            "angle_error_arcsec": delta,
+            "hold_offset_pix": beta[blocks["hold_offset"]].reshape(2, -1).T,
+            "_loglik": loglik,
+        }
+
+    def many(zs, keys, data):
+        # lax.map, not vmap: XLA on CPU compiles/executes batched factorisations of this size
+        # pathologically slowly (batch 8: 9 ms; batch 16: minutes); a loop is fast and predictable
+        return jax.lax.map(lambda zk: one(zk[0], zk[1], data), (zs, keys))
+
+    return jax.jit(many)
+
+
+def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict:
+    """Every reported quantity for each posterior draw ``zs`` (n, 12), β drawn given θ
+    with ``keys``; in fixed-size chunks (one compile, bounded memory: each draw assembles
+    a p×p normal-equation matrix)."""
+    model = fit.model
+    fn = _draws_jit(model.structure, model.duration_h)
+    n = zs.shape[0]
+    pad = (-n) % chunk
+    zp = np.concatenate([zs, np.repeat(zs[-1:], pad, axis=0)])
+    kp = jnp.concatenate([keys, jnp.repeat(keys[-1:], pad, axis=0)])
+    parts = [
+        fn(jnp.asarray(zp[i : i + chunk]), kp[i : i + chunk], model.data)
+        for i in range(0, n + pad, chunk)
+    ]
+    return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}

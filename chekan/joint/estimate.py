@@ -1,0 +1,167 @@
+"""``--method map|bayes`` on a record: from the record to the ``chekan-result/1`` dict.
+
+:func:`estimate` prepares the record, fits the MAP (:mod:`chekan.joint.map`), and hands
+the fit to :func:`map_result` or :func:`posterior_result`; batch re-analysis calls
+:func:`map_result` on fits from :func:`chekan.joint.map.fit_map_em_many`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import jax
+import numpy as np
+
+from chekan.holds import HoldTable
+from chekan.joint.binning import prepare
+from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
+from chekan.joint.derived import map_derived, posterior_draws
+from chekan.joint.map import MapFit, fit_map_em, initial_values
+from chekan.joint.outputs import drift_curve, posterior_predictive_delta_g, write_netcdf
+from chekan.joint.sampling import sample_posterior
+from chekan.options import CalibrationOptions
+from chekan.parameters import PARAMETER_UNITS
+from chekan.result import param_entry, posterior_entry
+
+
+def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOptions) -> dict:
+    """Run ``map`` or ``bayes`` on a record or protocol; return the result dict."""
+    if kind == "protocol":
+        from chekan.joint.protocol import estimate_protocol
+
+        return estimate_protocol(data, classical=classical, base=base, options=options)
+    t_start = time.perf_counter()
+    record = data
+    holds, model = prepare(record, options.settle_s, encoder=options.encoder_error)
+    init = initial_values(classical, record.g_local_mgal)
+    if options.progress:
+        print(
+            f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
+            f"{model.n_beta} marginalised linear parameters"
+        )
+    fit = fit_map_em(model, init, progress=options.progress)
+    if options.method == "map":
+        return map_result(fit, base, options, t_start)
+    return posterior_result(fit, holds, record, base, options, t_start)
+
+
+def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict, dict]:
+    """The result's header and the MAP's diagnostics, shared by map and bayes."""
+    res = fit.result
+    out = dict(base)
+    out["method"] = options.method
+    out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2") if k in base["parameters"]}
+    diag = {
+        "converged": bool(res.converged),
+        "map_steps": int(res.num_steps),
+        "map_passes": list(fit.history),
+        "jacobian_cond": float(res.jacobian_cond),
+        "not_identified": list(res.degenerate),
+        "data": "bin means inside holds (lag modelled), β marginalised",
+        "problems": [] if res.converged else [f"MAP did not converge: {res.message}"],
+    }
+    return out, diag
+
+
+def map_result(fit: MapFit, base: dict, options: CalibrationOptions, t_start: float) -> dict:
+    """The ``map`` result: MAP values, delta-method sds, the budget and U (k = 2)."""
+    out, diag = _common(fit, base, options)
+    budget_raw = uncertainty_budget(fit)
+    md = map_derived(fit)
+    params = {
+        name: param_entry(mean, sd, options.hdi_prob, PARAMETER_UNITS.get(name, ""))
+        for name, (mean, sd) in md.items()
+        if not name.startswith("_")
+    }
+    out["parameters"] = params
+    out["level_reading_pix"] = {"m1": float(md["_m_level"][0]), "m2": float(md["_m_level"][1])}
+    out["uncertainty_budget"] = budget_entries(budget_raw, params)
+    diag = flag_prior_dominated(params, diag)
+    diag["seconds"] = time.perf_counter() - t_start
+    out["diagnostics"] = diag
+    return out
+
+
+def posterior_result(
+    fit: MapFit,
+    holds: HoldTable,
+    record,
+    base: dict,
+    options: CalibrationOptions,
+    t_start: float,
+) -> dict:
+    """The ``bayes`` result: posterior summaries, diagnostics, predictive, drift, NetCDF."""
+    from inference.diagnostics import convergence_report, summarize_draws
+
+    out, diag = _common(fit, base, options)
+    budget_raw = uncertainty_budget(fit)
+    model = fit.model
+    samp = sample_posterior(fit, options)
+    C, Dn = samp.draws.shape[:2]
+    keys = jax.random.split(jax.random.PRNGKey(options.seed), C * Dn)
+    derived = posterior_draws(fit, samp.draws.reshape(C * Dn, -1), keys)
+    draws = {k: v.reshape(C, Dn, *v.shape[1:]) for k, v in derived.items()}
+    scalar = {k: v for k, v in draws.items() if v.ndim == 2}
+    summ = summarize_draws(scalar, hdi_prob=options.hdi_prob)
+    ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
+    params = {name: posterior_entry(summ[name], unit) for name, unit in PARAMETER_UNITS.items()}
+    out["parameters"] = params
+    mh = draws["m_level_pix"].reshape(-1, 2).mean(axis=0)
+    out["level_reading_pix"] = {"m1": float(mh[0]), "m2": float(mh[1])}
+    out["uncertainty_budget"] = budget_entries(budget_raw, params)
+    diag = flag_prior_dominated(params, diag)
+    diag["problems"] = diag["problems"] + problems
+    diag.update(
+        converged=bool(ok and fit.result.converged),
+        r_hat_max=float(max(params[n]["r_hat"] for n in params)),
+        ess_bulk_min=float(min(params[n]["ess_bulk"] for n in params)),
+        n_draws=int(C * Dn),
+        n_chains=int(C),
+        n_walkers=int(samp.n_walkers),
+        n_steps=int(samp.n_steps),
+        burn=int(samp.burn),
+        thin=int(samp.thin),
+        tau_max=float(np.max(samp.tau)),
+        acceptance=[float(a) for a in samp.acceptance],
+        sampler_message=samp.message,
+        seconds=time.perf_counter() - t_start,
+    )
+    if not diag["converged"]:
+        msg = "; ".join(diag["problems"]) or "not converged"
+        warnings.warn(f"posterior NOT converged: {msg}", RuntimeWarning, stacklevel=2)
+        if options.progress:
+            print(f"WARNING: posterior NOT converged: {msg}")
+    out["diagnostics"] = diag
+    # posterior predictive of the paper's residual table
+    rng = np.random.default_rng(options.seed)
+    rep = posterior_predictive_delta_g(
+        holds, record.g_local_mgal, draws, model, rng, options.a_fixed
+    )
+    rs = out.get("residuals_mgal", {})
+    cols = rs.get("columns", [])
+    lo, hi = (1 - options.hdi_prob) / 2 * 100, (1 + options.hdi_prob) / 2 * 100
+    out["posterior_predictive_mgal"] = {
+        "columns": cols,
+        "delta_g_mean": {
+            c: list(np.nanmean(rep[:, i // 2, i % 2], axis=0)) for i, c in enumerate(cols)
+        },
+        "delta_g_low": {
+            c: list(np.nanpercentile(rep[:, i // 2, i % 2], lo, axis=0)) for i, c in enumerate(cols)
+        },
+        "delta_g_high": {
+            c: list(np.nanpercentile(rep[:, i // 2, i % 2], hi, axis=0)) for i, c in enumerate(cols)
+        },
+        "rms_mgal_mean": float(np.nanmean(np.sqrt(np.nanmean(rep**2, axis=-1)))),
+        "n_replicates": int(rep.shape[0]),
+    }
+    out["drift_curve"] = drift_curve(draws, model, hp=options.hdi_prob)
+    angle = draws["angle_error_arcsec"].reshape(C * Dn, -1)
+    out["angle_error_arcsec"] = {
+        "step": [int(s) for s in model.hold_steps],
+        "mean": list(angle.mean(axis=0)),
+        "sd": list(angle.std(axis=0)),
+    }
+    if options.netcdf:
+        out["posterior_netcdf"] = str(write_netcdf(options.netcdf, draws, samp, model, rep, cols))
+    return out

@@ -1,0 +1,200 @@
+"""A record laid out for the joint model: static structure, array pytree, padding.
+
+- :class:`ModelStructure` — the hashable shape of the problem (holds, bins, slew samples,
+  drift and encoder degrees): what decides compilation. β's layout follows from it.
+- :class:`RecordData` — the arrays of one record (an equinox Module, so a frozen pytree):
+  the ``data`` argument of every model function. :meth:`RecordData.pad` lays it out for
+  a larger structure; :meth:`RecordData.with_level` moves the level reference.
+- :class:`RecordModel` — structure + data + what the reports need on the host.
+
+Binning (:func:`chekan.joint.binning.prepare_record`) builds them from a record.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import chekan.jaxconfig  # noqa: F401
+
+
+@dataclass(frozen=True)
+class ModelStructure:
+    """The static shape of a record model: H holds, N bins, M slew samples per hold,
+    drift degree D and encoder degree L. Hashable; equal structures share compiled code."""
+
+    n_holds: int
+    n_bins: int
+    n_moves: int
+    drift_degree: int = 3
+    encoder_degree: int = 0
+
+    @property
+    def beta_blocks(self) -> dict[str, np.ndarray]:
+        """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e) as index arrays per block."""
+        return beta_blocks(self.n_holds, self.drift_degree, self.encoder_degree)
+
+    @property
+    def n_beta(self) -> int:
+        """Number of linear (marginalised) parameters."""
+        return int(sum(len(ix) for ix in self.beta_blocks.values()))
+
+    def beta_index(self, j: int) -> np.ndarray:
+        """Global β indices of system j's local columns [cⱼ, dⱼ, oⱼ, δ, e]."""
+        b, D, H = self.beta_blocks, self.drift_degree, self.n_holds
+        return np.concatenate(
+            [
+                j * (1 + D) + np.arange(1 + D),
+                b["hold_offset"][j * H : (j + 1) * H],
+                b["angle_error"],
+                b["encoder"],
+            ]
+        )
+
+
+@functools.cache
+def beta_blocks(H: int, D: int, L: int) -> dict[str, np.ndarray]:
+    """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e)."""
+    q = 1 + D  # per system: level offset cⱼ then drift dⱼ
+    o0, a0, e0 = 2 * q, 2 * q + 2 * H, 2 * q + 3 * H
+    return {
+        "c": np.array([0, q]),
+        "drift": np.concatenate([np.arange(1, q), q + np.arange(1, q)]),
+        "hold_offset": np.arange(o0, o0 + 2 * H),  # system 1's holds, then system 2's
+        "angle_error": np.arange(a0, a0 + H),
+        "encoder": np.arange(e0, e0 + L),
+    }
+
+
+def _padded(axes: str, fill: float | bool) -> Any:
+    """A data field padded along ``axes`` (H holds, N bins, M slew samples) with ``fill``."""
+    return eqx.field(metadata={"pad": (axes, fill)})
+
+
+class RecordData(eqx.Module):
+    """The arrays of one record for the joint model (units in the names or below)."""
+
+    g: jax.Array  # mGal, local gravity
+    m0: jax.Array  # pix, CCD centre
+    m_ref: jax.Array  # (2,) pix, level reference reading of each system
+    direction: jax.Array  # (2,) unit vector of the calibration tilt (x, y)
+    dt: jax.Array  # s, sample period
+    sigma_base: jax.Array  # (2,) pix, per-sample noise from first differences
+    hold_tx: jax.Array = _padded("H", 0.0)  # (H,) rad, reported attitude of each hold
+    hold_ty: jax.Array = _padded("H", 0.0)
+    hold_T: jax.Array = _padded("H", 0.0)  # (H,) s, slew end to hold end
+    hold_mask: jax.Array = _padded("H", False)  # (H,) real holds
+    enc_basis: jax.Array = _padded("H", 0.0)  # (H, L) Legendre in θ/θ_max
+    own: jax.Array = _padded("NH", 0.0)  # (N, H) bin i lies in hold k
+    prev: jax.Array = _padded("NH", 0.0)  # (N, H) hold before bin i's hold
+    d0: jax.Array = _padded("N", 1e9)  # (N,) s, slew end to the bin's first sample
+    dstep: jax.Array = _padded("N", 1.0)  # (N,) s, sample spacing in the bin
+    n_t: jax.Array = _padded("N", 1.0)  # (N,) samples in the bin
+    y: jax.Array = _padded("N", 0.0)  # (N, 2) pix, bin means
+    cnt: jax.Array = _padded("N", 0.0)  # (N, 2) finite samples per bin mean
+    mask: jax.Array = _padded("N", False)  # (N, 2) bins with data
+    drift_basis: jax.Array = _padded("N", 0.0)  # (N, D) Legendre in scaled time, no constant
+    mv_tx: jax.Array = _padded("HM", 0.0)  # (H, M) rad, slew samples into each hold
+    mv_ty: jax.Array = _padded("HM", 0.0)
+    mv_lag: jax.Array = _padded("HM", 0.0)  # (H, M) s, t_last − tᵢ
+    mv_mask: jax.Array = _padded("HM", False)
+
+    def pad(self, H: int, N: int, M: int) -> RecordData:
+        """The same record laid out for H holds, N bins and M slew samples.
+
+        Exact: padded bins have ``mask`` False (zero weight), padded holds have no bins
+        (``own``/``prev`` columns zero, so their β is its prior mean 0 and adds nothing to
+        the residuals) and sit after the real ones (the unsettled-carry scan runs
+        forwards), padded slew samples have ``mv_mask`` False.
+        """
+        h0, n0, m0 = self.hold_tx.shape[0], self.y.shape[0], self.mv_tx.shape[1]
+        if H < h0 or N < n0 or M < m0:
+            raise ValueError(f"cannot pad ({h0}, {n0}, {m0}) down to ({H}, {N}, {M})")
+        extra = {"H": H - h0, "N": N - n0, "M": M - m0}
+        changes = {}
+        for f in dataclasses.fields(self):
+            if "pad" not in f.metadata:
+                continue
+            axes, fill = f.metadata["pad"]
+            x = np.asarray(getattr(self, f.name))
+            widths = [(0, extra[a]) for a in axes] + [(0, 0)] * (x.ndim - len(axes))
+            changes[f.name] = jnp.asarray(np.pad(x, widths, constant_values=fill))
+        return dataclasses.replace(self, **changes)
+
+    def with_level(self, m_ref: Any) -> RecordData:
+        """The same data with the level reference reading moved to ``m_ref`` (pix)."""
+        return dataclasses.replace(self, m_ref=jnp.asarray(m_ref, dtype=jnp.float64))
+
+
+@dataclass(frozen=True)
+class RecordModel:
+    """One record for the joint model: structure, arrays, and host-side labels."""
+
+    structure: ModelStructure
+    data: RecordData
+    hold_steps: np.ndarray  # program step of each real hold
+    bin_t_s: np.ndarray  # s, mid-time of each real bin
+    t_span_s: tuple[float, float]  # s, first and last sample
+
+    @property
+    def n_holds(self) -> int:
+        return self.structure.n_holds
+
+    @property
+    def n_bins(self) -> int:
+        return self.structure.n_bins
+
+    @property
+    def drift_degree(self) -> int:
+        return self.structure.drift_degree
+
+    @property
+    def encoder_degree(self) -> int:
+        return self.structure.encoder_degree
+
+    @property
+    def beta_blocks(self) -> dict[str, np.ndarray]:
+        return self.structure.beta_blocks
+
+    @property
+    def n_beta(self) -> int:
+        return self.structure.n_beta
+
+    @property
+    def duration_h(self) -> float:
+        return (self.t_span_s[1] - self.t_span_s[0]) / 3600.0
+
+    def pad(self, H: int, N: int, M: int) -> RecordModel:
+        """This record laid out for a larger structure (:meth:`RecordData.pad`)."""
+        s = self.structure
+        if (H, N, M) == (s.n_holds, s.n_bins, s.n_moves):
+            return self
+        return dataclasses.replace(
+            self,
+            structure=dataclasses.replace(s, n_holds=H, n_bins=N, n_moves=M),
+            data=self.data.pad(H, N, M),
+        )
+
+    def with_level(self, m_ref: Any) -> RecordModel:
+        """This record with the level reference reading moved to ``m_ref`` (pix)."""
+        return dataclasses.replace(self, data=self.data.with_level(m_ref))
+
+
+def padded_shape(models: list[RecordModel]) -> tuple[int, int, int]:
+    """(H, N, M) that holds every model, rounded up (H to 4, N and M to 16) so that
+    chunks of similar records share one compiled solver."""
+
+    def up(x: int, m: int) -> int:
+        return -(-x // m) * m
+
+    H = max(m.structure.n_holds for m in models)
+    N = max(m.structure.n_bins for m in models)
+    M = max(m.structure.n_moves for m in models)
+    return up(H, 4), up(N, 16), up(M, 16)

@@ -1,0 +1,230 @@
+r"""The joint likelihood of a record: both systems, all rounds, β linear.
+
+**Prediction** of bin i in hold k for system j:
+
+    ȳᵢⱼ = (1 − wᵢ) Eₖⱼ + wᵢ Eₖ₋₁,ⱼ + cⱼ + Σₗ dⱼₗ Pₗ(sᵢ)
+          + (1 − wᵢ)(oₖⱼ − Sₖⱼ δₖ) + wᵢ (oₖ₋₁,ⱼ − Sₖ₋₁,ⱼ δₖ₋₁),
+
+where Eₖⱼ is the exact torsion equilibrium (:func:`chekan.model.equilibrium_readings`,
+eq. 6) at the *reported* attitude of hold k, Sₖⱼ = ∂Eₖⱼ/∂θ, δₖ the angle-readout error of
+hold k (reported − true, shared by both systems; prior N(0, σ_θ²)), oₖⱼ a per-hold offset
+of each system (prior N(0, σ_o²)), cⱼ the level-reading offset from m_ref, dⱼₗ drift
+coefficients on sᵢ = time scaled to [−1, 1] (Legendre, no constant), and wᵢ the mean
+over the bin's samples of exp(−(t − t_last)/τ), the first-order lag weight from the
+state at the end of the slew into the hold. That state is the exact discrete lag filter
+of the equilibrium along the slew's *measured* attitude, started from the lagged reading
+at the end of the previous hold (a scan over holds carries what had not settled).
+With an encoder degree L > 0 the angle error has a smooth systematic part repeated in
+every round, δₖ += Σₗ eₗ Pₗ(θₖ/θ_max) (l = 1…L; prior eₗ ~ N(0, 2″)).
+
+The readings are linear in β = (c, d, o, δ, e): ȳ = f(θ) + A(θ)β, so β is marginalised
+in closed form through the normal equations (:mod:`inference.normal_eq`).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+import chekan.jaxconfig  # noqa: F401
+from chekan import model as fm
+from chekan.joint.layout import ModelStructure, RecordData
+from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
+from inference.normal_eq import NormalEquations, posterior_beta_normal
+
+
+def sensor_params(v: dict, data: RecordData, c=None) -> fm.SensorParams:
+    """Forward-model parameters from named values (level readings m_ref + c)."""
+    m_level = data.m_ref if c is None else data.m_ref + c
+    return fm.SensorParams(
+        g_mgal=data.g,
+        K_pix_per_rad=v["K"],
+        m0_pix=data.m0,
+        b_mgal_per_pix=jnp.stack([v["b1"], v["b2"]]),
+        m_level_pix=m_level,
+        eps_rad=jnp.stack([v["eps1_arcmin"], v["eps2_arcmin"]]) / ARCMIN_PER_RAD,
+        gamma_rad=v["dgamma_arcmin"] / ARCMIN_PER_RAD,
+    )
+
+
+def lag_weights(tau_s, data: RecordData):
+    """wᵢ = mean over the bin's n samples of exp(−(d₀ + kΔ)/τ), k = 0…n−1 (closed form)."""
+    n, step, d0 = data.n_t, data.dstep, data.d0
+    q_num = -jnp.expm1(-n * step / tau_s)
+    q_den = -jnp.expm1(-step / tau_s)
+    return jnp.exp(-d0 / tau_s) * jnp.where(n > 1, q_num / (n * q_den), 1.0)
+
+
+def linear_terms(v: dict, data: RecordData):
+    """The pieces of ȳ = f + Aβ: ``f`` (N, 2), lag mixing ``G`` (N, H) and the angle
+    sensitivity per arcsec ``s`` (H, 2) = −∂E/∂θ / 206265.
+
+    For system j the columns of A are [1, P, G, G·diag(sⱼ), G·diag(sⱼ)·E_enc] acting on
+    (cⱼ, dⱼ, oⱼ, δ, e): everything factors through G (see the module docstring).
+    """
+    p = sensor_params(v, data)
+    tx, ty = data.hold_tx, data.hold_ty
+    dirn = data.direction
+
+    def eq(h):
+        return fm.equilibrium_readings(p, tx + h * dirn[0], ty + h * dirn[1])
+
+    E, S = jax.jvp(eq, (jnp.zeros_like(tx),), (jnp.ones_like(tx),))  # (H, 2) each
+    tau = v["tau_s"]
+    # lag state at the end of each slew: previous hold's equilibrium + the slew's equilibria
+    Em = fm.equilibrium_readings(p, data.mv_tx, data.mv_ty)  # (H, M, 2)
+    wm = jnp.where(data.mv_mask, -jnp.expm1(-data.dt / tau) * jnp.exp(-data.mv_lag / tau), 0.0)
+    wprev = 1.0 - wm.sum(axis=1)  # (H,)
+    Mv = jnp.einsum("hm,hmj->hj", wm, Em)  # (H, 2)
+    w = lag_weights(tau, data)  # (N,) weight of the state at the end of the slew
+    G = (1.0 - w)[:, None] * data.own + (w * (data.own @ wprev))[:, None] * data.prev
+    R = _unsettled_carry(E, Mv, wprev, jnp.exp(-data.hold_T / tau))
+    f = G @ E + w[:, None] * (data.own @ (Mv + R))
+    E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
+    jump = jnp.abs(wprev[:, None] * E_prev + Mv + R - E)  # (H, 2) transient amplitude
+    trans = w[:, None] * (data.own @ jump)  # (N, 2) transient left in each bin
+    return f, G, -S / ARCSEC_PER_RAD, trans
+
+
+def _unsettled_carry(E, Mv, wprev, rho):
+    """Rₖ: the part of the lag state after slew k left over from holds that had not settled.
+
+    y₀,ₖ = wₚᵣₑᵥ,ₖ yₑₙd,ₖ₋₁ + Mvₖ with yₑₙd,ₖ₋₁ = Eₖ₋₁ + (y₀,ₖ₋₁ − Eₖ₋₁) ρₖ₋₁,
+    ρ = e^{−T/τ} (T: slew end to hold end); Rₖ = y₀,ₖ − wₚᵣₑᵥ,ₖ Eₖ₋₁ − Mvₖ (R₀ = 0, hold 0
+    settled). Deterministic part only: the β terms keep the one-hold carry (the rest is
+    second order, ρ·σ_o).
+    """
+
+    def step(y0_prev, k):
+        y0 = wprev[k] * (E[k - 1] + (y0_prev - E[k - 1]) * rho[k - 1]) + Mv[k]
+        return y0, y0 - wprev[k] * E[k - 1] - Mv[k]
+
+    _, R = jax.lax.scan(step, E[0], jnp.arange(1, E.shape[0]))
+    return jnp.concatenate([jnp.zeros((1, E.shape[1])), R], axis=0)
+
+
+def _local_columns(G, s_j, Q, enc):
+    """System j's columns [Q, G, G·diag(sⱼ), G·diag(sⱼ)·E] (only used for A·β products)."""
+    Gs = G * s_j[None, :]
+    return jnp.concatenate([Q, G, Gs, Gs @ enc], axis=1)
+
+
+def apply_A(beta, G, s, structure: ModelStructure, data: RecordData):
+    """A·β as (N, 2), without forming A."""
+    Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
+    out = []
+    for j in range(2):
+        bj = beta[structure.beta_index(j)]
+        out.append(_local_columns(G, s[:, j], Q, data.enc_basis) @ bj)
+    return jnp.stack(out, axis=1)
+
+
+def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordData):
+    """rᵀWr, AᵀWr, AᵀWA assembled blockwise through G (W = mask/noise variance).
+
+    β = (q₁, q₂, o₁, o₂, δ, e) with qⱼ = (cⱼ, dⱼ); with Qⱼ-weighted products
+    QQ = QᵀWⱼQ, QG = QᵀWⱼG, GG = GᵀWⱼG and s = sⱼ the blocks are QQ, QG, QG·diag(s), GG,
+    GG·diag(s), diag(s)·GG·diag(s) (summed over systems for δ) and their products with E.
+    """
+    f, G, s, trans = linear_terms(v, data)
+    mask = data.mask
+    nv = noise_var(h, data, trans)
+    W = jnp.where(mask, 1.0 / nv, 0.0)
+    r = jnp.where(mask, data.y - f, 0.0)
+    Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
+    E = data.enc_basis
+    nq, H, L = Q.shape[1], G.shape[1], E.shape[1]
+    QQ, QG, QGs, GG, GGs, sGGs, bq, bo, bd = [], [], [], [], [], [], [], [], []
+    for j in range(2):
+        Wj, sj = W[:, j], s[:, j]
+        WQ, WG = Q * Wj[:, None], G * Wj[:, None]
+        QQ.append(Q.T @ WQ)
+        QG.append(Q.T @ WG)
+        QGs.append(QG[j] * sj[None, :])
+        GG.append(G.T @ WG)
+        GGs.append(GG[j] * sj[None, :])
+        sGGs.append(sj[:, None] * GGs[j])
+        bq.append(WQ.T @ r[:, j])
+        bo.append(WG.T @ r[:, j])
+        bd.append(sj * bo[j])
+    Zqq, Zqh, Zhh = jnp.zeros((nq, nq)), jnp.zeros((nq, H)), jnp.zeros((H, H))
+    Sd = sGGs[0] + sGGs[1]
+    rows = [
+        [QQ[0], Zqq, QG[0], Zqh, QGs[0], QGs[0] @ E],
+        [Zqq, QQ[1], Zqh, QG[1], QGs[1], QGs[1] @ E],
+        [QG[0].T, Zqh.T, GG[0], Zhh, GGs[0], GGs[0] @ E],
+        [Zqh.T, QG[1].T, Zhh, GG[1], GGs[1], GGs[1] @ E],
+        [QGs[0].T, QGs[1].T, GGs[0].T, GGs[1].T, Sd, Sd @ E],
+    ]
+    if L:
+        rows.append(
+            [(QGs[0] @ E).T, (QGs[1] @ E).T, (GGs[0] @ E).T, (GGs[1] @ E).T, E.T @ Sd, E.T @ Sd @ E]
+        )
+    else:
+        rows = [row[:-1] for row in rows]
+    Mg = jnp.block(rows)
+    bdt = bd[0] + bd[1]
+    g = jnp.concatenate([bq[0], bq[1], bo[0], bo[1], bdt] + ([E.T @ bdt] if L else []))
+    rWr = jnp.sum(W * r * r)
+    logdet_n = jnp.sum(jnp.where(mask, jnp.log(nv), 0.0))
+    return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), (f, G, s, r, W, nv, trans)
+
+
+def predict(v: dict, structure: ModelStructure, data: RecordData):
+    """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
+    f, G, s, _ = linear_terms(v, data)
+    return f, dense_design(G, s, structure, data)
+
+
+def dense_design(G, s, structure: ModelStructure, data: RecordData) -> jax.Array:
+    """The design ``A`` (N, 2, p) formed from the pieces of :func:`linear_terms`."""
+    Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
+    N = G.shape[0]
+    cols = []
+    for j in range(2):
+        X = _local_columns(G, s[:, j], Q, data.enc_basis)
+        A = jnp.zeros((N, structure.n_beta)).at[:, structure.beta_index(j)].add(X)
+        cols.append(A)
+    return jnp.stack(cols, axis=1)
+
+
+def beta_prior_var(h: dict, structure: ModelStructure) -> jax.Array:
+    """Prior variances of β given the hyperparameters (c: 1 pix², d: 4 pix², o: σ_o², δ: σ_θ²,
+    e: 4 arcsec²), in β's layout."""
+    pv = jnp.zeros(structure.n_beta)
+    b = structure.beta_blocks
+    pv = pv.at[b["c"]].set(1.0).at[b["drift"]].set(4.0).at[b["encoder"]].set(4.0)
+    pv = pv.at[b["hold_offset"]].set(h["sigma_hold_pix"] ** 2)
+    return pv.at[b["angle_error"]].set(h["sigma_theta_arcsec"] ** 2)
+
+
+def noise_var(h: dict, data: RecordData, trans=None) -> jax.Array:
+    """(N, 2) variance of each bin mean: (sⱼσⱼ)²/n + (κ·transient)².
+
+    The second term is the slew error: a row carries the *latest* platform angles, so
+    during a slew the recorded attitude may lag the true one by up to a sample; the lag
+    state after the slew is then uncertain in proportion to the transient still present
+    in the bin (κ = ``slew_error``, a hyperparameter; zero once the hold has settled).
+    """
+    s = h["noise_scale"] * data.sigma_base
+    base = s[None, :] ** 2 / jnp.maximum(data.cnt, 1.0)
+    if trans is None:
+        return base
+    return base + (h["slew_error"] * trans) ** 2
+
+
+def solve_beta(v: dict, h: dict, structure: ModelStructure, data: RecordData, extras: bool = False):
+    """β̂(θ) = argmin ‖N^{-1/2}(y − f − Aβ)‖² + ‖Λ^{-1/2}β‖² and the whitened residuals.
+
+    Returns ``(r_w (2N,), beta_hat (p,), L)`` with LLᵀ = M = AᵀN⁻¹A + Λ⁻¹, and with
+    ``extras`` also the pieces ``(f, G, s, r, W, nv, trans)`` of :func:`normal_equations`.
+    """
+    ne, pieces = normal_equations(v, h, structure, data)
+    _, G, s, r, _, nv, _ = pieces
+    beta, L = posterior_beta_normal(ne, beta_prior_var(h, structure))
+    # not sqrt(W): its derivative is infinite where W = 0 (masked bins), giving 0·∞ = NaN
+    sqrt_w = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
+    rw = sqrt_w * (r - apply_A(beta, G, s, structure, data))
+    if extras:
+        return rw.reshape(-1), beta, L, pieces
+    return rw.reshape(-1), beta, L

@@ -1,0 +1,118 @@
+"""MAP of the joint model with EM of the hyperparameters, for one record or a batch.
+
+``MAP_PASSES`` LM solves over θ (β projected out). Between two solves the level
+reference moves to its estimate and the hyperparameters are converged at fixed θ
+(:func:`chekan.joint.em.between_passes`). A fixed small number of EM updates is not
+enough: σ_o creeps up from its start by ~15 % per update, and stopping early understates
+the sd of b by 5–10 % (z² ≈ 1.2–1.6 in the validation study).
+
+One loop serves a single record (:func:`inference.map.fit_map`) and a batch of records
+padded to one structure (:func:`inference.map.fit_map_batch`, vmapped lanes). The solver
+returns new state, :class:`MapFit`, with the model whose level reference has moved.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from chekan.joint.em import between_passes
+from chekan.joint.layout import RecordModel
+from chekan.joint.problem import K_DESIGN, Hyper, default_hyper, problem_for
+from inference.map import MapResult, fit_map, fit_map_batch
+
+MAP_PASSES = 3  # LM solves; between them the hyperparameters are converged at fixed θ
+# vmapped lanes per solve: the XLA CPU runtime (jax 0.10) deadlocks on this model's
+# vmapped LM at 4 lanes and more (measured; see inference.map.fit_map_batch); on CPU a
+# vmapped solve costs about the sum of its lanes anyway, so pairs lose nothing
+MAX_LANES = 2
+
+
+@dataclass(frozen=True)
+class MapFit:
+    """The MAP of one record: the LM result at θ̂, the hyperparameters at their EM fixed
+    point, the passes made, and the model with its level reference at the estimate (what
+    the derived quantities and the sampler must use)."""
+
+    result: MapResult
+    hyper: Hyper
+    history: tuple[dict, ...]
+    model: RecordModel
+
+
+def initial_values(classical, g: float) -> dict[str, float]:
+    """θ to start the LM from, from the classical fit (a = g/2K², eq. 10)."""
+    a = classical.a
+    K = float(np.sqrt(g / (2 * a))) if a > 0 else K_DESIGN
+    eps = classical.eps_arcmin if classical.eps_arcmin is not None else np.zeros(2)
+    return {
+        "b1": float(classical.b_mean[0]),
+        "b2": float(classical.b_mean[1]),
+        "K": K,
+        "eps1_arcmin": float(eps[0]),
+        "eps2_arcmin": float(eps[1]),
+        "dgamma_arcmin": 0.0,
+        "tau_s": 30.0,
+    }
+
+
+def fit_map_em(model: RecordModel, init: dict, *, progress: bool = False) -> MapFit:
+    """MAP with EM updates of the hyperparameters for one record (module docstring)."""
+    return fit_map_em_many([model], [init], progress=progress)[0]
+
+
+def fit_map_em_many(
+    models: Sequence[RecordModel], inits: Sequence[dict], *, progress: bool = False
+) -> list[MapFit]:
+    """:func:`fit_map_em` for records of one structure; more than one are solved as a
+    batch of vmapped lanes in every pass (pad them first: :meth:`RecordModel.pad`)."""
+    structures = {m.structure for m in models}
+    if len(structures) != 1:
+        raise ValueError(f"a batch needs one structure (pad the models), got {structures}")
+    prob = problem_for(structures.pop())
+    space = prob.map_space
+    models = list(models)
+    B = len(models)
+    hs = [default_hyper() for _ in range(B)]
+    zs = [space.to_z(i) for i in inits]
+    histories: list[list[dict]] = [[] for _ in range(B)]
+    results: list[MapResult] = []
+    for it in range(MAP_PASSES):
+        if B == 1:
+            results = [fit_map(prob.lsq, (models[0].data, hs[0]), zs[0])]
+        else:
+            args = jax.tree_util.tree_map(
+                lambda *xs: jnp.stack(xs), *[(m.data, h) for m, h in zip(models, hs, strict=True)]
+            )
+            batch = fit_map_batch(prob.lsq, args, np.stack(zs), max_lanes=MAX_LANES)
+            results = [batch.item(i) for i in range(B)]
+        zs = [r.z for r in results]
+        for i, res in enumerate(results):
+            updates = 0
+            if it < MAP_PASSES - 1:
+                models[i], hs[i], updates = between_passes(models[i], res.z, hs[i])
+            histories[i].append(
+                pass_entry(it, res.converged, res.num_steps, res.cost, progress and B == 1, updates)
+            )
+    return [MapFit(results[i], hs[i], tuple(histories[i]), models[i]) for i in range(B)]
+
+
+def pass_entry(it: int, converged, steps, cost, progress: bool, hyper_updates: int) -> dict:
+    """One LM pass as the result's ``diagnostics.map_passes`` lists it (printed on request)."""
+    if progress:
+        tail = f", then {hyper_updates} EM updates of the hyperparameters" if hyper_updates else ""
+        print(
+            f"  MAP pass {it + 1}: {'converged' if converged else 'NOT converged'} "
+            f"in {int(steps)} steps, cost {float(cost):.1f}{tail}"
+        )
+    return {
+        "iteration": it,
+        "converged": bool(converged),
+        "steps": int(steps),
+        "cost": float(cost),
+        "hyper_updates": int(hyper_updates),
+    }

@@ -1,0 +1,39 @@
+"""One table of the parameters a calibration reports: name → unit.
+
+Every module that labels a parameter (results, the joint model's priors, the archive,
+the history, validation tables) reads its unit here.
+"""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+
+PARAMETER_UNITS = MappingProxyType(
+    {
+        "b1": "mGal/pix",
+        "b2": "mGal/pix",
+        "a": "mGal/pix^2",
+        "b1_0": "mGal/pix",
+        "b2_0": "mGal/pix",
+        "eps1_arcmin": "arcmin",
+        "eps2_arcmin": "arcmin",
+        "dgamma_arcmin": "arcmin",
+        "tau_s": "s",
+        "drift1_pix_per_h": "pix/h",
+        "drift2_pix_per_h": "pix/h",
+        "sigma1_pix": "pix",
+        "sigma2_pix": "pix",
+        "sigma_theta_arcsec": "arcsec",
+        "sigma_hold_pix": "pix",
+        "slew_error": "",
+    }
+)
+"""Units of every reported parameter, in the order the joint model reports them."""
+
+MODEL_UNITS = MappingProxyType({"K": "pix/rad", "noise_scale": ""})
+"""Units of the joint model's internal parameters that are not reported as such."""
+
+
+def unit_of(name: str) -> str:
+    """The unit of a reported or internal parameter ('' when it has none)."""
+    return PARAMETER_UNITS.get(name, MODEL_UNITS.get(name, ""))
