@@ -123,7 +123,7 @@ def slow_block(block: bytes, ncols: int, want: dict[str, int]):
                     return None, (i, f"field step: {text!r} is not a non-negative integer")
                 if len(s.lstrip(b"0")) > _MAX_DIGITS:
                     return None, (i, f"field step: {text!r} is too large")
-                step[i] = int(s)
+                step[i] = int(s.lstrip(b"0") or b"0")  # int() refuses > 4300 digits
                 continue
             if not _NUM_RE.fullmatch(s):
                 return None, (i, f"field {name}: {text!r} is not a number")
