@@ -148,7 +148,12 @@ def read_protocol(path: str | PathLike) -> Protocol:
         m = _DG_RE.fullmatch(name)
         if m is None:
             continue
-        key = (int(m.group(1)), int(m.group(2)))
+        try:  # int() refuses more than 4300 digits; leading zeros do not count
+            key = (int(m.group(1).lstrip("0") or "0"), int(m.group(2).lstrip("0") or "0"))
+        except ValueError:
+            raise FormatError(
+                path, fr.header_line, f"column {name!r}: round or system number is too large"
+            ) from None
         if key in cells:
             raise FormatError(
                 path,

@@ -177,6 +177,8 @@ def test_protocol_reader_on_arbitrary_bytes(fuzz_dir: Path, data: bytes) -> None
 
 @FUZZ
 @given(data=mutated(PROTOCOL))
+@example(data=PROTOCOL.replace(b"dg_r1_s2", b"dg_r" + b"0" * 5000 + b"1_s2"))
+@example(data=PROTOCOL.replace(b"dg_r1_s2", b"dg_r" + b"7" * 5000 + b"_s2"))
 def test_protocol_reader_on_mutated_protocols(fuzz_dir: Path, data: bytes) -> None:
     prot = _read(read_protocol, fuzz_dir / "prot.csv", data)
     if prot is not None:
