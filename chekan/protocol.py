@@ -20,7 +20,13 @@ from os import PathLike
 import numpy as np
 
 from chekan.errors import FormatError
-from chekan.records import _count_problem, _data_block, _incomplete, _meta_float, _read_frame
+from chekan.records.framing import (
+    count_problem,
+    data_block,
+    meta_float,
+    read_frame,
+    warn_incomplete,
+)
 from chekan.units import one_minus_cos, parse_angle_deg
 
 FORMAT = "chekan-protocol/1"
@@ -98,7 +104,7 @@ def _parse_row(
         ) from None
     parts = line.split(",")
     if len(parts) != ncols:
-        raise _RowError(_count_problem(raw, len(parts), ncols))
+        raise _RowError(count_problem(raw, len(parts), ncols))
     text = parts[i_angle].strip(" \t")
     if not text:
         raise _RowError("field angle is empty")
@@ -121,7 +127,7 @@ def read_protocol(path: str | PathLike) -> Protocol:
     """
     with open(path, "rb") as f:
         raw = f.read()
-    fr = _read_frame(raw, path, FORMAT)
+    fr = read_frame(raw, path, FORMAT)
     meta, lines_of = fr.meta, fr.meta_lines
     for key in ("serial", "a_mgal_per_pix2"):
         if key not in meta:
@@ -129,8 +135,8 @@ def read_protocol(path: str | PathLike) -> Protocol:
     serial = meta["serial"].strip()
     if not serial:
         raise FormatError(path, lines_of["serial"], "metadata serial is empty")
-    a = _meta_float(meta, lines_of, path, "a_mgal_per_pix2")
-    g = _meta_float(meta, lines_of, path, "g_local_mgal")
+    a = meta_float(meta, lines_of, path, "a_mgal_per_pix2")
+    g = meta_float(meta, lines_of, path, "g_local_mgal")
     assert a is not None
 
     index = {c: i for i, c in enumerate(fr.columns)}
@@ -142,7 +148,12 @@ def read_protocol(path: str | PathLike) -> Protocol:
         m = _DG_RE.fullmatch(name)
         if m is None:
             continue
-        key = (int(m.group(1)), int(m.group(2)))
+        try:  # int() refuses more than 4300 digits; leading zeros do not count
+            key = (int(m.group(1).lstrip("0") or "0"), int(m.group(2).lstrip("0") or "0"))
+        except ValueError:
+            raise FormatError(
+                path, fr.header_line, f"column {name!r}: round or system number is too large"
+            ) from None
         if key in cells:
             raise FormatError(
                 path,
@@ -163,15 +174,15 @@ def read_protocol(path: str | PathLike) -> Protocol:
             raise FormatError(
                 path, fr.header_line, f"column {name!r} has no metadata key {bkey!r} (its b)"
             )
-        b[rounds.index(r), systems.index(s)] = _meta_float(meta, lines_of, path, bkey)
+        b[rounds.index(r), systems.index(s)] = meta_float(meta, lines_of, path, bkey)
 
     dg_cols = [(cells[k][0], cells[k][1]) for k in sorted(cells)]
-    block, final_nl = _data_block(fr.data)
+    block, final_nl = data_block(fr.data)
     rows = block.split(b"\n")[:-1]
     first = fr.header_line + 1
     notes: list[str] = []
     if rows and b"\0" in rows[-1]:
-        _incomplete(path, first + len(rows) - 1, "NUL bytes", notes, stacklevel=3)
+        warn_incomplete(path, first + len(rows) - 1, "NUL bytes", notes, stacklevel=3)
         rows.pop()
         final_nl = True
     parsed = []
@@ -182,7 +193,7 @@ def read_protocol(path: str | PathLike) -> Protocol:
             )
         except _RowError as e:
             if i == len(rows) - 1 and not final_nl:
-                _incomplete(path, first + i, str(e), notes, stacklevel=3)
+                warn_incomplete(path, first + i, str(e), notes, stacklevel=3)
                 break
             raise FormatError(path, first + i, str(e)) from None
     if not parsed:

@@ -50,8 +50,6 @@ from typing import Any
 
 import numpy as np
 
-from chekan.plotting import new_figure
-
 CASES = ("typical", "misaligned", "drift", "slow")
 LEVELS = (0.5, 0.9, 0.95)
 PARAMS = ("b1", "b2", "a")
@@ -293,7 +291,8 @@ def format_summary(s: dict) -> str:
     return "\n".join(lines)
 
 
-def _groups(summary: dict) -> list[str]:
+def summary_groups(summary: dict) -> list[str]:
+    """The keys of the summary's groups (per case and overall), in order."""
     return [k for k, v in summary.items() if isinstance(v, dict) and "n_sessions" in v]
 
 
@@ -337,7 +336,7 @@ def markdown_report(summary: dict, settings: dict, figures: Sequence[str] = ()) 
         "RMS sd is the RMS of the stated sds (≈ RMS error when honest).",
         "",
     ]
-    for g in _groups(summary):
+    for g in summary_groups(summary):
         s = summary[g]
         entries = {k: v for k, v in s.items() if isinstance(v, dict)}
         lines += [f"## {g} ({s['n_sessions']} sessions)", ""]
@@ -549,10 +548,12 @@ def run_study(
     summary["seconds"] = seconds
     pngs = []
     if figures:
+        from chekan.validate_plots import plot_coverage, plot_errors, plot_z
+
         pngs = [
-            _plot_coverage(summary, out / "coverage.png"),
-            _plot_z(rows, summary, methods, out / "z_hist.png"),
-            _plot_errors(rows, methods, out / "errors.png"),
+            plot_coverage(summary, out / "coverage.png"),
+            plot_z(rows, summary, methods, out / "z_hist.png"),
+            plot_errors(rows, methods, out / "errors.png"),
         ]
     md = out / "validation.md"
     md.write_text(markdown_report(summary, settings, pngs), encoding="utf-8")
@@ -560,137 +561,6 @@ def run_study(
     summary["paths"] = [str(p) for p in (csv_path, js, md, *pngs)]
     js.write_text(json.dumps(_clean(summary), indent=2, allow_nan=False), encoding="utf-8")
     return summary
-
-
-# ---------------------------------------------------------------------------- figures
-_COLORS = {"classical": "tab:orange", "map": "tab:blue", "bayes": "tab:green"}
-_MARKERS = {"typical": "o", "misaligned": "s", "drift": "^", "slow": "v"}
-
-
-def _plot_coverage(summary: dict, path: Path) -> Path:
-    """Nominal against empirical coverage per group (rows) and parameter (columns)."""
-    groups = _groups(summary)
-    fig = new_figure((4 * len(PARAMS), 3 * len(groups)))
-    axes = fig.subplots(len(groups), len(PARAMS), squeeze=False)
-    levels = np.array(LEVELS) * 100
-    for gi, g in enumerate(groups):
-        s = summary[g]
-        for pi, p in enumerate(PARAMS):
-            ax = axes[gi, pi]
-            ax.plot([45, 100], [0.45, 1.0], "k:", lw=1, label="nominal")
-            entries = [(k.split("/")[0], e) for k, e in s.items() if k.endswith(f"/{p}")]
-            for mi, (m, e) in enumerate(entries):
-                lo_hi = np.array([e[f"bounds_{round(lev)}"] for lev in levels])
-                if mi == 0:  # one band per group: n is the same for every method
-                    for lev, (lo, hi) in zip(levels, lo_hi, strict=True):
-                        ax.fill_between(
-                            [lev - 1.5, lev + 1.5], lo, hi, color="0.85", lw=0, zorder=0
-                        )
-                cov = [e[f"coverage_{round(lev)}"] for lev in levels]
-                x = levels + (mi - (len(entries) - 1) / 2) * 0.8
-                ax.plot(x, cov, "o-", color=_COLORS[m], label=m, ms=5)
-            ax.set_xlim(45, 100)
-            ax.set_ylim(-0.02, 1.02)
-            ax.set_title(f"{g}: {p} (n = {s['n_sessions']})", fontsize=9)
-            if gi == len(groups) - 1:
-                ax.set_xlabel("nominal level, %")
-            if pi == 0:
-                ax.set_ylabel("empirical coverage")
-            if gi == 0 and pi == 0:
-                ax.legend(fontsize=7, loc="lower right")
-    fig.suptitle(
-        f"coverage of central intervals; grey: {BAND_PROB * 100:.1f} % band of an honest interval",
-        fontsize=10,
-    )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return path
-
-
-def _z(rows: Sequence[dict], m: str, p: str) -> np.ndarray:
-    z = np.array(
-        [(r[f"{m}_{p}"] - r[f"true_{p}"]) / r[f"{m}_{p}_sd"] for r in rows], dtype=np.float64
-    )
-    return z[np.isfinite(z)]
-
-
-def _plot_z(rows: Sequence[dict], summary: dict, methods: Sequence[str], path: Path) -> Path:
-    """Histograms of z = (estimate − truth)/sd against N(0, 1), per group and parameter."""
-    groups = _groups(summary)
-    fig = new_figure((4 * len(PARAMS), 2.8 * len(groups)))
-    axes = fig.subplots(len(groups), len(PARAMS), squeeze=False)
-    x = np.linspace(-6, 6, 200)
-    for gi, g in enumerate(groups):
-        sub = rows if g == "all" else [r for r in rows if r["case"] == g]
-        for pi, p in enumerate(PARAMS):
-            ax = axes[gi, pi]
-            for m in methods:
-                z = _z(sub, m, p)
-                if z.size:
-                    ax.hist(
-                        np.clip(z, -6, 6),
-                        bins=24,
-                        range=(-6, 6),
-                        alpha=0.45,
-                        color=_COLORS[m],
-                        density=True,
-                        label=m,
-                    )
-            ax.plot(x, np.exp(-x * x / 2) / np.sqrt(2 * np.pi), "k-", lw=1, label="N(0, 1)")
-            ax.set_title(f"{g}: z of {p} (clipped to ±6)", fontsize=9)
-            if gi == 0 and pi == 0:
-                ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return path
-
-
-def _plot_errors(rows: Sequence[dict], methods: Sequence[str], path: Path) -> Path:
-    """Top: estimate − truth against truth (colour: method, marker: case).
-    Bottom: RMS error per case and method (log scale)."""
-    cases = list(dict.fromkeys(r["case"] for r in rows))
-    fig = new_figure((4.2 * len(PARAMS), 7))
-    axes = fig.subplots(2, len(PARAMS), squeeze=False)
-    width = 0.8 / max(len(methods), 1)
-    for pi, p in enumerate(PARAMS):
-        ax = axes[0, pi]
-        for m in methods:
-            for c in cases:
-                sub = [r for r in rows if r["case"] == c]
-                tr = np.array([r[f"true_{p}"] for r in sub], dtype=np.float64)
-                err = np.array([r[f"{m}_{p}"] for r in sub], dtype=np.float64) - tr
-                ax.scatter(
-                    tr,
-                    err,
-                    s=12,
-                    alpha=0.7,
-                    color=_COLORS[m],
-                    marker=_MARKERS.get(c, "o"),
-                    label=f"{m}, {c}",
-                )
-        ax.axhline(0.0, color="k", lw=0.8)
-        ax.set_xlabel(f"true {p}, {UNITS[p]}")
-        ax.set_ylabel(f"estimate − truth, {UNITS[p]}")
-        if pi == 0:
-            ax.legend(fontsize=6, ncol=2)
-        ax = axes[1, pi]
-        for mi, m in enumerate(methods):
-            rms = []
-            for c in cases:
-                sub = [r for r in rows if r["case"] == c]
-                err = np.array([r[f"{m}_{p}"] - r[f"true_{p}"] for r in sub], dtype=np.float64)
-                err = err[np.isfinite(err)]
-                rms.append(np.sqrt(np.mean(err**2)) if err.size else np.nan)
-            pos = np.arange(len(cases)) + (mi - (len(methods) - 1) / 2) * width
-            ax.bar(pos, rms, width=width, color=_COLORS[m], label=m)
-        ax.set_xticks(np.arange(len(cases)), cases, fontsize=8)
-        ax.set_yscale("log")
-        ax.set_ylabel(f"RMS error of {p}, {UNITS[p]}")
-        if pi == 0:
-            ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    return path
 
 
 # ---------------------------------------------------------------------------- command
@@ -743,7 +613,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         resume=args.resume,
         command="python -m chekan.validate " + " ".join(sys.argv[1:] if argv is None else argv),
     )
-    for key in _groups(s):
+    for key in summary_groups(s):
         print(f"\n== {key} ==")
         print(format_summary(s[key]))
     print(f"\n{s['settings']['program']}; {s['seconds']:.0f} s")

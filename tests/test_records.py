@@ -605,7 +605,7 @@ def test_read_input_dispatches(tmp_path: Path) -> None:
 
 
 def test_bench_runs(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
-    from chekan.records import _bench
+    from bench.records_bench import main as _bench
 
     p = put(tmp_path, SPEC_EXAMPLE)
     _bench([str(p)])

@@ -1,7 +1,7 @@
 """The calibration certificate (chekan.report): PDF and HTML, ru and en, against the JSON.
 
-Text is read back from the PDFs with the package's own reader (chekan.report.pdftext),
-so these tests need no poppler; one cross-check with pdftotext runs when it is installed.
+Text is read back from the PDFs with pypdf (tests/pdfread.py), so these tests need no
+poppler; one cross-check with pdftotext runs when it is installed.
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from pdfread import normalize, read_pdf
 
 from chekan.errors import ChekanError, FormatError
 from chekan.report import build_report, render_report, verdict_of
 from chekan.report.cli import add_report_parser
-from chekan.report.pdftext import normalize, read_pdf
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER_CSV = Path(__file__).resolve().parents[2] / "shared" / "reference" / "calibr_46_protocol.csv"
@@ -406,9 +406,7 @@ def test_calibrate_report_option(tmp_path):
 def test_pdftotext_reads_the_cyrillic(paper, outdir):
     exe = shutil.which("pdftotext")
     if exe is None:
-        pytest.skip(
-            "pdftotext (poppler-utils) is not installed; the built-in reader covers the rest"
-        )
+        pytest.skip("pdftotext (poppler-utils) is not installed; the pypdf reader covers the rest")
     _, path = paper
     pdf, own_text, _, _ = pdf_of("paper", "ru", path, outdir)
     text = normalize(

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import pytest
+from pdfread import normalize, read_pdf
 
 from chekan.errors import ChekanError
 from chekan.report.document import Cell, Figure, Heading, KeyValue, Para, Report, Table
 from chekan.report.i18n import LABELS, LANGS, PARAM_NAMES, check_lang, tr
 from chekan.report.numbers import fixed, plain, sci, statement, unc, value_unc
-from chekan.report.pdftext import normalize, read_pdf
 from chekan.report.typst_pdf import render_pdf, tstr
 
 

@@ -20,32 +20,21 @@ from chekan.report.i18n import param_name, tr, unit_name, value_name
 from chekan.report.numbers import (
     DASH,
     fixed,
-    general,
     is_num,
     plain,
     sci,
     statement,
     unc,
-    value_unc,
+)
+from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
+    BUDGET_ORDER,  # noqa: F401
+    PARAM_ORDER,  # noqa: F401
+    budget_table,
+    diagnostics_table,
+    param_table,
 )
 
 FULL_RANGE_MGAL = 5000.0  # Δ₀ = 5 Gal
-PARAM_ORDER = (
-    "b1",
-    "b2",
-    "a",
-    "b1_0",
-    "b2_0",
-    "eps1_arcmin",
-    "eps2_arcmin",
-    "dgamma_arcmin",
-    "tau_s",
-    "drift1_pix_per_h",
-    "drift2_pix_per_h",
-    "sigma_theta_arcsec",
-    "sigma_hold_pix",
-)
-BUDGET_ORDER = ("angle_readout", "noise", "drift", "a")
 _COL_RE = re.compile(r"^r(\d+)_s(\d+)$")
 
 Translator = Callable[..., str]
@@ -143,21 +132,6 @@ def _col_header(cols: list[str], t: Translator) -> tuple[list[Cell], list[Cell]]
         top.append(Cell(t("round_n", n=r) if r else "", colspan=len(items), bold=True))
         sub.extend(Cell(t("sys_n", n=s) if r else s) for s, _ in items)
     return top, sub
-
-
-def _param_cells(name: str, e: Mapping[str, Any]) -> tuple[str, str, str, str]:
-    """(estimate, u, low, high) with matched decimals."""
-    mean, sd = e.get("mean"), e.get("sd")
-    lo, hi = e.get("hdi_low"), e.get("hdi_high")
-    if re.fullmatch(r"b\d(_0)?", name):
-        return fixed(mean, 6), unc(sd), fixed(lo, 6), fixed(hi, 6)
-    ms, us = value_unc(mean, sd)
-    if "·10" in ms:
-        exp = int(ms.split("·10")[1].translate(str.maketrans("⁰¹²³⁴⁵⁶⁷⁸⁹⁻", "0123456789-")))
-        nd = len(ms.split("·")[0].split(".")[1]) if "." in ms.split("·")[0] else 0
-        return ms, us, sci(lo, nd + 1, exp=exp), sci(hi, nd + 1, exp=exp)
-    nd = len(ms.split(".")[1]) if "." in ms else 0
-    return ms, us, fixed(lo, nd), fixed(hi, nd)
 
 
 def _b_uncertainty(result: Mapping[str, Any], name: str) -> tuple[float | None, bool]:
@@ -475,7 +449,7 @@ def _items(
                 t("cap_rounds"),
             )
         )
-    _param_table(rep, result, t, lang)
+    param_table(rep, result, t, lang)
     if is_num(result.get("mean_b_mgal_per_pix")):
         rep.add(Para(t("mean_b", v=fixed(result["mean_b_mgal_per_pix"], 6))))
     if is_num(result.get("discrepancy_between_rounds_percent")):
@@ -530,121 +504,6 @@ def _items(
             rep.add(Para(t("margin_ccd", lo=plain(rng[0]), hi=plain(rng[1])), "note"))
     else:
         rep.add(Para(t("no_margin"), "note"))
-
-
-def _param_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) -> None:
-    params = result["parameters"]
-    names = [n for n in PARAM_ORDER if n in params] + sorted(
-        n for n in params if n not in PARAM_ORDER
-    )
-    diag = any("r_hat" in params[n] or "ess_bulk" in params[n] for n in names)
-    p = plain(round(100 * float(result.get("hdi_prob", 0.95)), 6))
-    bayes = result["method"] == "bayes"
-    head = [t("param"), t("mean"), t("sd"), t("hdi" if bayes else "interval", p=p), t("unit")]
-    if diag:
-        head += [t("rhat"), t("ess")]
-    rows = []
-    for n in names:
-        e = params[n]
-        m, u, lo, hi = _param_cells(n, e)
-        row = [
-            Cell(param_name(n, lang)),
-            Cell(m, bold=n in ("b1", "b2")),
-            Cell(u),
-            Cell(f"{lo} … {hi}" if lo != DASH else DASH),
-            Cell(unit_name(str(e.get("unit", "")), lang)),
-        ]
-        if diag:
-            row += [Cell(fixed(e.get("r_hat"), 3)), Cell(fixed(e.get("ess_bulk"), 0))]
-        rows.append(row)
-    for n, v in (result.get("fixed") or {}).items():
-        if n in params or not is_num(v):
-            continue
-        unit = "mGal/pix^2" if n == "a" else ""
-        row = [
-            Cell(param_name(n, lang)),
-            Cell(sci(v, 4) if abs(v) < 1e-3 else general(v)),
-            Cell(t("fixed")),
-            Cell(DASH),
-            Cell(unit_name(unit, lang)),
-        ]
-        if diag:
-            row += [Cell(""), Cell("")]
-        rows.append(row)
-    cap = t("cap_params_bayes", p=p) if bayes else t("cap_params")
-    rep.add(
-        Table([[Cell(h, bold=True) for h in head]], rows, "lrrcl" + ("rr" if diag else ""), cap)
-    )
-
-
-def _budget(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) -> None:
-    bud = result.get("uncertainty_budget")
-    if not bud:
-        return
-    systems = [s for s in ("b1", "b2") if s in bud] + sorted(
-        s for s in bud if s not in ("b1", "b2")
-    )
-    keys: list[str] = []
-    for s in systems:
-        for k in bud[s]:
-            if k not in keys:
-                keys.append(k)
-    order = [k for k in BUDGET_ORDER if k in keys]
-    order += [k for k in keys if k not in BUDGET_ORDER and k not in ("total", "expanded_k2")]
-    order += [k for k in ("total", "expanded_k2") if k in keys]
-    head = [Cell(t("source"), bold=True)]
-    for s in systems:
-        head += [Cell(f"u({param_name(s, lang)})", bold=True), Cell(t("ppm"), bold=True)]
-    rows = []
-    for k in order:
-        label = t(f"src_{k}") if f"src_{k}" in _known_sources() else k
-        row = [Cell(label, bold=k in ("total", "expanded_k2"))]
-        for s in systems:
-            v = bud[s].get(k)
-            b = result["parameters"].get(s, {}).get("mean")
-            ppm = 1e6 * v / b if is_num(v) and is_num(b) and b else None
-            row += [
-                Cell(unc(v), bold=k == "expanded_k2"),
-                Cell(unc(ppm) if ppm is not None else DASH),
-            ]
-        rows.append(row)
-    foot = sum(k in ("total", "expanded_k2") for k in order)
-    rep.add(
-        Heading(t("sec_budget")),
-        Para(t("budget_text")),
-        Table([head], rows, "l" + "rr" * len(systems), t("cap_budget"), footer_rows=foot),
-    )
-
-
-def _known_sources() -> set[str]:
-    from chekan.report.i18n import LABELS
-
-    return {k for k in LABELS if k.startswith("src_")}
-
-
-def _diagnostics(rep: Report, result: Mapping[str, Any], t: Translator) -> None:
-    d = result.get("diagnostics") or {}
-    if not d:
-        return
-    bayes = result["method"] in ("bayes",) or "r_hat_max" in d
-    rows: list[tuple[str, str, bool]] = []
-    if "converged" in d:
-        rows.append((t("converged"), t("yes") if d["converged"] else t("no"), False))
-    if is_num(d.get("r_hat_max")):
-        rows.append((t("rhat_max"), fixed(d["r_hat_max"], 3), False))
-    if is_num(d.get("ess_bulk_min")):
-        rows.append((t("ess_min"), fixed(d["ess_bulk_min"], 0), False))
-    if is_num(d.get("n_draws")):
-        rows.append((t("n_draws"), fixed(d["n_draws"], 0), False))
-    if is_num(d.get("seconds")):
-        rows.append((t("seconds"), fixed(d["seconds"], 1), False))
-    if is_num(d.get("sigma_mgal")):
-        rows.append((t("sigma_fit"), fixed(d["sigma_mgal"], 3), False))
-    rep.add(Heading(t("sec_diag" if bayes else "sec_diag_classical")), KeyValue(rows))
-    for msg in d.get("problems") or []:
-        rep.add(Para(f"{t('problem')}: {msg}", "warn"))
-    for msg in d.get("notes") or []:
-        rep.add(Para(f"{t('note')}: {msg}", "note"))
 
 
 # --------------------------------------------------------------------------- record, posterior
@@ -750,14 +609,14 @@ def build_report(
         _ok, verdict = _verdict(result, t, tolerance_percent)
         rep.add(Heading(t("sec_summary")), *_statements(result, t, lang), verdict[0])
         _items(rep, result, t, lang, tolerance_percent, cos_fig, figures)
-        _budget(rep, result, t, lang)
+        budget_table(rep, result, t, lang)
         if figures and (
             result["method"] == "bayes"
             or result.get("posterior_netcdf")
             or result.get("drift_curve")
         ):
             _posterior_figures(rep, result, netcdf_path, source, t, lang)
-        _diagnostics(rep, result, t)
+        diagnostics_table(rep, result, t)
         rep.add(Heading(t("sec_verdict")), *verdict)
         sw = result.get("software") or {}
         rep.add(

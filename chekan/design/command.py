@@ -1,0 +1,251 @@
+"""``chekan design``: the expected precision of a program, the search, and their output
+(text tables, a TOML program file, the ``chekan-design/1`` JSON)."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+from chekan.design.information import ExpectedPrecision, expected_precision
+from chekan.design.layout import DesignValues, program_clock_s
+from chekan.design.search import Candidate, SearchResult, search_programs
+from chekan.program import TiltProgram
+from chekan.units import format_dms
+
+
+def format_precision(prec: ExpectedPrecision) -> str:
+    """The expected sds of b₁, b₂ (at the level reading and at the CCD centre) and a."""
+    p = prec.program
+    lines = [
+        f"{p.describe()}",
+        f"clock time with slews {prec.clock_s / 3600:.2f} h; {prec.n_holds} holds, "
+        f"{prec.n_bins} bins per system",
+        "expected posterior sd (Laplace, at the design values):",
+    ]
+    for name, what in (
+        ("b1", "b1 (level reading)"),
+        ("b2", "b2 (level reading)"),
+        ("b1_0", "b1 at the CCD centre"),
+        ("b2_0", "b2 at the CCD centre"),
+    ):
+        lines.append(
+            f"  {what:<22} {prec.sd[name]:.3e} mGal/pix   ({prec.sd_ppm(name):6.1f} ppm of "
+            f"{prec.value[name]:.4f})"
+        )
+    lines.append(
+        f"  {'a':<22} {prec.sd['a']:.3e} mGal/pix^2 ({prec.sd_ppm('a'):6.0f} ppm of "
+        f"{prec.value['a']:.4e})"
+    )
+    lines.append(
+        f"  also: tau {prec.sd['tau_s']:.2g} s, eps1 {prec.sd['eps1_arcmin']:.2g}', "
+        f"eps2 {prec.sd['eps2_arcmin']:.2g}', dgamma {prec.sd['dgamma_arcmin']:.2g}'"
+    )
+    return "\n".join(lines)
+
+
+def candidate_row(c: Candidate) -> dict:
+    """One row of the ranked table (plain numbers, JSON-ready)."""
+    p, prec = c.program, c.precision
+    return {
+        "name": p.name,
+        "given": c.spec is None,
+        "angles": [format_dms(math.degrees(a)) for a in p.angles_rad],
+        "n_angles": len(p.angles_rad),
+        "order": p.order,
+        "sequence": p.sequence,
+        "rounds": p.rounds,
+        "dwell_s": p.dwell_s,
+        "settle_s": p.settle_s,
+        "n_steps": p.n_steps,
+        "clock_h": prec.clock_s / 3600.0,
+        "sd_b1_mgal_per_pix": prec.sd["b1"],
+        "sd_b2_mgal_per_pix": prec.sd["b2"],
+        "sd_a_mgal_per_pix2": prec.sd["a"],
+        "sd_b1_ppm": prec.sd_ppm("b1"),
+        "sd_b2_ppm": prec.sd_ppm("b2"),
+        "objective": c.objective,
+    }
+
+
+def format_table(result: SearchResult, top: int = 15) -> str:
+    """Ranked table of the best ``top`` candidates (and the given program wherever it is)."""
+    cols = (
+        ("#", 3),
+        ("angles", -18),
+        ("spacing", -7),
+        ("order", -9),
+        ("sequence", -10),
+        ("rounds", 6),
+        ("dwell", 6),
+        ("settle", 6),
+        ("steps", 5),
+        ("clock h", 7),
+        ("sd b1 ppm", 9),
+        ("sd b2 ppm", 9),
+        ("sd a", 9),
+    )
+
+    def line(cells) -> str:
+        pairs = zip(cells, (w for _, w in cols), strict=True)
+        return " ".join(f"{c:<{-w}}" if w < 0 else f"{c:>{w}}" for c, w in pairs)
+
+    lines = [line([name for name, _ in cols])]
+    for i, c in enumerate(result.ranked):
+        if i >= top and c is not result.given:
+            continue
+        r = candidate_row(c)
+        lo, hi = min(r["angles"], key=_dms_key), max(r["angles"], key=_dms_key)
+        spacing = {"dg": "Δg", "angle": "θ"}[c.spec.spacing] if c.spec else "given"
+        cells = (
+            i + 1,
+            f"{r['n_angles']} {lo}..{hi}",
+            spacing,
+            r["order"],
+            r["sequence"],
+            r["rounds"],
+            f"{r['dwell_s']:g}",
+            f"{r['settle_s']:g}",
+            r["n_steps"],
+            f"{r['clock_h']:.2f}",
+            f"{r['sd_b1_ppm']:.1f}",
+            f"{r['sd_b2_ppm']:.1f}",
+            f"{r['sd_a_mgal_per_pix2']:.2e}",
+        )
+        note = "  <- given" if r["given"] else ""
+        if r["given"] and not result.fits(c):
+            note += " (over the budget)"
+        lines.append(line(cells) + note)
+    return "\n".join(lines)
+
+
+def _dms_key(text: str) -> float:
+    from chekan.units import parse_angle_deg
+
+    return parse_angle_deg(text)
+
+
+def program_toml(program: TiltProgram) -> str:
+    """A TOML program file that :func:`chekan.program.load_program` reads back to the same
+    program (angles in whole arcminutes as DMS text, otherwise as decimal degrees)."""
+
+    def angle_text(a_rad: float) -> str:
+        deg = math.degrees(a_rad)
+        arcmin = deg * 60.0
+        if abs(arcmin - round(arcmin)) < 1e-9:
+            return json.dumps(format_dms(deg), ensure_ascii=False)
+        return json.dumps(repr(deg))
+
+    angles = ", ".join(angle_text(a) for a in program.angles_rad)
+    return (
+        f"# written by chekan design ({program_clock_s(program) / 3600:.2f} h with slews)\n"
+        f"name = {json.dumps(program.name, ensure_ascii=False)}\n"
+        f"angles = [{angles}]\n"
+        f"axis = {json.dumps(program.axis)}\n"
+        f"order = {json.dumps(program.order)}\n"
+        f"sequence = {json.dumps(program.sequence)}\n"
+        f"dwell_s = {program.dwell_s:g}\n"
+        f"settle_s = {program.settle_s:g}\n"
+        f"rounds = {program.rounds}\n"
+    )
+
+
+def write_program_toml(path: str | Path, program: TiltProgram) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(program_toml(program), encoding="utf-8")
+    return path
+
+
+def precision_json(prec: ExpectedPrecision) -> dict:
+    return {
+        "program": prec.program.describe(),
+        "clock_h": prec.clock_s / 3600.0,
+        "n_holds": prec.n_holds,
+        "sd": dict(prec.sd),
+        "value": dict(prec.value),
+        "sd_ppm": {k: prec.sd_ppm(k) for k in ("b1", "b2", "b1_0", "b2_0", "a")},
+    }
+
+
+def design_json(prec: ExpectedPrecision, result: SearchResult | None, values: DesignValues) -> dict:
+    """Everything ``chekan design --json`` writes."""
+    t = values.truth
+    out = {
+        "format": "chekan-design/1",
+        "assumptions": {
+            "noise_pix_per_sample": list(t.noise_pix),
+            "hold_offset_sd_pix": t.hold_offset_sd_pix,
+            "angle_error_sd_arcsec": t.angle_error_sd_arcsec,
+            "tau_s": t.tau_s,
+            "slew_error": values.slew_error,
+            "drift_degree": values.drift_degree,
+            "slew_deg_per_s": t.slew_deg_per_s,
+        },
+        "given": precision_json(prec),
+    }
+    if result is not None:
+        out["search"] = {
+            "objective": result.objective,
+            "budget_h": result.budget_s / 3600.0,
+            "evaluations": result.evaluations,
+            "seconds": result.seconds,
+            "best": precision_json(result.best.precision),
+            "best_toml": program_toml(result.best.program),
+            "ranked": [candidate_row(c) for c in result.ranked],
+        }
+    return out
+
+
+def run_design_command(args) -> int:
+    """``chekan design [PROGRAM.toml] [--budget-h H] [--search] [--out best.toml] [--json J]``."""
+    from chekan.program import default_program, load_program
+
+    program = load_program(args.program) if args.program else default_program()
+    values = DesignValues()
+    t0 = time.perf_counter()
+    prec = expected_precision(program, values)
+    print(f"given program ({args.program or 'the paper’s default'}):")
+    print(format_precision(prec))
+    print(
+        f"(design model evaluated in {1e3 * (time.perf_counter() - t0):.0f} ms, first call "
+        "includes the one-off JAX grid)"
+    )
+    result = None
+    if args.search or args.out:
+        budget_s = args.budget_h * 3600.0 if args.budget_h else None
+        result = search_programs(
+            program,
+            budget_s=budget_s,
+            objective=args.objective,
+            values=values,
+            min_dwell_s=args.min_dwell_s,
+            min_settle_s=args.min_settle_s,
+        )
+        print(
+            f"\nsearch: {result.evaluations} programs within {result.budget_s / 3600:.2f} h "
+            f"(clock time with slews), objective {result.objective}, "
+            f"{result.seconds:.1f} s ({1e3 * result.seconds / result.evaluations:.0f} ms each)"
+        )
+        print(format_table(result, top=args.top))
+        best = result.best
+        if best.spec is None:
+            print("\nthe given program is the best found")
+        else:
+            gain = result.given.objective / best.objective
+            print(f"\nbest: {best.spec.label()}, dwell {best.program.dwell_s:g} s")
+            print(format_precision(best.precision))
+            print(f"objective {result.objective}: {gain:.2f}× smaller sd than the given program")
+        if args.out:
+            written = write_program_toml(args.out, best.program)
+            print(f"wrote {written} (best program; chekan program {written} shows it)")
+    if args.json:
+        path = Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(
+            json.dumps(design_json(prec, result, values), indent=2, ensure_ascii=False) + "\n",
+            encoding="utf-8",
+        )
+        print(f"wrote {path}")
+    return 0

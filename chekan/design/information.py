@@ -1,0 +1,355 @@
+r"""Expected information of a tilt program: the expected precision of b₁, b₂ and a.
+
+**What is computed.** For a tilt program and design values of the instrument (default:
+:class:`chekan.simulate.Truth`, the simulator's instrument and error budget), the Laplace
+covariance that the MAP estimator (:mod:`chekan.bayes`) would report, evaluated at the
+design values with every random effect at its prior mean:
+
+.. math::
+
+    \Sigma = \Big(\sum_{j=1,2} X_jᵀ W_j X_j + Λ^{-1}\Big)^{-1},
+    \qquad X_j = [\,∂f_j/∂θ,\ 1,\ P,\ G,\ G\,\mathrm{diag}(s_j)\,],
+
+the inverse of the expected information of the joint record model of
+:mod:`chekan.calmodel`, whose data are bin means inside every hold (bins 0–15–40–90–180 s
+and ``settle_s`` across the settling transient, one bin after it):
+
+.. math::
+
+    ȳ_{ij} = f_{ij}(θ) + c_j + P(s_i)\,d_j + G_i\,(o_j + s_j ∘ δ) + e_{ij},\qquad
+    e_{ij} \sim N\big(0,\ σ_j^2/n_i + (κ\,\mathrm{trans}_{ij})^2\big).
+
+θ = (b₁, b₂, log K, ε₁, ε₂, Δγ, log τ) (the estimator's nonlinear parameters with their
+priors from :func:`chekan.calmodel.nonlinear_params`); f = G E + w(M_v + R) is the lagged
+exact torsion equilibrium (E at every hold, :func:`chekan.model.equilibrium_readings`,
+first-order damping lag τ, the lag state after each slew filtered along the slew's
+attitudes, the unsettled remainder R carried across holds); G is the (N × H) lag-mixing
+matrix (1 − wᵢ on the bin's own hold, wᵢ w_prev on the previous one); c_j the level offset
+(prior 1 pix²), d_j a Legendre drift of degree 3 without constant (prior 4 pix²), o_j the
+per-hold offsets (prior σ_o² = 0.08²), δ the per-hold angle-readout errors **shared by both
+systems** (prior σ_θ² = (2″)²) entering through s_j = −∂E_j/∂θ / 206265 (pix/″); n_i is the
+bin's sample count, σ_j the 1 Hz noise (0.15 pix), κ the slew error (0.003) times the
+transient still present in the bin. W_j = diag(1/var e_{·j}); Λ the prior covariance.
+
+The Jacobian ∂f/∂θ is exact for the instrument parameters (f is linear in E, so
+∂f/∂u = f evaluated on ∂E/∂u, from JAX forward-mode on a fixed grid of attitudes and a
+cubic spline, error < 1e-10 pix) and a central difference in log τ. The hold-local
+random effects (o₁, o₂, δ) form a banded block (each bin touches its hold and the
+previous one), so they are eliminated by a Schur complement with a banded Cholesky:
+
+.. math::
+
+    Σ_{gg} = (M_{gg} − M_{gb} M_{bb}^{-1} M_{bg})^{-1},\qquad g = (θ, c, d),\ b = (o, δ).
+
+Derived quantities by the delta method, as the estimator reports them:
+a = mean_j a_j(m_h + c) (eq. 10) and b_{j,0} = b_j + 2a(m₀ − m_h) (eq. 24, the scale
+factor at the CCD centre), sd(q) = √(∇q Σ ∇qᵀ) with ∇q from JAX at the design values.
+
+Everything that depends on the program is NumPy, so programs of any length cost no
+compilation: one evaluation takes a few milliseconds (the grid of sensitivities is
+computed once per instrument, ~1 s of JAX compilation).
+
+**Check against the estimator.** Given the hyperparameters that the MAP's EM settles on
+for a simulated session (σ_o, σ_θ, noise scales, κ), this reproduces the Laplace sds it
+reports for b₁, b₂, a and τ to better than 0.5 %; at the default design values (κ kept at
+the estimator's starting 0.003, while EM on simulated records drives it to ~1e-4) it is
+about 10 % above them (``tests/test_design.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.linalg
+from scipy.interpolate import CubicSpline
+
+import chekan.jaxconfig  # noqa: F401  (float64 before any array)
+from chekan import model as fm
+from chekan.calmodel import nonlinear_params
+from chekan.design.layout import DesignValues, Lagged, Layout, lagged_means, program_layout
+from chekan.program import TiltProgram
+from chekan.simulate import Truth
+from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
+
+THETA_NAMES = ("b1", "b2", "K", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin", "tau_s")
+C_PRIOR_VAR_PIX2 = 1.0  # chekan.calmodel.beta_prior_var: level offset c
+DRIFT_PRIOR_VAR_PIX2 = 4.0  # … drift coefficients d
+OBJECTIVES = ("b_mean", "b_max", "a")
+_GRID_HALF_WIDTH_RAD = math.radians(6.5)  # beyond the 6° program limit: slews stay inside
+_GRID_N = 2601  # 18″ spacing; spline error < 1e-10 pix
+
+
+# ----------------------------------------------------------------------------- sensitivities
+
+
+def _sensor_params(u, fixed, c=None) -> fm.SensorParams:
+    """u = (b₁, b₂, log K, ε₁′, ε₂′, Δγ′); fixed = (g, m₀, m_h1, m_h2)."""
+    m_level = fixed[2:4] if c is None else fixed[2:4] + c
+    return fm.SensorParams(
+        g_mgal=fixed[0],
+        K_pix_per_rad=jnp.exp(u[2]),
+        m0_pix=fixed[1],
+        b_mgal_per_pix=u[0:2],
+        m_level_pix=m_level,
+        eps_rad=u[3:5] / ARCMIN_PER_RAD,
+        gamma_rad=u[5] / ARCMIN_PER_RAD,
+    )
+
+
+@jax.jit
+def _grid_sensitivities(u, fixed, theta_rad, direction):
+    """E (n, 2), ∂E/∂u (n, 2, 6) and ∂E/∂θ (n, 2) along the program axis."""
+
+    def eq(uu, th):
+        p = _sensor_params(uu, fixed)
+        return fm.equilibrium_readings(p, th * direction[0], th * direction[1])
+
+    E = eq(u, theta_rad)
+    dE_du = jax.jacfwd(eq, argnums=0)(u, theta_rad)
+    S = jax.jvp(lambda th: eq(u, th), (theta_rad,), (jnp.ones_like(theta_rad),))[1]
+    return E, dE_du, S
+
+
+@jax.jit
+def _derived(u, fixed):
+    """(a, b₁,₀, b₂,₀) at the design values and their gradient in (u, c), (3,), (3, 8).
+
+    a = mean_j a_j(m_h + c) (eq. 10), b_{j,0} = b_j + 2a_j(m₀ − m_h − c) (eq. 24), as
+    :func:`chekan.bayes.map_derived` reports them.
+    """
+
+    def q(uc):
+        p = _sensor_params(uc[:6], fixed, uc[6:])
+        a = jnp.mean(fm.quadratic_coefficient(p, p.m_level_pix))
+        b0 = fm.scale_factor_at_centre(p)
+        return jnp.stack([a, b0[0], b0[1]])
+
+    uc = jnp.concatenate([u, jnp.zeros(2)])
+    return q(uc), jax.jacfwd(q)(uc)
+
+
+@dataclass(frozen=True)
+class Sensitivities:
+    """Splines of E, ∂E/∂u and ∂E/∂θ over the signed tilt about one axis, plus the
+    gradients of the derived quantities (a, b₁,₀, b₂,₀) in (u, c)."""
+
+    spline: CubicSpline  # θ → 16 columns: E (2), ∂E/∂u (2 × 6, system-major), S (2)
+    derived_grad: np.ndarray  # (3, 8)
+    derived_value: np.ndarray  # (3,) a, b1_0, b2_0
+
+    def at(self, theta_rad: np.ndarray):
+        v = self.spline(np.asarray(theta_rad, dtype=float))
+        sh = v.shape[:-1]
+        return v[..., 0:2], v[..., 2:14].reshape(*sh, 2, 6), v[..., 14:16]
+
+
+_SENS_CACHE: dict = {}
+
+
+def _instrument_vectors(truth: Truth):
+    u = np.array(
+        [
+            truth.b_mgal_per_pix[0],
+            truth.b_mgal_per_pix[1],
+            math.log(truth.K_pix_per_rad),
+            truth.eps_arcmin[0],
+            truth.eps_arcmin[1],
+            truth.dgamma_arcmin,
+        ],
+        dtype=float,
+    )
+    fixed = np.array(
+        [truth.g_local_mgal, truth.m0_pix, truth.m_level_pix[0], truth.m_level_pix[1]], float
+    )
+    return u, fixed
+
+
+def sensitivities(truth: Truth, axis: str = "y") -> Sensitivities:
+    """Grid of the exact equilibrium and its derivatives (one JAX call, cached)."""
+    u, fixed = _instrument_vectors(truth)
+    key = (tuple(u), tuple(fixed), axis)
+    if key not in _SENS_CACHE:
+        grid = np.linspace(-_GRID_HALF_WIDTH_RAD, _GRID_HALF_WIDTH_RAD, _GRID_N)
+        direction = np.array([0.0, 1.0]) if axis == "y" else np.array([1.0, 0.0])
+        E, dE, S = (np.asarray(x) for x in _grid_sensitivities(u, fixed, grid, direction))
+        cols = np.concatenate([E, dE.reshape(_GRID_N, 12), S], axis=1)
+        dval, dgrad = (np.asarray(x) for x in _derived(u, fixed))
+        _SENS_CACHE[key] = Sensitivities(
+            spline=CubicSpline(grid, cols, axis=0),
+            derived_grad=dgrad,
+            derived_value=dval,
+        )
+    return _SENS_CACHE[key]
+
+
+# ----------------------------------------------------------------------------- information
+
+
+@dataclass(frozen=True)
+class ExpectedPrecision:
+    """Expected posterior sds of a program at the design values."""
+
+    program: TiltProgram
+    sd: dict[str, float]  # b1, b2, a, b1_0, b2_0 and every θ (K and τ as values' sds)
+    value: dict[str, float]  # design values of the same quantities
+    clock_s: float
+    n_holds: int
+    n_bins: int
+
+    def sd_ppm(self, name: str) -> float:
+        """sd relative to the value, in ppm (b1, b2, b1_0, b2_0, a)."""
+        return 1e6 * self.sd[name] / abs(self.value[name])
+
+    def objective(self, name: str = "b_mean") -> float:
+        """``b_mean``: mean sd of b₁, b₂; ``b_max``: the larger; ``a``: sd of a (mGal/pix²)."""
+        if name == "b_mean":
+            return 0.5 * (self.sd["b1"] + self.sd["b2"])
+        if name == "b_max":
+            return max(self.sd["b1"], self.sd["b2"])
+        if name == "a":
+            return self.sd["a"]
+        raise ValueError(f"unknown objective {name!r}; choose one of {', '.join(OBJECTIVES)}")
+
+
+def _global_columns(values: DesignValues, layout: Layout, df_du, df_dlogtau, j: int):
+    """System j's columns that every bin can touch: ∂f/∂θ (7), c₁, c₂, drift (2D)."""
+    N = layout.bin_hold.size
+    D = values.drift_degree if values.drift else 0
+    X = np.zeros((N, 9 + 2 * D))
+    X[:, 0:6] = df_du[:, j, :]
+    if values.estimate_tau:
+        X[:, 6] = df_dlogtau[:, j]
+    X[:, 7 + j] = 1.0
+    if D:
+        s = 2.0 * layout.bin_t_mid_s / max(layout.clock_s - layout.dt_s, 1.0) - 1.0
+        X[:, 9 + j * D : 9 + (j + 1) * D] = np.polynomial.legendre.legvander(s, D)[:, 1:]
+    return X
+
+
+def _local_columns(values: DesignValues, layout: Layout, lag: Lagged, s_ang, j: int):
+    """System j's hold-local columns as (indices, values) (N, 4): o_j and δ of the bin's
+    hold (weight 1 − w) and of the previous hold (weight w·w_prev); unknowns ordered per
+    hold as (o₁,ₖ, o₂,ₖ, δₖ) → index 3k + (j | 2)."""
+    k = layout.bin_hold
+    kp = np.maximum(k - 1, 0)
+    use_o = 1.0 if values.hold_offsets else 0.0
+    use_d = 1.0 if values.angle_errors else 0.0
+    idx = np.stack([3 * k + j, 3 * k + 2, 3 * kp + j, 3 * kp + 2], axis=1)
+    val = np.stack(
+        [
+            use_o * lag.g_own,
+            use_d * lag.g_own * s_ang[k, j],
+            use_o * lag.g_prev,
+            use_d * lag.g_prev * s_ang[kp, j],
+        ],
+        axis=1,
+    )
+    return idx, val
+
+
+_BAND = 5  # the unknowns of hold k touch those of hold k − 1 only: |row − column| ≤ 5
+
+
+def information_blocks(program: TiltProgram, values: DesignValues | None = None):
+    """Prior-augmented expected information in blocks: M_gg (g = θ, c, d), M_gb and M_bb
+    in upper banded storage (b = o₁, o₂, δ per hold), plus the layout and sensitivities.
+
+    M = Σⱼ Xⱼᵀ Wⱼ Xⱼ + Λ⁻¹ with the columns and weights of the module docstring.
+    """
+    values = values or DesignValues()
+    truth = values.truth
+    sens = sensitivities(truth, program.axis)
+    layout = program_layout(program, values)
+    H = layout.theta_hold_rad.size
+    tau = float(truth.tau_s)
+    E_h, dE_h, S_h = sens.at(layout.theta_hold_rad)
+    E_s, dE_s, _ = sens.at(layout.slew_theta_rad)
+    cols_h = np.concatenate([E_h[..., None], dE_h], axis=-1)  # (H, 2, 1 + 6)
+    cols_s = np.concatenate([E_s[..., None], dE_s], axis=-1)  # (H, M, 2, 1 + 6)
+    lag = lagged_means(layout, tau, cols_h, cols_s)
+    h = 1e-4
+    f_up = lagged_means(layout, tau * math.exp(h), cols_h[..., :1], cols_s[..., :1]).f[..., 0]
+    f_dn = lagged_means(layout, tau * math.exp(-h), cols_h[..., :1], cols_s[..., :1]).f[..., 0]
+    df_dlogtau = (f_up - f_dn) / (2.0 * h)
+    noise = np.asarray(truth.noise_pix, dtype=float)
+    var = noise[None, :] ** 2 / layout.bin_n[:, None] + (values.slew_error * lag.trans) ** 2
+    W = 1.0 / var
+    s_ang = -S_h / ARCSEC_PER_RAD  # (H, 2) pix per arcsec of readout error
+
+    ng = 9 + 2 * (values.drift_degree if values.drift else 0)
+    nb = 3 * H
+    Mgg = np.zeros((ng, ng))
+    gb_pos, gb_w, bb_pos, bb_w = [], [], [], []
+    for j in range(2):
+        X = _global_columns(values, layout, lag.f[..., 1:], df_dlogtau, j)
+        idx, val = _local_columns(values, layout, lag, s_ang, j)
+        Wj = W[:, j]
+        Mgg += X.T @ (X * Wj[:, None])
+        wv = val * Wj[:, None]  # (N, 4)
+        gb_pos.append((np.arange(ng)[None, None, :] * nb + idx[:, :, None]).ravel())
+        gb_w.append((wv[:, :, None] * X[:, None, :]).ravel())
+        r, c = idx[:, :, None], idx[:, None, :]
+        upper = np.broadcast_to(r <= c, (idx.shape[0], 4, 4))
+        pos = (_BAND + r - c) * nb + c
+        bb_pos.append(pos[upper])
+        bb_w.append((wv[:, :, None] * val[:, None, :])[upper])
+    Mgb = np.bincount(np.concatenate(gb_pos), np.concatenate(gb_w), minlength=ng * nb).reshape(
+        ng, nb
+    )
+    ab = np.bincount(
+        np.concatenate(bb_pos), np.concatenate(bb_w), minlength=(_BAND + 1) * nb
+    ).reshape(_BAND + 1, nb)
+    # priors (Λ⁻¹); switched-off random effects keep a unit precision: their columns are zero
+    prec_g = np.zeros(ng)
+    if values.priors:
+        prec_g[:7] = [1.0 / p.scale**2 for p in nonlinear_params()]
+        prec_g[7:9] = 1.0 / C_PRIOR_VAR_PIX2
+        prec_g[9:] = 1.0 / DRIFT_PRIOR_VAR_PIX2
+    if not values.estimate_tau:
+        prec_g[6] = 1.0
+    Mgg += np.diag(prec_g)
+    so2 = truth.hold_offset_sd_pix**2 if values.hold_offsets else 1.0
+    st2 = truth.angle_error_sd_arcsec**2 if values.angle_errors else 1.0
+    ab[_BAND] += np.tile([1.0 / so2, 1.0 / so2, 1.0 / st2], H)
+    return Mgg, Mgb, ab, layout, sens
+
+
+def expected_precision(
+    program: TiltProgram, values: DesignValues | None = None
+) -> ExpectedPrecision:
+    """Expected posterior sd of b₁, b₂, a, b₁,₀, b₂,₀ and θ for ``program`` (module doc):
+    Σ_gg = (M_gg − M_gb M_bb⁻¹ M_bg)⁻¹, derived quantities by the delta method."""
+    values = values or DesignValues()
+    truth = values.truth
+    Mgg, Mgb, ab, layout, sens = information_blocks(program, values)
+    Y = scipy.linalg.solveh_banded(ab, Mgb.T, lower=False, check_finite=False)
+    cov = scipy.linalg.inv(Mgg - Mgb @ Y, check_finite=False)
+    cov_tc = cov[:9, :9]  # (θ, c)
+    sd = {name: math.sqrt(max(cov_tc[i, i], 0.0)) for i, name in enumerate(THETA_NAMES)}
+    Jd = np.zeros((3, 9))  # ∇(a, b₁,₀, b₂,₀) over (θ, c); τ does not enter
+    Jd[:, :6] = sens.derived_grad[:, :6]
+    Jd[:, 7:9] = sens.derived_grad[:, 6:8]
+    dvar = np.einsum("ij,jk,ik->i", Jd, cov_tc, Jd)
+    for i, name in enumerate(("a", "b1_0", "b2_0")):
+        sd[name] = math.sqrt(max(dvar[i], 0.0))
+    sd["K"] *= truth.K_pix_per_rad  # sd of the value from the sd of its log
+    sd["tau_s"] *= truth.tau_s
+    value = {
+        "b1": float(truth.b_mgal_per_pix[0]),
+        "b2": float(truth.b_mgal_per_pix[1]),
+        "a": float(sens.derived_value[0]),
+        "b1_0": float(sens.derived_value[1]),
+        "b2_0": float(sens.derived_value[2]),
+        "K": float(truth.K_pix_per_rad),
+        "eps1_arcmin": float(truth.eps_arcmin[0]),
+        "eps2_arcmin": float(truth.eps_arcmin[1]),
+        "dgamma_arcmin": float(truth.dgamma_arcmin),
+        "tau_s": float(truth.tau_s),
+    }
+    return ExpectedPrecision(
+        program, sd, value, layout.clock_s, layout.theta_hold_rad.size, layout.bin_hold.size
+    )
