@@ -162,7 +162,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=_cmd_simulate)
 
-    p = sub.add_parser("calibrate", help="estimate b1, b2, a, … from a record or legacy protocol")
+    p = sub.add_parser(
+        "calibrate",
+        help="estimate b1, b2, a, … from a record or legacy protocol",
+        epilog="exit status: 0 done, 2 bad input or a refused output, 3 not converged "
+        "(with --strict)",
+    )
     p.add_argument("input", help="chekan-record/1 or chekan-protocol/1 file")
     p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
     p.add_argument("-o", "--json", help="write the chekan-result/1 JSON here")

@@ -191,6 +191,10 @@ def test_every_exit_status_is_documented():
     for code in (0, 1, 2, 3, 4, 130, 141):
         assert f"\n  {code} " in EXIT_STATUS
     assert "history" in EXIT_STATUS.split("\n  4 ")[1].split("\n")[0]
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert "4 an ALARM" in sub.choices["history"].format_help()
+    assert "3 not converged" in sub.choices["calibrate"].format_help()
+    assert "1 some inputs failed" in sub.choices["reanalyze"].format_help()
 
 
 def test_exit_0_and_2(proto, tmp_path, capsys):

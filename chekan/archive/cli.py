@@ -123,7 +123,11 @@ def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
     """``chekan archive add|list|show|export``."""
     p = sub.add_parser("archive", help="the calibration archive: add, list, show, export")
     asub = p.add_subparsers(dest="archive_command", required=True, metavar="ACTION")
-    q = asub.add_parser("add", help="add result JSON files (idempotent)")
+    q = asub.add_parser(
+        "add",
+        help="add result JSON files (idempotent)",
+        epilog="exit status: 0 all added, 1 some files failed (the others were added)",
+    )
     q.add_argument("results", nargs="+", help="chekan-result/1 JSON files")
     _db_arg(q)
     q.set_defaults(func=_cmd_add)
@@ -168,7 +172,10 @@ def _cmd_reanalyze(args: argparse.Namespace) -> int:
 def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
     """``chekan reanalyze DIR --method …``."""
     p = sub.add_parser(
-        "reanalyze", help="analyse every record/protocol under a folder into the archive"
+        "reanalyze",
+        help="analyse every record/protocol under a folder into the archive",
+        epilog="exit status: 0 all done or skipped, 1 some inputs failed (listed; the others "
+        "were archived), 2 an error",
     )
     p.add_argument("dir", help="folder searched recursively for chekan-record/1 and -protocol/1")
     p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
@@ -221,7 +228,11 @@ def _cmd_history(args: argparse.Namespace) -> int:
 
 def add_history_parser(sub: Any) -> argparse.ArgumentParser:
     """``chekan history SERIAL …``."""
-    p = sub.add_parser("history", help="scale-factor stability of one instrument over the years")
+    p = sub.add_parser(
+        "history",
+        help="scale-factor stability of one instrument over the years",
+        epilog="exit status: 0 no alarm (warnings included), 4 an ALARM fired, 2 an error",
+    )
     p.add_argument("serial", help="gravimeter serial number")
     p.add_argument("--param", nargs="+", default=["b1", "b2", "a"], help="parameters (b1 b2 a)")
     p.add_argument(
