@@ -107,8 +107,8 @@ def check_outputs(
             fmt = sniff_format(out)
             if fmt in PROTECTED_FORMATS:
                 raise OutputError(
-                    f"{out}: refusing to overwrite a {fmt} file (measurements cannot be "
-                    "recomputed); choose another output file"
+                    f"{out}: exists and is a {fmt} file: refusing to overwrite it "
+                    "(measurements cannot be recomputed); choose another output file"
                 )
 
 

@@ -19,7 +19,6 @@ import re
 import signal
 import sys
 import threading
-from pathlib import Path
 
 from chekan.errors import ChekanError
 from chekan.outputs import check_outputs, run_command
@@ -126,7 +125,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             }
             for h in e.platform.holds
         ]
-        Path(args.truth).write_text(json.dumps(d, indent=2) + "\n", encoding="utf-8")
+        from chekan.durable import atomic_output
+
+        with atomic_output(args.truth) as f:
+            f.write(json.dumps(d, indent=2) + "\n")
         print(f"wrote {args.truth}")
     return 0 if emu.error is None else 1
 
