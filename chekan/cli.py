@@ -6,6 +6,8 @@ chekan program [FILE]
 chekan design [FILE] [--search] [--out best.toml] (expected precision of a tilt program)
 chekan emulate …      chekan acquire …      (hardware layer)
 chekan demo --out DIR (the main job end to end on the built-in emulator)
+
+The exit statuses of every command are listed in :data:`EXIT_STATUS` (``chekan --help``).
 """
 
 from __future__ import annotations
@@ -17,7 +19,26 @@ import warnings
 from pathlib import Path
 
 from chekan import __version__
-from chekan.errors import ChekanError
+from chekan.outputs import check_outputs, run_command, sniff_format
+
+EXIT_STATUS = """\
+exit status (every command):
+  0    done
+  1    some inputs failed, the others were done (reanalyze, archive add);
+       a device error (acquire, demo: e.g. TILT,ERR; emulate)
+  2    bad input or usage: a malformed file (file:line: problem), a bad option, or an
+       output refused (it is an input of the command, or an existing chekan-record/1 or
+       chekan-protocol/1 file, which no output option overwrites)
+  3    calibrate --strict: the estimate did not converge;
+       acquire, demo: a serial link stayed down, acquisition gave up (resume with --resume)
+  4    history: an ALARM (a scale-factor change beyond --tolerance-ppm)
+  130  interrupted (Ctrl-C; SIGTERM for acquire and emulate)
+  141  standard output was closed early (e.g. piped into head): stopped quietly
+
+short options (the same in every command that has the option):
+  -V/--version  -q/--quiet  -o/--out (the main output file; calibrate: the result JSON)
+  -j/--jobs  -v/--verbose
+"""
 
 
 def _cmd_simulate(args) -> int:
@@ -27,6 +48,7 @@ def _cmd_simulate(args) -> int:
     from chekan.records import write_record
     from chekan.simulate import Truth, random_truth, simulate_session, write_truth
 
+    check_outputs([args.program], [args.out, args.truth])
     program = load_program(args.program) if args.program else default_program()
     truth = (
         random_truth(np.random.default_rng(args.seed + 10_000), serial=args.serial)
@@ -63,6 +85,7 @@ def _cmd_calibrate(args) -> int:
     if args.method == "bayes":
         nc = args.netcdf or (json_path.with_suffix(".nc") if json_path else None)
         opts = dataclasses.replace(opts, netcdf=nc)
+    check_outputs([args.input], [json_path, opts.netcdf, args.report])
     res = calibrate_file(args.input, opts)
     if not args.quiet:
         print(format_summary(res))
@@ -96,25 +119,41 @@ def _cmd_program(args) -> int:
 def _cmd_design(args) -> int:
     from chekan.design import run_design_command
 
+    check_outputs([args.program], [args.out, args.json])
     return run_design_command(args)
 
 
 def _cmd_demo(args) -> int:
     from chekan.demo import run_demo
+    from chekan.errors import ChekanError
 
+    rec = Path(args.out) / "record.csv"
+    if sniff_format(rec) is not None and b"# operator: chekan demo" not in _head(rec):
+        raise ChekanError(
+            f"{rec}: refusing to overwrite a record that no demo wrote; choose another --out"
+        )
     return run_demo(args.out, quick=args.quick, use_emulator=not args.no_emulator)
+
+
+def _head(path: Path, n: int = 1 << 16) -> bytes:
+    with open(path, "rb") as f:
+        return f.read(n)
 
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="chekan",
         description="Tilt-method calibration of the Chekan-AM gravimeter.",
+        epilog=EXIT_STATUS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    ap.add_argument("--version", action="version", version=f"chekan {__version__}")
+    ap.add_argument("-V", "--version", action="version", version=f"chekan {__version__}")
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("simulate", help="write a simulated 1 Hz record of a whole tilt program")
-    p.add_argument("--out", required=True, help="record to write (chekan-record/1 CSV)")
+    p.add_argument(
+        "-o", "--out", required=True, help="record to write (chekan-record/1 CSV; a new file)"
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--truth", help="also write the true parameters to this JSON file")
     p.add_argument("--program", help="tilt program TOML (default: the paper's program, 9 h)")
@@ -124,10 +163,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=_cmd_simulate)
 
-    p = sub.add_parser("calibrate", help="estimate b1, b2, a, … from a record or legacy protocol")
+    p = sub.add_parser(
+        "calibrate",
+        help="estimate b1, b2, a, … from a record or legacy protocol",
+        epilog="exit status: 0 done, 2 bad input or a refused output, 3 not converged "
+        "(with --strict)",
+    )
     p.add_argument("input", help="chekan-record/1 or chekan-protocol/1 file")
     p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
-    p.add_argument("--json", help="write the chekan-result/1 JSON here")
+    p.add_argument("-o", "--json", help="write the chekan-result/1 JSON here")
     p.add_argument("--netcdf", help="bayes: ArviZ posterior NetCDF (default: beside the JSON)")
     p.add_argument("--report", help="also render the certificate (PDF, or .html)")
     p.add_argument("--lang", choices=("ru", "en"), default="en", help="certificate language")
@@ -142,7 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="sampler seed")
     p.add_argument("--quick", action="store_true", help="bayes: cap the sampler at 6000 steps")
     p.add_argument("--strict", action="store_true", help="exit 3 when the sampler did not converge")
-    p.add_argument("--quiet", action="store_true", help="print only what was written")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only what was written")
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("program", help="show a tilt program (default: the paper's)")
@@ -161,12 +205,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--min-dwell-s", type=float, default=180.0, help="shortest dwell (180 s)")
     p.add_argument("--min-settle-s", type=float, default=120.0, help="shortest settle (120 s)")
     p.add_argument("--top", type=int, default=15, help="rows of the ranked table (15)")
-    p.add_argument("--out", help="write the best program here (TOML; implies --search)")
+    p.add_argument("-o", "--out", help="write the best program here (TOML; implies --search)")
     p.add_argument("--json", help="write the expected sds and the ranked table here")
     p.set_defaults(func=_cmd_design)
 
     p = sub.add_parser("demo", help="the main job end to end on the built-in emulator")
-    p.add_argument("--out", default="demo", help="output folder (default ./demo)")
+    p.add_argument("-o", "--out", default="demo", help="output folder (default ./demo)")
     p.add_argument("--quick", action="store_true", help="short program (minutes → seconds)")
     p.add_argument("--no-emulator", action="store_true", help="simulate the record directly")
     p.set_defaults(func=_cmd_demo)
@@ -194,18 +238,16 @@ def _add_optional(sub) -> None:
             fn(sub)
 
 
+def _run(argv: list[str] | None) -> int:
+    args = build_parser().parse_args(argv)  # inside: --help into a closed pipe is quiet too
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        return int(args.func(args) or 0)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("default")
-            return int(args.func(args) or 0)
-    except ChekanError as e:
-        print(f"chekan: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("chekan: interrupted", file=sys.stderr)
-        return 130
+    """Exit status: see :data:`EXIT_STATUS` (a closed stdout ends quietly with 141)."""
+    return run_command(_run, argv)
 
 
 if __name__ == "__main__":

@@ -35,12 +35,20 @@ def fsync_dir(path: PathArg) -> None:
         os.close(fd)
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_output(path: PathArg, mode: str = "w", **open_kw) -> Iterator:
     """Open a temporary file beside ``path``; on success fsync it and rename it into place.
 
     On any exception the temporary file is removed and ``path`` is left as it was.
     ``mode`` is ``"w"`` (text, UTF-8 unless ``encoding`` is given) or ``"wb"``.
+    The file gets the permissions of a plain ``open()`` (0666 less the umask), not the
+    owner-only 0600 of :func:`tempfile.mkstemp`.
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"atomic_output writes whole files: mode 'w' or 'wb', not {mode!r}")
@@ -53,6 +61,7 @@ def atomic_output(path: PathArg, mode: str = "w", **open_kw) -> Iterator:
             yield f
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, out)
         fsync_dir(out)
     except BaseException:

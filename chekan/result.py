@@ -204,13 +204,14 @@ def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) ->
 
 
 def write_result(path: str | Path, result: dict) -> Path:
+    """Write ``result`` as JSON, atomically (a crash leaves the old file or none)."""
+    from chekan.durable import atomic_output
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(
-        json.dumps(_clean(result), indent=2, ensure_ascii=False) + "\n", encoding="utf-8"
-    )
-    tmp.replace(path)
+    text = json.dumps(_clean(result), indent=2, ensure_ascii=False) + "\n"
+    with atomic_output(path) as f:
+        f.write(text)
     return path
 
 

@@ -237,10 +237,11 @@ def simulate_session(
 
 
 def write_truth(path: str | Path, truth: Truth) -> Path:
+    from chekan.durable import atomic_output
+
     path = Path(path)
-    path.write_text(
-        json.dumps(truth.to_json(), indent=2, ensure_ascii=False) + "\n", encoding="utf-8"
-    )
+    with atomic_output(path) as f:
+        f.write(json.dumps(truth.to_json(), indent=2, ensure_ascii=False) + "\n")
     return path
 
 

@@ -556,10 +556,14 @@ def run_study(
             plot_errors(rows, methods, out / "errors.png"),
         ]
     md = out / "validation.md"
-    md.write_text(markdown_report(summary, settings, pngs), encoding="utf-8")
+    from chekan.durable import atomic_output
+
+    with atomic_output(md) as f:
+        f.write(markdown_report(summary, settings, pngs))
     js = out / "validation.json"
     summary["paths"] = [str(p) for p in (csv_path, js, md, *pngs)]
-    js.write_text(json.dumps(_clean(summary), indent=2, allow_nan=False), encoding="utf-8")
+    with atomic_output(js) as f:
+        f.write(json.dumps(_clean(summary), indent=2, allow_nan=False))
     return summary
 
 
@@ -572,7 +576,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         epilog=__doc__.split("\n\n", 2)[2],
     )
     ap.add_argument("--sessions", type=int, default=200, help="sessions (default 200)")
-    ap.add_argument("--out", default="validation", help="folder for the files (created)")
+    ap.add_argument("-o", "--out", default="validation", help="folder for the files (created)")
     ap.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
     ap.add_argument(
         "--methods",
@@ -584,22 +588,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="3 h program instead of the paper's 9 h")
     ap.add_argument("--program", help="a tilt program file (TOML) instead of the paper's")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("-j", "--jobs", type=int, default=1, help="worker processes (default 1)")
     ap.add_argument("--resume", action="store_true", help="keep matching rows of validation.csv")
-    ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument(
+        "-q",
+        "--quiet",
+        "--no-progress",
+        dest="no_progress",
+        action="store_true",
+        help="no progress bar",
+    )
+    from chekan import __version__
+
+    ap.add_argument("-V", "--version", action="version", version=f"chekan {__version__}")
+    from chekan.outputs import run_command
+
+    return run_command(_main, ap, argv, prog="python -m chekan.validate")
+
+
+def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
     args = ap.parse_args(argv)
     if args.sessions < 1:
         ap.error("--sessions must be at least 1")
+    from chekan.outputs import check_outputs
+
+    out = Path(args.out)
+    names = ("validation.csv", "validation.md", "validation.json", "coverage.png")
+    check_outputs([args.program], [out / n for n in (*names, "z_hist.png", "errors.png")])
     program = None
     if args.program:
-        from chekan.errors import ChekanError
         from chekan.program import load_program
 
-        try:
-            program = load_program(args.program)
-        except ChekanError as e:
-            print(e, file=sys.stderr)
-            return 2
+        program = load_program(args.program)
     s = run_study(
         args.sessions,
         Path(args.out),

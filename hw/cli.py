@@ -19,9 +19,9 @@ import re
 import signal
 import sys
 import threading
-from pathlib import Path
 
 from chekan.errors import ChekanError
+from chekan.outputs import check_outputs, run_command
 
 _META_RE = re.compile(r"([a-z0-9_]+)=(.*)", re.DOTALL)
 
@@ -56,7 +56,9 @@ def add_emulate_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seq-start", type=int, default=0, help="first sensor seq (0-65535)")
     p.add_argument("--random-truth", action="store_true", help="draw the instrument from --seed")
     p.add_argument("--truth", help="write the true parameters and holds here (JSON) at exit")
-    p.add_argument("--verbose", action="store_true", help="print device events as they happen")
+    p.add_argument(
+        "-v", "--verbose", action="store_true", help="print device events as they happen"
+    )
     p.set_defaults(func=cmd_emulate)
     return p
 
@@ -70,6 +72,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from hw.emulator import PtyEmulator
     from hw.faults import parse_faults
 
+    check_outputs([], [args.truth])
     try:
         faults = parse_faults(args.faults)
     except ValueError as e:
@@ -122,7 +125,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             }
             for h in e.platform.holds
         ]
-        Path(args.truth).write_text(json.dumps(d, indent=2) + "\n", encoding="utf-8")
+        from chekan.durable import atomic_output
+
+        with atomic_output(args.truth) as f:
+            f.write(json.dumps(d, indent=2) + "\n")
         print(f"wrote {args.truth}")
     return 0 if emu.error is None else 1
 
@@ -140,7 +146,7 @@ def add_acquire_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--sensor", help="pyserial URL of the sensor (device path, socket://, …)")
     p.add_argument("--platform", help="pyserial URL of the platform")
-    p.add_argument("--out", help="record file to write (must not exist)")
+    p.add_argument("-o", "--out", help="record file to write (must not exist)")
     p.add_argument("--program", help="program TOML file (default: the paper's program)")
     p.add_argument("--g-local-mgal", help="absolute gravity at the site, mGal (required)")
     p.add_argument(
@@ -160,7 +166,7 @@ def add_acquire_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--timeout-s", type=float, help="silence before a port is reopened (5)")
     p.add_argument("--give-up-s", type=float, help="time without data before giving up (120)")
     p.add_argument("--reply-timeout-s", type=float, help="wait for a reply to a query (2)")
-    p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress line")
     p.set_defaults(func=cmd_acquire)
     return p
 
@@ -188,6 +194,8 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     from hw.acquisition import Options, acquire, resume
     from hw.progress import StatusLine
 
+    if not args.resume:  # a new record must not replace a measurement (or its program)
+        check_outputs([args.program], [args.out])
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _on_sigterm)
     status = None if args.quiet else StatusLine()
@@ -247,7 +255,10 @@ def cmd_acquire(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from chekan import __version__
+
     ap = argparse.ArgumentParser(prog="python -m hw.cli")
+    ap.add_argument("-V", "--version", action="version", version=f"chekan {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     add_emulate_parser(sub)
     add_acquire_parser(sub)
@@ -256,15 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Standalone entry (the ``chekan`` CLI wires the same sub-commands)."""
-    args = build_parser().parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except ChekanError as e:
-        print(f"chekan: error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("chekan: interrupted", file=sys.stderr)
-        return 130
+    return run_command(lambda: (a := build_parser().parse_args(argv)).func(a))
 
 
 if __name__ == "__main__":

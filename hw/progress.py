@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -52,7 +53,8 @@ class StatusLine:
             return
         self._last = now
         text = format_progress(p)
-        if self.tty:
+        if self.tty:  # a line wider than the terminal would wrap, and "\r" redraw only its end
+            text = text[: max(20, shutil.get_terminal_size().columns - 1)]
             pad = max(0, self._width - len(text))
             self.stream.write("\r" + text + " " * pad)
             self._width = len(text)

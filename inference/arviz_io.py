@@ -118,10 +118,32 @@ def to_inference_data(
 
 
 def save_netcdf(idata: az.InferenceData, path: str | Path) -> Path:
-    """Write ``idata`` to NetCDF (h5netcdf engine, compressed); returns the path."""
+    """Write ``idata`` to NetCDF (h5netcdf engine, compressed); returns the path.
+
+    Written to a temporary file beside ``path`` and renamed into place, so an interrupted
+    run leaves the old file (or none), never half a posterior.
+    """
+    import contextlib
+    import os
+    import tempfile
+
+    from chekan.durable import fsync_dir
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    idata.to_netcdf(str(path), engine="h5netcdf")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        idata.to_netcdf(tmp, engine="h5netcdf")
+        umask = os.umask(0o022)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+        fsync_dir(path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
     return path
 
 

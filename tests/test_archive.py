@@ -302,13 +302,39 @@ def test_a_crashing_worker_fails_only_its_file(tree, tmp_path, monkeypatch):
 
     CrashingPool.pools = []
     monkeypatch.setattr(mod, "make_executor", fake)
-    rep = reanalyze(sub, "classical", db=tmp_path / "c.sqlite", chunk_size=2, progress=False)
+    rep = reanalyze(
+        sub, "classical", db=tmp_path / "c.sqlite", chunk_size=2, progress=False, in_process=False
+    )
     assert [Path(f.path).name for f in rep.failed] == ["poison_2.csv"]
     assert "worker crashed" in rep.failed[0].reason
     assert len(rep.done) == 5
     # pool 1 broke at the poison's chunk; its files and those after were retried one by one
     assert [len(t) for t in CrashingPool.pools[0].tasks] == [2, 2, 2]
     assert all(len(t) == 1 for pool in CrashingPool.pools[1:] for t in pool.tasks)
+
+
+def test_small_classical_batches_run_in_process(tree, tmp_path, monkeypatch):
+    """Spawning workers costs more than a few hundred classical fits: they run here, and a
+    bad file still fails alone."""
+    from chekan.archive import reanalyze as mod
+
+    assert mod.run_in_process("classical", "local", 40, 2)
+    assert not mod.run_in_process("classical", "local", 5000, 16)
+    assert not mod.run_in_process("map", "local", 2, 2)
+    assert not mod.run_in_process("classical", "dask", 2, 2)
+
+    def no_workers(*a, **k):
+        raise AssertionError("no worker pool for a small classical batch")
+
+    monkeypatch.setattr(mod, "make_executor", no_workers)
+    sub = tmp_path / "small"
+    sub.mkdir()
+    for p in tree["good"][:4]:
+        shutil.copy(p, sub / p.name)
+    shutil.copy(tree["broken"]["truncated"][0], sub / "bad.csv")
+    rep = reanalyze(sub, "classical", db=tmp_path / "s.sqlite", jobs=2, progress=False)
+    assert len(rep.done) == 4
+    assert [Path(f.path).name for f in rep.failed] == ["bad.csv"]
 
 
 def test_reanalyze_cli(tree, tmp_path, capsys):

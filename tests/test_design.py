@@ -98,29 +98,35 @@ def test_doubling_rounds_shrinks_sd_by_sqrt2():
 
 
 def test_design_model_is_the_estimators_model(short_session):
-    """The layout and lag operator reproduce calmodel.linear_terms on a simulated record."""
+    """The layout and lag operator reproduce the joint model's linear_terms on a simulated
+    record."""
+    import dataclasses
+
     import jax.numpy as jnp
 
-    from chekan import calmodel as cm
     from chekan.demo import demo_program
     from chekan.holds import segment_record
+    from chekan.joint import binning
+    from chekan.joint import likelihood as cm
 
     _, rec, truth = short_session
     prog = demo_program(True)
     holds = segment_record(rec, settle_s=prog.settle_s)
-    model = cm.prepare_record(rec, holds, np.asarray(truth.m_level_pix))
+    model = binning.prepare_record(rec, holds, np.asarray(truth.m_level_pix))
     lay = d.program_layout(prog)
     assert lay.bin_hold.size == model.n_bins
-    np.testing.assert_array_equal(lay.bin_n, np.asarray(model.data["n_t"]))
-    np.testing.assert_allclose(lay.bin_d0_s, np.asarray(model.data["d0"]))
+    np.testing.assert_array_equal(lay.bin_n, np.asarray(model.data.n_t))
+    np.testing.assert_allclose(lay.bin_d0_s, np.asarray(model.data.d0))
     np.testing.assert_allclose(lay.bin_t_mid_s, model.bin_t_s)
-    # calmodel at the commanded attitudes (the record's carry a 0.3″ jitter)
-    data = dict(model.data)
-    data["hold_tx"] = jnp.zeros(model.n_holds)
-    data["hold_ty"] = jnp.asarray(lay.theta_hold_rad)
-    M = data["mv_tx"].shape[1]
-    data["mv_tx"] = jnp.zeros_like(data["mv_tx"])
-    data["mv_ty"] = jnp.asarray(lay.slew_theta_rad[:, :M])
+    # the joint model at the commanded attitudes (the record's carry a 0.3″ jitter)
+    M = model.data.mv_tx.shape[1]
+    data = dataclasses.replace(
+        model.data,
+        hold_tx=jnp.zeros(model.n_holds),
+        hold_ty=jnp.asarray(lay.theta_hold_rad),
+        mv_tx=jnp.zeros_like(model.data.mv_tx),
+        mv_ty=jnp.asarray(lay.slew_theta_rad[:, :M]),
+    )
     v = {
         "b1": truth.b_mgal_per_pix[0],
         "b2": truth.b_mgal_per_pix[1],

@@ -79,3 +79,30 @@ def test_pdf_reader_counts_images():
     info = read_pdf(render_pdf(rep))
     assert info.n_images == 2
     assert "Figure 2: second" in normalize(info.text)
+
+
+def test_negative_zero_is_never_written():
+    from chekan.report.numbers import fixed, plain
+
+    assert fixed(-0.0, 3) == "0.000"
+    assert fixed(-0.0004, 3, sign=True) == "+0.000"
+    assert fixed(-0.0006, 3, sign=True) == "−0.001"
+    assert plain(-0.0) == "0"
+
+
+def test_status_line_fits_the_terminal(monkeypatch):
+    import io
+    import os
+    import shutil
+
+    from hw.progress import Progress, StatusLine
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    monkeypatch.setattr(shutil, "get_terminal_size", lambda *a: os.terminal_size((60, 24)))
+    out = Tty()
+    line = StatusLine(out)
+    line(Progress(3, 36, 1, "+1°50'", "dwell", 12, 900, 1234.0, 20000.0, 5000, 1, 0))
+    assert len(out.getvalue()) == 1 + 59  # "\r" and a line one narrower than the terminal

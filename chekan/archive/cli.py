@@ -13,7 +13,8 @@
                    [--plot history.png] [--json out.json] [--db PATH]
 
 Exit status: 0; 1 when some input/result failed (``reanalyze``, ``archive add``); 2 on an
-error; 4 when ``history`` raised an ALARM.
+error (also an output refused by :func:`chekan.outputs.check_outputs`); 4 when ``history``
+raised an ALARM; 130 interrupted; 141 standard output closed early (``| head``).
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ import argparse
 import json
 import sys
 from typing import Any
+
+from chekan.outputs import check_outputs, run_command
 
 DB_HELP = "archive database (default $CHEKAN_ARCHIVE, else ~/.local/share/chekan/archive.sqlite)"
 
@@ -36,6 +39,7 @@ def _cmd_add(args: argparse.Namespace) -> int:
     from chekan.errors import ChekanError
     from chekan.result import read_result
 
+    check_outputs(args.results, [args.db])
     bad = 0
     with Archive(args.db) as a:
         for path in args.results:
@@ -52,6 +56,7 @@ def _cmd_add(args: argparse.Namespace) -> int:
 def _cmd_list(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
 
+    check_outputs([], [args.db])
     with Archive(args.db) as a:
         rows = a.list_sessions(args.serial)
         params = {
@@ -72,6 +77,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
 def _cmd_show(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
 
+    check_outputs([], [args.db])
     with Archive(args.db) as a:
         s = a.get_session(args.id)
     if args.json:
@@ -101,10 +107,15 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 def _cmd_export(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
+    from chekan.errors import ChekanError
 
+    if (args.out is None) == (args.out_opt is None):
+        raise ChekanError("archive export: give the CSV file once, as OUT or as -o/--out")
+    out = args.out if args.out is not None else args.out_opt
+    check_outputs([args.db], [out])
     with Archive(args.db) as a:
-        n = a.export_csv(args.out, args.serial)
-    print(f"wrote {args.out} ({n} parameter rows)")
+        n = a.export_csv(out, args.serial)
+    print(f"wrote {out} ({n} parameter rows)")
     return 0
 
 
@@ -112,7 +123,11 @@ def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
     """``chekan archive add|list|show|export``."""
     p = sub.add_parser("archive", help="the calibration archive: add, list, show, export")
     asub = p.add_subparsers(dest="archive_command", required=True, metavar="ACTION")
-    q = asub.add_parser("add", help="add result JSON files (idempotent)")
+    q = asub.add_parser(
+        "add",
+        help="add result JSON files (idempotent)",
+        epilog="exit status: 0 all added, 1 some files failed (the others were added)",
+    )
     q.add_argument("results", nargs="+", help="chekan-result/1 JSON files")
     _db_arg(q)
     q.set_defaults(func=_cmd_add)
@@ -126,7 +141,8 @@ def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
     _db_arg(q)
     q.set_defaults(func=_cmd_show)
     q = asub.add_parser("export", help="parameters of every session as CSV (one row each)")
-    q.add_argument("out", help="CSV file to write")
+    q.add_argument("out", nargs="?", help="CSV file to write (or -o/--out)")
+    q.add_argument("-o", "--out", dest="out_opt", metavar="OUT", help="CSV file to write")
     q.add_argument("--serial", help="only this instrument")
     _db_arg(q)
     q.set_defaults(func=_cmd_export)
@@ -137,6 +153,7 @@ def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
 def _cmd_reanalyze(args: argparse.Namespace) -> int:
     from chekan.archive.reanalyze import reanalyze
 
+    check_outputs([args.dir], [args.db, args.results_dir])
     rep = reanalyze(
         args.dir,
         args.method,
@@ -155,16 +172,26 @@ def _cmd_reanalyze(args: argparse.Namespace) -> int:
 def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
     """``chekan reanalyze DIR --method …``."""
     p = sub.add_parser(
-        "reanalyze", help="analyse every record/protocol under a folder into the archive"
+        "reanalyze",
+        help="analyse every record/protocol under a folder into the archive",
+        epilog="exit status: 0 all done or skipped, 1 some inputs failed (listed; the others "
+        "were archived), 2 an error",
     )
     p.add_argument("dir", help="folder searched recursively for chekan-record/1 and -protocol/1")
     p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
-    p.add_argument("--jobs", type=int, help="worker processes (default: the CPUs available)")
+    p.add_argument("-j", "--jobs", type=int, help="worker processes (default: the CPUs available)")
     p.add_argument("--executor", choices=("local", "dask"), default="local")
     p.add_argument("--scheduler", help="dask: scheduler address (default: a LocalCluster)")
     p.add_argument("--results-dir", help="where result JSONs go (default <archive dir>/results)")
     p.add_argument("--quick", action="store_true", help="bayes: smaller ESS target")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "-q",
+        "--quiet",
+        "--no-progress",
+        dest="no_progress",
+        action="store_true",
+        help="no progress bar",
+    )
     _db_arg(p)
     p.set_defaults(func=_cmd_reanalyze)
     return p
@@ -180,6 +207,7 @@ def _cmd_history(args: argparse.Namespace) -> int:
         write_history_json,
     )
 
+    check_outputs([args.db], [args.plot, args.json])
     with Archive(args.db) as a:
         hist = stability_history(
             a,
@@ -200,7 +228,11 @@ def _cmd_history(args: argparse.Namespace) -> int:
 
 def add_history_parser(sub: Any) -> argparse.ArgumentParser:
     """``chekan history SERIAL …``."""
-    p = sub.add_parser("history", help="scale-factor stability of one instrument over the years")
+    p = sub.add_parser(
+        "history",
+        help="scale-factor stability of one instrument over the years",
+        epilog="exit status: 0 no alarm (warnings included), 4 an ALARM fired, 2 an error",
+    )
     p.add_argument("serial", help="gravimeter serial number")
     p.add_argument("--param", nargs="+", default=["b1", "b2", "a"], help="parameters (b1 b2 a)")
     p.add_argument(
@@ -236,13 +268,9 @@ def add_parsers(sub: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m chekan.archive``: the three commands without the rest of ``chekan``."""
-    from chekan.errors import ChekanError
+    from chekan import __version__
 
     ap = argparse.ArgumentParser(prog="python -m chekan.archive")
+    ap.add_argument("-V", "--version", action="version", version=f"chekan {__version__}")
     add_parsers(ap.add_subparsers(dest="command", required=True, metavar="COMMAND"))
-    args = ap.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except ChekanError as e:
-        print(f"chekan: error: {e}", file=sys.stderr)
-        return 2
+    return run_command(lambda: (a := ap.parse_args(argv)).func(a))

@@ -34,6 +34,7 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
+from chekan.durable import atomic_output
 from chekan.errors import ChekanError
 
 SCHEMA_VERSION = 1
@@ -412,7 +413,7 @@ class Archive:
         rows = self.parameter_rows(serial)
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "w", newline="", encoding="utf-8") as f:
+        with atomic_output(path, newline="") as f:
             w = csv.writer(f, lineterminator="\n")
             w.writerow(EXPORT_COLUMNS)
             for r in rows:

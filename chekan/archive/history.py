@@ -505,12 +505,15 @@ def stability_history(
 
 
 def write_history_json(path: str | Path, hist: dict) -> Path:
+    from chekan.durable import atomic_output
     from chekan.result import _clean
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     data = {k: v for k, v in hist.items() if k != "fits"}
-    path.write_text(json.dumps(_clean(data), indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    text = json.dumps(_clean(data), indent=2, ensure_ascii=False) + "\n"
+    with atomic_output(path) as f:
+        f.write(text)
     return path
 
 
@@ -604,7 +607,10 @@ def plot_history(hist: dict, path: str | Path) -> Path:
         ax.legend(fontsize=7, loc="best")
     axes[0, 0].set_title(f"Gravimeter {hist['serial']}: scale stability")
     fig.tight_layout()
+    from chekan.durable import atomic_output
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
+    with atomic_output(path, "wb") as f:
+        fig.savefig(f, dpi=120, format=path.suffix.lstrip(".").lower() or "png")
     return path

@@ -12,7 +12,9 @@
 3. *Analyse* the rest in chunks on an executor: local worker processes (spawn context, one
    XLA host device and one thread each) or a Dask cluster. A malformed input fails on its
    own (``file:line: problem``); a crashed worker process gets its files retried once, one
-   file per task, so only the culprit fails.
+   file per task, so only the culprit fails. Classical fits are cheap (~10 ms): when
+   starting the workers would cost more than it saves (:func:`run_in_process`), they run
+   in this process, chunk by chunk, with the same per-file failure isolation.
 4. *Archive*: each result JSON is written to the results folder (default
    ``<archive dir>/results``) and added to the archive; the summary lists failures.
 
@@ -42,6 +44,10 @@ _WORKER_XLA_FLAGS = (
 )
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 _SNIFF_BYTES = 1 << 16
+#: Measured on the benchmark's short records (bench/archive_bench.py): one classical fit,
+#: and the start of a spawned worker (interpreter, NumPy, SciPy, the pipeline), seconds.
+CLASSICAL_FIT_S = 0.01
+WORKER_START_S = 2.0
 
 
 @dataclass
@@ -269,6 +275,30 @@ def make_executor(
         yield client.get_executor(pure=False)
 
 
+class InlineExecutor(cf.Executor):
+    """Runs each task at once in this process; its future holds the result or exception."""
+
+    def submit(self, fn, /, *args, **kwargs) -> cf.Future:
+        fut: cf.Future = cf.Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except Exception as e:
+            fut.set_exception(e)
+        return fut
+
+
+def run_in_process(method: str, executor: str, n: int, jobs: int) -> bool:
+    """Whether ``n`` files are analysed faster here than on ``jobs`` new worker processes.
+
+    Only the classical method on the local executor: ``n`` fits in this process cost
+    ``n·t``; on the workers ``WORKER_START_S + n·t/jobs``. MAP and Bayes keep their
+    workers (each configures its own XLA device and threads, and compiles once).
+    """
+    if method != "classical" or executor != "local":
+        return False
+    return jobs <= 1 or n * CLASSICAL_FIT_S * (1.0 - 1.0 / jobs) < WORKER_START_S
+
+
 def default_jobs() -> int:
     try:
         return len(os.sched_getaffinity(0))
@@ -302,8 +332,13 @@ def reanalyze(
     chunk_size: int | None = None,
     options: dict[str, Any] | None = None,
     progress: bool = True,
+    in_process: bool | None = None,
 ) -> BatchReport:
-    """Discover, skip, analyse in parallel and archive (see the module docstring)."""
+    """Discover, skip, analyse in parallel and archive (see the module docstring).
+
+    ``in_process``: analyse in this process (``True``), on the executor (``False``), or
+    whichever is faster (``None``, the default: :func:`run_in_process`).
+    """
     import chekan
     from chekan.archive.db import Archive
     from chekan.pipeline import METHODS
@@ -374,7 +409,13 @@ def reanalyze(
         with tqdm(
             total=len(todo), unit="file", desc=f"reanalyze {method}", disable=not progress
         ) as bar:
-            with make_executor(executor, jobs, scheduler) as ex:
+            if in_process is None:
+                in_process = run_in_process(method, executor, len(todo), jobs)
+            if in_process:
+                pool = contextlib.nullcontext(InlineExecutor())
+            else:
+                pool = make_executor(executor, jobs, scheduler)
+            with pool as ex:
                 futs = {submit(ex, c): c for c in _chunks(list(todo), jobs, chunk_size)}
                 for fut in cf.as_completed(futs):
                     try:

@@ -2,7 +2,7 @@ r"""Expected information of a tilt program: the expected precision of b₁, b₂
 
 **What is computed.** For a tilt program and design values of the instrument (default:
 :class:`chekan.simulate.Truth`, the simulator's instrument and error budget), the Laplace
-covariance that the MAP estimator (:mod:`chekan.bayes`) would report, evaluated at the
+covariance that the MAP estimator (:mod:`chekan.joint`) would report, evaluated at the
 design values with every random effect at its prior mean:
 
 .. math::
@@ -11,7 +11,7 @@ design values with every random effect at its prior mean:
     \qquad X_j = [\,∂f_j/∂θ,\ 1,\ P,\ G,\ G\,\mathrm{diag}(s_j)\,],
 
 the inverse of the expected information of the joint record model of
-:mod:`chekan.calmodel`, whose data are bin means inside every hold (bins 0–15–40–90–180 s
+:mod:`chekan.joint`, whose data are bin means inside every hold (bins 0–15–40–90–180 s
 and ``settle_s`` across the settling transient, one bin after it):
 
 .. math::
@@ -20,7 +20,7 @@ and ``settle_s`` across the settling transient, one bin after it):
     e_{ij} \sim N\big(0,\ σ_j^2/n_i + (κ\,\mathrm{trans}_{ij})^2\big).
 
 θ = (b₁, b₂, log K, ε₁, ε₂, Δγ, log τ) (the estimator's nonlinear parameters with their
-priors from :func:`chekan.calmodel.nonlinear_params`); f = G E + w(M_v + R) is the lagged
+priors from :func:`chekan.joint.problem.nonlinear_params`); f = G E + w(M_v + R) is the lagged
 exact torsion equilibrium (E at every hold, :func:`chekan.model.equilibrium_readings`,
 first-order damping lag τ, the lag state after each slew filtered along the slew's
 attitudes, the unsettled remainder R carried across holds); G is the (N × H) lag-mixing
@@ -69,14 +69,15 @@ from scipy.interpolate import CubicSpline
 
 import chekan.jaxconfig  # noqa: F401  (float64 before any array)
 from chekan import model as fm
-from chekan.calmodel import nonlinear_params
 from chekan.design.layout import DesignValues, Lagged, Layout, lagged_means, program_layout
+from chekan.joint.derived import at_level
+from chekan.joint.problem import nonlinear_params
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
 THETA_NAMES = ("b1", "b2", "K", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin", "tau_s")
-C_PRIOR_VAR_PIX2 = 1.0  # chekan.calmodel.beta_prior_var: level offset c
+C_PRIOR_VAR_PIX2 = 1.0  # chekan.joint.likelihood.beta_prior_var: level offset c
 DRIFT_PRIOR_VAR_PIX2 = 4.0  # … drift coefficients d
 OBJECTIVES = ("b_mean", "b_max", "a")
 _GRID_HALF_WIDTH_RAD = math.radians(6.5)  # beyond the 6° program limit: slews stay inside
@@ -119,13 +120,11 @@ def _derived(u, fixed):
     """(a, b₁,₀, b₂,₀) at the design values and their gradient in (u, c), (3,), (3, 8).
 
     a = mean_j a_j(m_h + c) (eq. 10), b_{j,0} = b_j + 2a_j(m₀ − m_h − c) (eq. 24), as
-    :func:`chekan.bayes.map_derived` reports them.
+    :func:`chekan.joint.derived.physical_quantities` reports them.
     """
 
     def q(uc):
-        p = _sensor_params(uc[:6], fixed, uc[6:])
-        a = jnp.mean(fm.quadratic_coefficient(p, p.m_level_pix))
-        b0 = fm.scale_factor_at_centre(p)
+        a, b0 = at_level(_sensor_params(uc[:6], fixed, uc[6:]))
         return jnp.stack([a, b0[0], b0[1]])
 
     uc = jnp.concatenate([u, jnp.zeros(2)])

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from chekan.calmodel import BIN_EDGES_S
+from chekan.joint.binning import BIN_EDGES_S
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
 
@@ -33,7 +33,7 @@ class DesignValues:
     """
 
     truth: Truth = field(default_factory=Truth)
-    slew_error: float = 0.003  # κ: chekan.calmodel.hyper_dict default
+    slew_error: float = 0.003  # κ: chekan.joint.problem.default_hyper default
     drift_degree: int = 3
     bin_edges_s: tuple[float, ...] = BIN_EDGES_S
     hold_offsets: bool = True
@@ -88,7 +88,7 @@ def _bin_edges(settle_s: float, edges_s) -> list[float]:
 
 def program_layout(program: TiltProgram, values: DesignValues | None = None) -> Layout:
     """Lay out holds, slews and bins exactly as a simulated record of ``program`` is binned
-    by :func:`chekan.calmodel.prepare_record` (settle time from the program)."""
+    by :func:`chekan.joint.binning.prepare_record` (settle time from the program)."""
     values = values or DesignValues()
     truth = values.truth
     dt = 1.0 / truth.sample_rate_hz
@@ -162,7 +162,7 @@ class Lagged:
 
 
 def lagged_means(layout: Layout, tau_s: float, E_hold: np.ndarray, E_slew: np.ndarray) -> Lagged:
-    """Bin means of the lagged equilibrium (calmodel.linear_terms in NumPy).
+    """Bin means of the lagged equilibrium (chekan.joint.likelihood.linear_terms in NumPy).
 
     wₘ = (1 − e^{−Δt/τ}) e^{−lagₘ/τ} along the slew into hold k, w_prev = 1 − Σwₘ,
     M_v = Σ wₘ E(θₘ); lag state after the slew y₀,ₖ = w_prev (E_{k−1} + (y₀,ₖ₋₁ − E_{k−1})ρ_{k−1})

@@ -35,6 +35,12 @@ PHYSICAL = tuple(PARAMETER_UNITS)[:11]
 """Reported quantities that are functions of (θ, β): b1 … drift2_pix_per_h."""
 
 
+def at_level(sp: fm.SensorParams):
+    """(a, (b₁,₀, b₂,₀)) of sensor parameters: a = mean over systems of a(m_h) (eq. 10),
+    bⱼ,₀ = b at the CCD centre (eq. 24). Shared by map, bayes and design."""
+    return jnp.mean(fm.quadratic_coefficient(sp, sp.m_level_pix)), fm.scale_factor_at_centre(sp)
+
+
 def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordData, dur_h):
     """``PHYSICAL`` as named scalars at parameter values ``v`` and linear block ``beta``
     (also the level readings m_ref + c and the drift coefficients)."""
@@ -42,13 +48,13 @@ def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordDa
     D = structure.drift_degree
     ends = jnp.asarray([1.0 - (-1.0) ** ell for ell in range(1, D + 1)])  # P_l(1) − P_l(−1)
     sp = sensor_params(v, data, beta[blocks["c"]])
-    b0 = fm.scale_factor_at_centre(sp)
+    a, b0 = at_level(sp)
     dr = beta[blocks["drift"]].reshape(2, D)
     slope = dr @ ends / dur_h
     out = {
         "b1": v["b1"],
         "b2": v["b2"],
-        "a": jnp.mean(fm.quadratic_coefficient(sp, sp.m_level_pix)),
+        "a": a,
         "b1_0": b0[0],
         "b2_0": b0[1],
         "eps1_arcmin": v["eps1_arcmin"],

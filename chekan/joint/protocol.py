@@ -213,7 +213,7 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
             draws,
             sample_stats={"lp": samp.log_prob},
             observed_data={"x_pix": np.asarray(table.x_pix)},
-            attrs={"model": "chekan.bayes_protocol"},
+            attrs={"model": "chekan.joint.protocol"},
         )
         out["posterior_netcdf"] = str(save_netcdf(idata, options.netcdf))
     return out

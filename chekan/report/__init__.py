@@ -12,8 +12,6 @@ or Russian.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -50,17 +48,6 @@ def output_format(out: Path, fmt: str | None) -> str:
             f"{out}: cannot tell the report format from the suffix {out.suffix!r}; "
             "use .pdf or .html, or give the format (--format pdf|html)"
         ) from None
-
-
-def _open_output(out: Path):
-    """A temporary file beside ``out`` (so a failure to write shows before the work)."""
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        return tempfile.NamedTemporaryFile(
-            dir=out.parent, prefix=f".{out.name}.", suffix=".tmp", delete=False
-        )
-    except OSError as e:
-        raise ChekanError(f"{out}: cannot write the certificate there: {e.strerror or e}") from None
 
 
 def render_report(
@@ -104,9 +91,13 @@ def render_report(
         check_result(dict(result), source or "<result>")
     else:
         raise FormatError(source, None, "a result must be a JSON object (dict)")
-    tmp = _open_output(out)
+    from chekan.durable import atomic_output
+
     try:
-        with tmp:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        # the temporary file is opened before the work, so that a folder one cannot write
+        # to shows at once; the certificate appears only when it is complete
+        with atomic_output(out, "wb") as f:
             rep = build_report(
                 result,
                 lang=lang,
@@ -123,19 +114,13 @@ def render_report(
                 from chekan.report.html_page import render_html
 
                 data = render_html(rep)
-            tmp.write(data)
+            f.write(data)
         if keep_figures is not None:
             folder = Path(keep_figures)
             folder.mkdir(parents=True, exist_ok=True)
-            for i, f in enumerate(rep.figures, start=1):
-                (folder / f"fig{i}-{f.name}.png").write_bytes(f.png)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp.name, 0o666 & ~umask)
-        os.replace(tmp.name, out)
+            for i, fig in enumerate(rep.figures, start=1):
+                with atomic_output(folder / f"fig{i}-{fig.name}.png", "wb") as g:
+                    g.write(fig.png)
     except OSError as e:
         raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
-    finally:
-        if os.path.exists(tmp.name):
-            os.unlink(tmp.name)
     return out

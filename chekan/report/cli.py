@@ -9,6 +9,7 @@ from chekan.report.i18n import LANGS
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    from chekan.outputs import check_outputs
     from chekan.report import render_report
     from chekan.result import read_result
 
@@ -17,6 +18,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if out is None:
         suffix = ".html" if args.format == "html" else ".pdf"
         out = Path(args.result).with_name(f"calibr_{_safe(str(res['serial']))}{suffix}")
+    check_outputs([args.result, args.record, args.netcdf], [out])
     written = render_report(
         res,
         out,
@@ -48,6 +50,7 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("result", help="chekan-result/1 JSON written by 'chekan calibrate --json'")
     p.add_argument(
+        "-o",
         "--out",
         help="certificate to write, .pdf or .html (default: calibr_<serial>.pdf beside the result)",
     )

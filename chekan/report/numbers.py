@@ -2,6 +2,9 @@
 
 Negative numbers use the typographic minus "−" (U+2212); missing values are "—".
 The decimal separator is the point in both languages (as in Calibr.exe protocols).
+Rounding and a negative zero's sign are Python's format spec (``z``, PEP 682); what is
+written here is only the metrology rule (an uncertainty to ``sig`` digits, its value to the
+same decimal place) and the typography, which no formatting library does.
 """
 
 from __future__ import annotations
@@ -22,9 +25,8 @@ def fixed(x: object, nd: int, *, sign: bool = False) -> str:
     """``x`` with ``nd`` decimals; ``sign=True`` writes "+" for positive values."""
     if not is_num(x):
         return DASH
-    s = f"{float(x):+.{nd}f}" if sign else f"{float(x):.{nd}f}"  # type: ignore[arg-type]
-    if s.lstrip("+-").strip("0.") == "":  # -0.00 → 0.00
-        s = s.replace("-", "+" if sign else "")
+    # "z": a value that rounds to zero is written 0.00, never −0.00
+    s = f"{float(x):+z.{nd}f}" if sign else f"{float(x):z.{nd}f}"  # type: ignore[arg-type]
     return s.replace("-", MINUS)
 
 
@@ -102,7 +104,7 @@ def plain(x: object) -> str:
     """Shortest form of a round number (``0.05``, ``1024``, ``95``)."""
     if not is_num(x):
         return DASH
-    return f"{float(x):.10g}".replace("-", MINUS)  # type: ignore[arg-type]
+    return f"{float(x):z.10g}".replace("-", MINUS)  # type: ignore[arg-type]
 
 
 def statement(name: str, x: object, big_u: object, unit: str, *, k: int = 2) -> str:

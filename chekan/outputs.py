@@ -1,0 +1,146 @@
+"""What every command does with the files it writes and with its standard output.
+
+- :func:`check_outputs` is called by every command *before* it does any work: it refuses
+  (:class:`OutputError`, exit status 2) to write over one of the command's own inputs, to
+  write two outputs to one file, and to overwrite an existing ``chekan-record/1`` or
+  ``chekan-protocol/1`` file (measurements cannot be recomputed; results can). The file is
+  named in the message.
+- :func:`run_command` runs a command function the same way in every ``main()``: a
+  :class:`~chekan.errors.ChekanError` or an :class:`OSError` (a missing input, a folder
+  one cannot write to) is one line on stderr naming the file and exit status 2, Ctrl-C is
+  130, and a closed standard output (``chekan archive list | head``) ends the command
+  quietly with status 141 (128 + SIGPIPE, what a shell reports for a Unix tool killed by
+  SIGPIPE) instead of a ``BrokenPipeError`` traceback.
+
+Writing itself goes through :func:`chekan.durable.atomic_output` (temporary file beside
+the target, then renamed into place). Stdlib only: cheap to import from every CLI.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from chekan.errors import ChekanError
+
+PathArg = str | os.PathLike[str]
+
+#: Formats of irreplaceable measurement files that no output option may overwrite.
+PROTECTED_FORMATS = ("chekan-record/1", "chekan-protocol/1")
+_SNIFF_BYTES = 1 << 16
+
+EXIT_OK = 0
+EXIT_SOME_FAILED = 1
+EXIT_USAGE = 2
+EXIT_NOT_CONVERGED = 3
+EXIT_ALARM = 4
+EXIT_INTERRUPTED = 130
+EXIT_CLOSED_PIPE = 141
+
+
+class OutputError(ChekanError):
+    """An output option names a file the command must not write."""
+
+
+def sniff_format(path: PathArg) -> str | None:
+    """The ``# format:`` value of the leading ``# key: value`` block, or ``None``.
+
+    Reads at most 64 kB; a file that cannot be read or is not such a file gives ``None``.
+    """
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_SNIFF_BYTES)
+    except OSError:
+        return None
+    if head.startswith(b"\xef\xbb\xbf"):
+        head = head[3:]
+    for raw in head.split(b"\n"):
+        if not raw.startswith(b"#"):
+            return None
+        line = raw.rstrip(b"\r")
+        if line.startswith(b"# format:"):
+            return line[len(b"# format:") :].decode("utf-8", "replace").strip()
+    return None
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet)
+        return a.resolve() == b.resolve()
+
+
+def check_outputs(
+    inputs: Iterable[PathArg | None] = (),
+    outputs: Iterable[PathArg | None] = (),
+) -> None:
+    """Refuse, before any work, outputs that would destroy something; ``None`` entries skip.
+
+    Raises :class:`OutputError` naming the file when an output
+
+    - is the same file as one of ``inputs`` (also through links or ``..``),
+    - is given twice among ``outputs``,
+    - exists and begins like a ``chekan-record/1`` or ``chekan-protocol/1`` file.
+
+    Folders among ``inputs`` protect nothing here (a command that reads a folder checks
+    its files itself); folders among ``outputs`` are left to the command.
+    """
+    ins = [Path(p) for p in inputs if p is not None]
+    seen: list[Path] = []
+    for o in outputs:
+        if o is None:
+            continue
+        out = Path(o)
+        for i in ins:
+            if not i.is_dir() and _same(out, i):
+                raise OutputError(
+                    f"{out}: refusing to write over an input of this command ({i}); "
+                    "choose another output file"
+                )
+        for s in seen:
+            if _same(out, s):
+                raise OutputError(f"{out}: given for two outputs; choose a file for each")
+        seen.append(out)
+        if out.is_file():
+            fmt = sniff_format(out)
+            if fmt in PROTECTED_FORMATS:
+                raise OutputError(
+                    f"{out}: exists and is a {fmt} file: refusing to overwrite it "
+                    "(measurements cannot be recomputed); choose another output file"
+                )
+
+
+def _stdout_closed() -> int:
+    """After a ``BrokenPipeError`` on stdout: silence it for good (so that the
+    interpreter's final flush cannot raise again) and return :data:`EXIT_CLOSED_PIPE`."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # stdout is no real file (tests)
+        pass
+    return EXIT_CLOSED_PIPE
+
+
+def run_command(func: Callable[..., int | None], *args, prog: str = "chekan") -> int:
+    """``func(*args)`` → exit status, the same in every ``main()`` (see the module doc)."""
+    try:
+        try:
+            status = int(func(*args) or 0)
+        finally:
+            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return status
+    except BrokenPipeError:
+        return _stdout_closed()
+    except ChekanError as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as e:  # a missing or unreadable input, a folder one cannot write to
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"{prog}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
