@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 METHODS = ("classical", "map", "bayes")
+ANGLE_ERRORS = ("systematic", "independent")
 
 
 @dataclass(frozen=True)
@@ -21,3 +22,17 @@ class CalibrationOptions:
     progress: bool = True
     encoder_error: bool = False  # bayes/map: smooth systematic angle error per commanded angle
     quick: bool = False  # bayes: cap the sampler at 3000 steps (tests, demos)
+    # map/bayes: the platform's angle-sensor error. "systematic": a part per commanded angle
+    # and a scale error shared by all rounds (prior from the specification, Type B) plus a
+    # random part per hold; "independent": every hold's error independent (before 0.2).
+    angle_errors: str = "systematic"
+    angle_bound_arcsec: float | None = None  # None: the record's header, else 3″ (the paper)
+
+    def angle_spec(self, meta: dict, source: str = "record"):
+        """The angle-sensor specification for a record with header ``meta`` (None for
+        independent angle errors)."""
+        from chekan.joint.angles import spec_for
+
+        if self.angle_errors == "independent":
+            return None
+        return spec_for(meta, self.angle_bound_arcsec, source)

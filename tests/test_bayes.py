@@ -50,11 +50,11 @@ def test_normal_equations_equal_dense_marginal(short_session, encoder):
         A.reshape(-1, A.shape[-1]),
         cm.noise_var(v, data, cm.linear_terms(v, data)[3]).reshape(-1),
         0.0,
-        cm.beta_prior_var(v, model.structure),
+        cm.beta_prior_var(v, model.structure, data),
         mask=data.mask.reshape(-1),
     )
     ne, _ = cm.normal_equations(v, v, model.structure, data)
-    fast = marginal_loglik_normal(ne, cm.beta_prior_var(v, model.structure))
+    fast = marginal_loglik_normal(ne, cm.beta_prior_var(v, model.structure, data))
     assert float(fast) == pytest.approx(float(dense), rel=1e-10)
     # β̂ from the normal equations solves the dense regularised least squares
     _, beta, _ = cm.solve_beta(v, v, model.structure, data)
@@ -65,7 +65,7 @@ def test_normal_equations_equal_dense_marginal(short_session, encoder):
     ).reshape(-1)
     A2 = np.asarray(A).reshape(-1, A.shape[-1])
     r = np.where(np.asarray(data.mask), np.asarray(data.y - f), 0).reshape(-1)
-    lhs = A2.T @ (W[:, None] * A2) + np.diag(1 / np.asarray(cm.beta_prior_var(v, model.structure)))
+    lhs = A2.T @ (W[:, None] * A2) + np.diag(1 / np.asarray(cm.beta_prior_var(v, model.structure, data)))
     np.testing.assert_allclose(lhs @ np.asarray(beta), A2.T @ (W * r), rtol=1e-8, atol=1e-8)
 
 

@@ -33,13 +33,18 @@ def estimate_map_many(
     ready = []  # (index, model, init)
     for i, (record, cres, _base) in enumerate(items):
         try:
-            _holds, model = prepare(record, options.settle_s, encoder=options.encoder_error)
+            _holds, model = prepare(
+                record,
+                options.settle_s,
+                encoder=options.encoder_error,
+                angle_spec=options.angle_spec(record.meta),
+            )
             ready.append((i, model, initial_values(cres, record.g_local_mgal)))
         except Exception as e:  # one bad record never spoils the chunk
             out[i] = e
     if ready:
-        H, N, M = padded_shape([r[1] for r in ready])
-        padded = [r[1].pad(H, N, M) for r in ready]
+        H, N, M, S = padded_shape([r[1] for r in ready])
+        padded = [r[1].pad(H, N, M, S) for r in ready]
         try:
             fits = fit_map_em_many(padded, [r[2] for r in ready])
         except Exception:  # e.g. out of memory: do them one by one

@@ -18,24 +18,33 @@ import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
 from chekan.holds import HoldTable, segment_record
+from chekan.joint.angles import AngleSensorSpec, systematic_basis
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.units import ARCSEC_PER_RAD
 
 BIN_EDGES_S = (0.0, 15.0, 40.0, 90.0, 180.0)
 
 
-def prepare(record, settle_s: float | None, *, encoder: bool = False):
+def prepare(
+    record,
+    settle_s: float | None,
+    *,
+    encoder: bool = False,
+    angle_spec: AngleSensorSpec | None = None,
+):
     """Segment the record into holds and lay it out: ``(holds, RecordModel)``.
 
     ``settle_s`` None: the record's ``program_settle_s``, else 300 s. The level reference
-    starts at the classical m_h (mean of the level holds).
+    starts at the classical m_h (mean of the level holds). ``angle_spec`` None: angle
+    errors independent per hold (the model before systematic errors); otherwise the
+    systematic part shared by all rounds is modelled with that prior (:mod:`.angles`).
     """
     settle = settle_s
     if settle is None:
         settle = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle)
     m_ref = np.nanmean(holds.m_mean_pix[holds.is_level], axis=0)
-    return holds, prepare_record(record, holds, m_ref, encoder=encoder)
+    return holds, prepare_record(record, holds, m_ref, encoder=encoder, angle_spec=angle_spec)
 
 
 def _robust_sigma(record, holds: HoldTable) -> np.ndarray:
@@ -93,6 +102,7 @@ def prepare_record(
     *,
     drift_degree: int = 3,
     encoder: bool = False,
+    angle_spec: AngleSensorSpec | None = None,
     bin_edges_s=BIN_EDGES_S,
 ) -> RecordModel:
     """Bin the samples of every hold and build the model's data pytree."""
@@ -141,6 +151,13 @@ def prepare_record(
     tmax = max(np.max(np.abs(theta)), 1e-9)
     L = 3 if encoder else 0
     enc = np.polynomial.legendre.legvander(theta / tmax, L)[:, 1:] if L else np.zeros((H, 0))
+    basis, prior_var = enc, np.full(L, 4.0)  # legacy encoder terms: N(0, 2″)
+    S = 0
+    if angle_spec is not None:
+        sys_basis, sys_var = systematic_basis(theta, angle_spec)
+        basis = np.concatenate([basis, sys_basis], axis=1)
+        prior_var = np.concatenate([prior_var, sys_var])
+        S = sys_basis.shape[1]
     direction = np.array([0.0, 1.0]) if holds.axis == "y" else np.array([1.0, 0.0])
     data = RecordData(
         g=jnp.asarray(record.g_local_mgal, dtype=jnp.float64),
@@ -164,9 +181,10 @@ def prepare_record(
         dt=jnp.asarray(dt_s),
         hold_T=jnp.asarray(hold_T),
         drift_basis=jnp.asarray(P),
-        enc_basis=jnp.asarray(enc),
+        angle_basis=jnp.asarray(basis),
+        angle_prior_var=jnp.asarray(prior_var),
         sigma_base=jnp.asarray(_robust_sigma(record, holds)),
         hold_mask=jnp.ones(H, dtype=bool),  # False for padding (see pad_model)
     )
-    structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L)
+    structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L, S)
     return RecordModel(structure, data, holds.step, t_mid, (t0, t1))

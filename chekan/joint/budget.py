@@ -1,9 +1,10 @@
 """The uncertainty budget of b: var(b̂) split by the source of each whitened row of the
 MAP Jacobian, var b̂ = Σ_rows hᵣ², h = e_bᵀ(JᵀJ)⁻¹Jᵀ.
 
-Groups: noise (data rows), level offset, drift, hold offsets, angle readout (δ and e
-prior rows), a (the prior of K), other priors; scaled to the reported sd (GUM: the
-components are Type A where the data inform them, Type B where a prior does).
+Groups: noise (data rows), level offset, drift, hold offsets, angle readout (the random
+error of every hold, δ, and the legacy encoder terms), **angle systematic** (the sensor's
+error per commanded angle and its scale error, repeated in every round: GUM Type B, from
+the platform's specification), a (the prior of K), other priors; scaled to the reported sd.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ def uncertainty_budget(fit: MapFit) -> dict:
         ("hold_offsets", "hold_offset"),
         ("angle_readout", "angle_error"),
         ("angle_readout", "encoder"),
+        ("angle_systematic", "angle_systematic"),
     ):
         groups.setdefault(name, np.zeros(0, int))
         groups[name] = np.concatenate([groups[name], off + blocks[key]])

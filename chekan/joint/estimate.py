@@ -33,7 +33,12 @@ def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpti
         return estimate_protocol(data, classical=classical, base=base, options=options)
     t_start = time.perf_counter()
     record = data
-    holds, model = prepare(record, options.settle_s, encoder=options.encoder_error)
+    holds, model = prepare(
+        record,
+        options.settle_s,
+        encoder=options.encoder_error,
+        angle_spec=options.angle_spec(record.meta),
+    )
     init = initial_values(classical, record.g_local_mgal)
     if options.progress:
         print(

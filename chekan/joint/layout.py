@@ -28,18 +28,26 @@ import chekan.jaxconfig  # noqa: F401
 @dataclass(frozen=True)
 class ModelStructure:
     """The static shape of a record model: H holds, N bins, M slew samples per hold,
-    drift degree D and encoder degree L. Hashable; equal structures share compiled code."""
+    drift degree D, encoder degree L (legacy smooth angle error) and S systematic
+    angle-error terms (one per commanded angle, plus the scale error). Hashable; equal
+    structures share compiled code."""
 
     n_holds: int
     n_bins: int
     n_moves: int
     drift_degree: int = 3
     encoder_degree: int = 0
+    n_systematic: int = 0
 
     @property
     def beta_blocks(self) -> dict[str, np.ndarray]:
-        """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e) as index arrays per block."""
-        return beta_blocks(self.n_holds, self.drift_degree, self.encoder_degree)
+        """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e, ζ) as index arrays per block."""
+        return beta_blocks(self.n_holds, self.drift_degree, self.encoder_degree, self.n_systematic)
+
+    @property
+    def n_angle_cols(self) -> int:
+        """Columns of the shared angle-error basis: encoder (L) then systematic (S)."""
+        return self.encoder_degree + self.n_systematic
 
     @property
     def n_beta(self) -> int:
@@ -55,13 +63,16 @@ class ModelStructure:
                 b["hold_offset"][j * H : (j + 1) * H],
                 b["angle_error"],
                 b["encoder"],
+                b["angle_systematic"],
             ]
         )
 
 
 @functools.cache
-def beta_blocks(H: int, D: int, L: int) -> dict[str, np.ndarray]:
-    """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e)."""
+def beta_blocks(H: int, D: int, L: int, S: int = 0) -> dict[str, np.ndarray]:
+    """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e, ζ): level offsets and drift per system,
+    hold offsets, the random angle error of every hold, the legacy encoder terms and the
+    systematic angle-error terms shared by all rounds."""
     q = 1 + D  # per system: level offset cⱼ then drift dⱼ
     o0, a0, e0 = 2 * q, 2 * q + 2 * H, 2 * q + 3 * H
     return {
@@ -70,6 +81,7 @@ def beta_blocks(H: int, D: int, L: int) -> dict[str, np.ndarray]:
         "hold_offset": np.arange(o0, o0 + 2 * H),  # system 1's holds, then system 2's
         "angle_error": np.arange(a0, a0 + H),
         "encoder": np.arange(e0, e0 + L),
+        "angle_systematic": np.arange(e0 + L, e0 + L + S),
     }
 
 
@@ -91,7 +103,8 @@ class RecordData(eqx.Module):
     hold_ty: jax.Array = _padded("H", 0.0)
     hold_T: jax.Array = _padded("H", 0.0)  # (H,) s, slew end to hold end
     hold_mask: jax.Array = _padded("H", False)  # (H,) real holds
-    enc_basis: jax.Array = _padded("H", 0.0)  # (H, L) Legendre in θ/θ_max
+    angle_basis: jax.Array = _padded("HQ", 0.0)  # (H, Q) shared angle-error terms, arcsec
+    angle_prior_var: jax.Array = _padded("Q", 1.0)  # (Q,) arcsec², their prior variances
     own: jax.Array = _padded("NH", 0.0)  # (N, H) bin i lies in hold k
     prev: jax.Array = _padded("NH", 0.0)  # (N, H) hold before bin i's hold
     d0: jax.Array = _padded("N", 1e9)  # (N,) s, slew end to the bin's first sample
@@ -106,18 +119,22 @@ class RecordData(eqx.Module):
     mv_lag: jax.Array = _padded("HM", 0.0)  # (H, M) s, t_last − tᵢ
     mv_mask: jax.Array = _padded("HM", False)
 
-    def pad(self, H: int, N: int, M: int) -> RecordData:
-        """The same record laid out for H holds, N bins and M slew samples.
+    def pad(self, H: int, N: int, M: int, Q: int | None = None) -> RecordData:
+        """The same record laid out for H holds, N bins, M slew samples and Q shared
+        angle-error columns (None: as it is).
 
         Exact: padded bins have ``mask`` False (zero weight), padded holds have no bins
         (``own``/``prev`` columns zero, so their β is its prior mean 0 and adds nothing to
         the residuals) and sit after the real ones (the unsettled-carry scan runs
-        forwards), padded slew samples have ``mv_mask`` False.
+        forwards), padded slew samples have ``mv_mask`` False, padded angle-error
+        columns are zero (their β stays at its prior mean 0).
         """
         h0, n0, m0 = self.hold_tx.shape[0], self.y.shape[0], self.mv_tx.shape[1]
-        if H < h0 or N < n0 or M < m0:
-            raise ValueError(f"cannot pad ({h0}, {n0}, {m0}) down to ({H}, {N}, {M})")
-        extra = {"H": H - h0, "N": N - n0, "M": M - m0}
+        q0 = self.angle_basis.shape[1]
+        Q = q0 if Q is None else Q
+        if H < h0 or N < n0 or M < m0 or Q < q0:
+            raise ValueError(f"cannot pad ({h0}, {n0}, {m0}, {q0}) down to ({H}, {N}, {M}, {Q})")
+        extra = {"H": H - h0, "N": N - n0, "M": M - m0, "Q": Q - q0}
         changes = {}
         for f in dataclasses.fields(self):
             if "pad" not in f.metadata:
@@ -171,15 +188,18 @@ class RecordModel:
     def duration_h(self) -> float:
         return (self.t_span_s[1] - self.t_span_s[0]) / 3600.0
 
-    def pad(self, H: int, N: int, M: int) -> RecordModel:
-        """This record laid out for a larger structure (:meth:`RecordData.pad`)."""
+    def pad(self, H: int, N: int, M: int, S: int | None = None) -> RecordModel:
+        """This record laid out for a larger structure (:meth:`RecordData.pad`); S is the
+        number of systematic angle-error terms (None: as it is)."""
         s = self.structure
-        if (H, N, M) == (s.n_holds, s.n_bins, s.n_moves):
+        S = s.n_systematic if S is None else S
+        if (H, N, M, S) == (s.n_holds, s.n_bins, s.n_moves, s.n_systematic):
             return self
+        if S < s.n_systematic:
+            raise ValueError(f"cannot pad {s.n_systematic} systematic terms down to {S}")
+        new = dataclasses.replace(s, n_holds=H, n_bins=N, n_moves=M, n_systematic=S)
         return dataclasses.replace(
-            self,
-            structure=dataclasses.replace(s, n_holds=H, n_bins=N, n_moves=M),
-            data=self.data.pad(H, N, M),
+            self, structure=new, data=self.data.pad(H, N, M, new.n_angle_cols)
         )
 
     def with_level(self, m_ref: Any) -> RecordModel:
@@ -187,9 +207,9 @@ class RecordModel:
         return dataclasses.replace(self, data=self.data.with_level(m_ref))
 
 
-def padded_shape(models: list[RecordModel]) -> tuple[int, int, int]:
-    """(H, N, M) that holds every model, rounded up (H to 4, N and M to 16) so that
-    chunks of similar records share one compiled solver."""
+def padded_shape(models: list[RecordModel]) -> tuple[int, int, int, int]:
+    """(H, N, M, S) that holds every model, rounded up (H and S to 4, N and M to 16) so
+    that chunks of similar records share one compiled solver."""
 
     def up(x: int, m: int) -> int:
         return -(-x // m) * m
@@ -197,4 +217,5 @@ def padded_shape(models: list[RecordModel]) -> tuple[int, int, int]:
     H = max(m.structure.n_holds for m in models)
     N = max(m.structure.n_bins for m in models)
     M = max(m.structure.n_moves for m in models)
-    return up(H, 4), up(N, 16), up(M, 16)
+    S = max(m.structure.n_systematic for m in models)
+    return up(H, 4), up(N, 16), up(M, 16), up(S, 4)

@@ -14,8 +14,14 @@ over the bin's samples of exp(−(t − t_last)/τ), the first-order lag weight 
 state at the end of the slew into the hold. That state is the exact discrete lag filter
 of the equilibrium along the slew's *measured* attitude, started from the lagged reading
 at the end of the previous hold (a scan over holds carries what had not settled).
-With an encoder degree L > 0 the angle error has a smooth systematic part repeated in
-every round, δₖ += Σₗ eₗ Pₗ(θₖ/θ_max) (l = 1…L; prior eₗ ~ N(0, 2″)).
+The angle error of hold k is δₖ + Σ_q Bₖq ζ_q: a random part δₖ of every hold and a
+**systematic part shared by all rounds**, the basis B (``data.angle_basis``, arcsec per
+unit ζ) holding one indicator column per commanded angle (the sensor's error at that
+angle, no shape assumed) and the angle-scale error (θₖ/θ_max), with priors from the
+platform's specification (:mod:`chekan.joint.angles`); the legacy ``--encoder-error``
+adds a smooth part, Σₗ eₗ Pₗ(θₖ/θ_max) (l = 1…3; prior eₗ ~ N(0, 2″)). The systematic
+part is not identified by the data (it repeats in every round): its uncertainty reaches b
+through the prior, as a GUM Type B component.
 
 The readings are linear in β = (c, d, o, δ, e): ȳ = f(θ) + A(θ)β, so β is marginalised
 in closed form through the normal equations (:mod:`inference.normal_eq`).
@@ -25,6 +31,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
 from chekan import model as fm
@@ -115,7 +122,7 @@ def apply_A(beta, G, s, structure: ModelStructure, data: RecordData):
     out = []
     for j in range(2):
         bj = beta[structure.beta_index(j)]
-        out.append(_local_columns(G, s[:, j], Q, data.enc_basis) @ bj)
+        out.append(_local_columns(G, s[:, j], Q, data.angle_basis) @ bj)
     return jnp.stack(out, axis=1)
 
 
@@ -132,7 +139,7 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     W = jnp.where(mask, 1.0 / nv, 0.0)
     r = jnp.where(mask, data.y - f, 0.0)
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
-    E = data.enc_basis
+    E = data.angle_basis
     nq, H, L = Q.shape[1], G.shape[1], E.shape[1]
     QQ, QG, QGs, GG, GGs, sGGs, bq, bo, bd = [], [], [], [], [], [], [], [], []
     for j in range(2):
@@ -182,18 +189,20 @@ def dense_design(G, s, structure: ModelStructure, data: RecordData) -> jax.Array
     N = G.shape[0]
     cols = []
     for j in range(2):
-        X = _local_columns(G, s[:, j], Q, data.enc_basis)
+        X = _local_columns(G, s[:, j], Q, data.angle_basis)
         A = jnp.zeros((N, structure.n_beta)).at[:, structure.beta_index(j)].add(X)
         cols.append(A)
     return jnp.stack(cols, axis=1)
 
 
-def beta_prior_var(h: dict, structure: ModelStructure) -> jax.Array:
-    """Prior variances of β given the hyperparameters (c: 1 pix², d: 4 pix², o: σ_o², δ: σ_θ²,
-    e: 4 arcsec²), in β's layout."""
+def beta_prior_var(h: dict, structure: ModelStructure, data: RecordData) -> jax.Array:
+    """Prior variances of β given the hyperparameters, in β's layout: c 1 pix², d 4 pix²,
+    o σ_o², δ σ_θ², and the shared angle-error terms (e, ζ) from ``data.angle_prior_var``
+    (legacy encoder: 4 arcsec²; systematic terms: the platform specification, Type B)."""
     pv = jnp.zeros(structure.n_beta)
     b = structure.beta_blocks
-    pv = pv.at[b["c"]].set(1.0).at[b["drift"]].set(4.0).at[b["encoder"]].set(4.0)
+    shared = np.concatenate([b["encoder"], b["angle_systematic"]])
+    pv = pv.at[b["c"]].set(1.0).at[b["drift"]].set(4.0).at[shared].set(data.angle_prior_var)
     pv = pv.at[b["hold_offset"]].set(h["sigma_hold_pix"] ** 2)
     return pv.at[b["angle_error"]].set(h["sigma_theta_arcsec"] ** 2)
 
@@ -221,7 +230,7 @@ def solve_beta(v: dict, h: dict, structure: ModelStructure, data: RecordData, ex
     """
     ne, pieces = normal_equations(v, h, structure, data)
     _, G, s, r, _, nv, _ = pieces
-    beta, L = posterior_beta_normal(ne, beta_prior_var(h, structure))
+    beta, L = posterior_beta_normal(ne, beta_prior_var(h, structure, data))
     # not sqrt(W): its derivative is infinite where W = 0 (masked bins), giving 0·∞ = NaN
     sqrt_w = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
     rw = sqrt_w * (r - apply_A(beta, G, s, structure, data))

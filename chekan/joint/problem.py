@@ -108,7 +108,7 @@ class CalibrationProblem:
         """log p(θ, h | y) up to a constant, β marginalised (12-dim z)."""
         v = self.bayes_space.to_values(z)
         ne, _ = normal_equations(v, v, self.structure, data)
-        ll = marginal_loglik_normal(ne, beta_prior_var(v, self.structure))
+        ll = marginal_loglik_normal(ne, beta_prior_var(v, self.structure, data))
         lp = self.bayes_space.log_prior(z) + ll
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
@@ -131,7 +131,7 @@ def problem_for(structure: ModelStructure) -> CalibrationProblem:
         """Projected whitened bin residuals and β̂'s prior rows."""
         data, h = args
         rw, beta, _ = solve_beta(v, h, structure, data)
-        return jnp.concatenate([rw, beta / jnp.sqrt(beta_prior_var(h, structure))])
+        return jnp.concatenate([rw, beta / jnp.sqrt(beta_prior_var(h, structure, data))])
 
     lsq = LeastSquaresProblem(theta_space, residuals)
     return CalibrationProblem(structure, theta_space, bayes_space, lsq)

@@ -1,0 +1,107 @@
+r"""The platform's angle sensors: what is known of their error, as the joint model uses it.
+
+An angle sensor's error is mostly **systematic**: a fixed function of the angle
+(graduation and interpolation errors, a scale error), the same in every round, plus a
+smaller random part. The model carries both:
+
+- the random part δₖ of every hold (prior N(0, σ_θ²), σ_θ a hyperparameter that the
+  rounds' scatter estimates: Type A);
+- the systematic part shared by all rounds, ζ_a at each commanded angle a (no shape
+  assumed) and the scale error ξ·θₖ/θ_max. These repeat in every round, so the data
+  cannot reveal them; their uncertainty reaches b through the prior (GUM Type B).
+
+**Prior from the specification.** The platform's specification bounds the sensor error by
+U (the paper: 3″). Read as a rectangular distribution on [−U, U], the standard
+uncertainty of the systematic error at any angle is u = U/√3 (GUM 4.3.7). It is split
+equally between the per-angle part and the scale part at the largest angle,
+ζ_a ~ N(0, u²/2) and ξ ~ N(0, u²/2), so that the systematic error at θ_max has standard
+uncertainty u. A scale error of the sensor acts on b one to one (b ∝ 1/θ²: δb/b = −2ξ/θ_max),
+which is why it is kept as its own term.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from chekan.errors import ChekanError
+from chekan.units import ARCSEC_PER_RAD
+
+DEFAULT_BOUND_ARCSEC = 3.0  # the paper: the platform reads its angles with an error ≤ 3″
+HEADER_KEY = "platform_angle_bound_arcsec"
+GROUP_ARCSEC = 30.0  # commanded angles closer than this are the same angle
+
+
+@dataclass(frozen=True)
+class AngleSensorSpec:
+    """The platform angle sensors' specification: bound U of the systematic error (arcsec,
+    read as a rectangular distribution) and the share of its variance given to the scale
+    error at the largest angle."""
+
+    bound_arcsec: float = DEFAULT_BOUND_ARCSEC
+    scale_share: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.bound_arcsec) and self.bound_arcsec >= 0):
+            raise ChekanError(f"angle-sensor bound must be ≥ 0 arcsec, got {self.bound_arcsec}")
+        if not 0.0 <= self.scale_share <= 1.0:
+            raise ChekanError(f"scale share must be in [0, 1], got {self.scale_share}")
+
+    @property
+    def u_arcsec(self) -> float:
+        """Standard uncertainty of the systematic error at θ_max: U/√3 (rectangular)."""
+        return self.bound_arcsec / math.sqrt(3.0)
+
+    @property
+    def per_angle_var(self) -> float:
+        """Prior variance of ζ_a, arcsec²."""
+        return self.u_arcsec**2 * (1.0 - self.scale_share)
+
+    @property
+    def scale_var(self) -> float:
+        """Prior variance of ξ (the scale error expressed at θ_max), arcsec²."""
+        return self.u_arcsec**2 * self.scale_share
+
+
+def spec_for(meta: dict, bound_arcsec: float | None, source: str = "record") -> AngleSensorSpec:
+    """The specification to use: ``bound_arcsec`` if given (CLI), else the header key
+    ``platform_angle_bound_arcsec``, else the paper's 3″."""
+    if bound_arcsec is not None:
+        return AngleSensorSpec(float(bound_arcsec))
+    raw = meta.get(HEADER_KEY)
+    if raw is None:
+        return AngleSensorSpec()
+    try:
+        value = float(raw)
+    except ValueError:
+        raise ChekanError(f"{source}: {HEADER_KEY}: not a number: {raw!r}") from None
+    try:
+        return AngleSensorSpec(value)
+    except ChekanError as e:
+        raise ChekanError(f"{source}: {HEADER_KEY}: {e}") from None
+
+
+def commanded_groups(theta_rad: np.ndarray) -> np.ndarray:
+    """Index of the commanded angle of every hold (signed angles about the program axis
+    within ``GROUP_ARCSEC`` are one angle; level is one angle too)."""
+    arcsec = np.asarray(theta_rad, dtype=float) * ARCSEC_PER_RAD
+    keys = np.round(arcsec / GROUP_ARCSEC).astype(np.int64)
+    _, inverse = np.unique(keys, return_inverse=True)
+    return inverse.reshape(-1)
+
+
+def systematic_basis(theta_rad: np.ndarray, spec: AngleSensorSpec) -> tuple[np.ndarray, np.ndarray]:
+    """The systematic angle-error basis (H, A + 1) and its prior variances (A + 1,):
+    an indicator column per commanded angle, then θₖ/θ_max (the scale error at θ_max)."""
+    theta = np.asarray(theta_rad, dtype=float)
+    group = commanded_groups(theta)
+    A = int(group.max()) + 1 if group.size else 0
+    ind = np.zeros((theta.size, A))
+    ind[np.arange(theta.size), group] = 1.0
+    tmax = max(float(np.max(np.abs(theta))) if theta.size else 0.0, 1e-9)
+    basis = np.concatenate([ind, (theta / tmax)[:, None]], axis=1)
+    var = np.concatenate([np.full(A, spec.per_angle_var), [spec.scale_var]])
+    # a zero bound: no systematic error (tiny variance keeps the normal equations regular)
+    return basis, np.maximum(var, 1e-12)
