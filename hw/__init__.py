@@ -11,7 +11,9 @@ Modules (one job each)::
     emulator     both devices on one device clock (physics from chekan.simulate)
     protocol_chekanemu   pyserial URL scheme ``chekanemu://sensor?session=NAME``
     journal      fsynced JSON-lines journal of a run
-    acquisition  the runner (record, journal, raw log, faults, reconnects, resume)
+    acquisition  the runner, a package: plan, summary, clock (seq → t_s), steps (the
+                 step machine), links (reconnects), recorder (record, journal, raw
+                 log), runner, start (acquire), resume
     cli          ``chekan emulate`` / ``chekan acquire`` sub-commands
 
 Protocol contract: ``shared/specs/serial-protocol.md``.

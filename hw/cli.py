@@ -192,6 +192,7 @@ def _on_sigterm(signum, frame) -> None:
 def cmd_acquire(args: argparse.Namespace) -> int:
     from chekan.program import default_program, load_program
     from hw.acquisition import Options, acquire, resume
+    from hw.errors import BadMetadata, PortsUnknown, RecordExists
     from hw.progress import StatusLine
 
     if not args.resume:  # a new record must not replace a measurement (or its program)
@@ -247,10 +248,20 @@ def cmd_acquire(args: argparse.Namespace) -> int:
                 progress=status,
                 report=None,
             )
+    except RecordExists as e:
+        raise ChekanError(
+            f"{e.path} exists: resume it (--resume) or choose another --out"
+        ) from None
+    except BadMetadata as e:
+        raise ChekanError(f"--meta: {e.problem}") from None
+    except PortsUnknown:
+        raise ChekanError(
+            "resume: the ports are not in the journal: give --sensor and --platform"
+        ) from None
     finally:
         if status is not None:
             status.done()
-    print(summary.format(), flush=True)
+    print(summary.format(), flush=True)  # the summary, once (the library does not print it)
     return summary.exit_code
 
 

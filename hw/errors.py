@@ -49,3 +49,32 @@ class GaveUp(HwError):
         super().__init__(
             f"{port}: gave up after {down_s:.1f} s without data ({attempts} reopen attempts{extra})"
         )
+
+
+class RunRefused(ChekanError):
+    """A run cannot start as asked: the request is at fault, not a device."""
+
+
+class RecordExists(RunRefused):
+    """The record (or its journal) of a new run already exists."""
+
+    def __init__(self, path: str):
+        self.path = path
+        super().__init__(f"{path} exists: resume that run or write the record elsewhere")
+
+
+class BadMetadata(RunRefused):
+    """User metadata for the record's header that the header cannot take."""
+
+    def __init__(self, problem: str):
+        self.problem = problem
+        super().__init__(f"record metadata: {problem}")
+
+
+class PortsUnknown(RunRefused):
+    """A resumed run whose journal does not say where the devices are."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            "resume: the ports are not in the journal: give the sensor and platform URLs"
+        )

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
+from chekan.durable import fsync_dir
 from chekan.errors import ChekanError
 
 
@@ -47,7 +48,7 @@ class Journal:
                 f"{self.path} is locked: another acquisition is writing this record"
             ) from None
         if new:
-            _fsync_dir(self.path)
+            fsync_dir(self.path)  # the new name survives a crash
         else:
             self._cut_torn_tail()
 
@@ -93,16 +94,3 @@ def read_journal(path: str | Path) -> list[dict]:
         if isinstance(ev, dict) and "event" in ev:
             events.append(ev)
     return events
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path.parent if str(path.parent) else ".", os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)

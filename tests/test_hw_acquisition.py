@@ -344,3 +344,25 @@ def test_command_line_emulate_and_acquire(tmp_path):
     assert emu.returncode == 0
     assert not sensor.exists()  # the emulator removed its symlinks
     check_record(rec)
+
+
+def test_summary_printed_once(tmp_path, capsys):
+    """Regression: ``chekan acquire`` (and the demo) printed the summary table twice."""
+    from hw.cli import main
+
+    prog = tmp_path / "short.toml"
+    prog.write_text(PROGRAM_TOML, encoding="utf-8")
+    handler = signal.getsignal(signal.SIGTERM)
+    try:
+        with InProcessEmulator("acq-print-once", speed=0, seed=8) as emu:
+            code = main(_acquire_cmd(emu, tmp_path / "rec.csv", prog)[3:])
+            out = capsys.readouterr().out
+            assert code == 0
+            assert out.count("acquisition completed (exit 0)") == 1
+            assert out.count("  steps      6/6 done") == 1
+            # the library itself prints nothing: its caller (CLI, demo) shows the summary
+            o = Options(sensor_url=emu.sensor_url, platform_url=emu.platform_url)
+            s = acquire(tmp_path / "b.csv", PROGRAM, o, g_local_mgal=981922.05)
+            assert s.exit_code == 0 and capsys.readouterr().out == ""
+    finally:
+        signal.signal(signal.SIGTERM, handler)

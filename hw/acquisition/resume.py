@@ -1,0 +1,166 @@
+"""Resume: where a killed or interrupted run stands (journal + record), and continuing it.
+
+Completed steps are kept; the first unfinished step is re-run from its ``TILT``
+(its partial rows stay); ``t_s`` continues strictly after the last complete row,
+through ``seq`` (the journal's last ``sync`` event keeps the ``seq`` ↔ ``t_s`` anchor).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from chekan.errors import ChekanError
+from chekan.records import Record, read_record
+from hw.acquisition.clock import Anchor
+from hw.acquisition.plan import Options, PlanStep
+from hw.acquisition.runner import Acquisition
+from hw.acquisition.summary import Summary
+from hw.errors import PortsUnknown
+from hw.journal import journal_path, read_journal
+from hw.nmea import SEQ_MOD
+from hw.progress import Progress
+
+
+@dataclass
+class ResumeState:
+    """What a resumed session continues from."""
+
+    first_step: int
+    done: set[int]
+    last_idx: int | None  # sample index of the last complete row
+    last_seq: int | None  # its seq
+    rate_hz: float
+    serial: str
+
+    @property
+    def anchor(self) -> Anchor:
+        """The sample clock's anchor: the record's last complete row."""
+        return Anchor(self.last_idx, self.last_seq)
+
+    def check_instrument(self, path: Path, serial: str, rate_hz: float) -> None:
+        """Refuse to continue the record with another sensor or another sample rate."""
+        if serial != self.serial:
+            raise ChekanError(
+                f"{path}: record of sensor {self.serial!r}, but the connected sensor is "
+                f"{serial!r}: not resuming"
+            )
+        if not math.isclose(rate_hz, self.rate_hz):
+            raise ChekanError(
+                f"{path}: record at {self.rate_hz:g} Hz, sensor now reports {rate_hz:g} Hz"
+            )
+
+
+def _step_complete_in_record(rec: Record, step: int, n: int, rate: float) -> bool:
+    """Whether the last contiguous run of ``step`` rows covers ``n`` sample periods."""
+    where = np.flatnonzero(rec.step == step)
+    if where.size == 0:
+        return False
+    breaks = np.flatnonzero(np.diff(where) != 1)
+    start = where[breaks[-1] + 1] if breaks.size else where[0]
+    stop = where[-1]
+    span = round((rec.t_s[stop] - rec.t_s[start]) * rate) + 1
+    return span >= n
+
+
+def resume_state(
+    record_path: str | Path,
+) -> tuple[ResumeState | None, dict[str, Any], list[PlanStep], dict[str, Any]]:
+    """Read journal + record: ``(state or None if complete, run_start event, plan, last sync)``."""
+    path = Path(record_path)
+    jp = journal_path(path)
+    if not jp.exists():
+        raise ChekanError(f"{jp}: no journal: nothing to resume (start a new run instead)")
+    events = read_journal(jp)
+    start = next((e for e in events if e["event"] == "run_start"), None)
+    if start is None:
+        raise ChekanError(f"{jp}: the run never started recording: start a new run instead")
+    plan = [PlanStep.from_json(d) for d in start["plan"]]
+    rate = float(start["rate_hz"])
+    done = {int(e["step"]) for e in events if e["event"] == "step_done"}
+    stops = [e for e in events if e["event"] == "run_stop"]
+    if stops and stops[-1].get("status") == "completed" and len(done) >= len(plan):
+        return None, start, plan, {}  # complete and levelled: nothing to do
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = read_record(path)
+    first = next((st for st in plan if st.index not in done), None)
+    if first is not None and _step_complete_in_record(  # rows complete, step_done not journaled
+        rec, first.index, first.dwell_samples(rate), rate
+    ):
+        done.add(first.index)
+    pending = [st.index for st in plan if st.index not in done]
+    syncs = [e for e in events if e["event"] == "sync"]
+    last_idx = last_seq = None
+    if rec.n and syncs:
+        ref = syncs[-1]
+        last_idx = round(float(rec.t_s[-1]) * rate)
+        ref_idx = round(float(ref["t_ref"]) * rate)
+        last_seq = (int(ref["seq_ref"]) + last_idx - ref_idx) % SEQ_MOD
+    elif rec.n:
+        last_idx = round(float(rec.t_s[-1]) * rate)
+    state = ResumeState(  # all steps done but never stopped cleanly: it only levels
+        first_step=pending[0] if pending else len(plan),
+        done=done,
+        last_idx=last_idx,
+        last_seq=last_seq,
+        rate_hz=rate,
+        serial=str(start["sensor"]["serial"]),
+    )
+    return state, start, plan, syncs[-1] if syncs else {}
+
+
+def resume(
+    record_path: str | Path,
+    *,
+    sensor_url: str | None = None,
+    platform_url: str | None = None,
+    options: Options | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: Callable[[Progress], None] | None = None,
+    report: Callable[[str], None] | None = None,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> Summary:
+    """Continue a killed or interrupted run of ``record_path`` (see the module docstring).
+
+    Ports and options come from the journal unless given (``overrides``: Options fields;
+    ``options`` is not changed). ``report`` receives the summary text at the end.
+    """
+    state, start, plan, _ = resume_state(record_path)
+    if state is None:
+        s = Summary(status="completed", n_steps=len(plan), steps_done=len(plan))
+        s.message = "nothing to resume: the run is complete"
+        if report is not None:
+            report(s.message)
+        return s
+    base = options or Options.from_json(start.get("options", {}))
+    opts = Options.from_json(base.to_json())  # a copy: the caller's options stay as they are
+    for k, v in (overrides or {}).items():
+        if v is not None:
+            setattr(opts, k, v)
+    if sensor_url:
+        opts.sensor_url = sensor_url
+    if platform_url:
+        opts.platform_url = platform_url
+    if not opts.sensor_url or not opts.platform_url:
+        raise PortsUnknown()
+    acq = Acquisition(
+        record_path,
+        plan,
+        opts,
+        program_name=str(start.get("program", "custom")),
+        resume_state=state,
+        progress=progress,
+        report=report,
+        clock=clock,
+        sleep=sleep,
+    )
+    return acq.run()
