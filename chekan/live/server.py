@@ -40,7 +40,9 @@ def parse_address(text: str) -> tuple[str, int]:
     try:
         p = int(port)
     except ValueError:
-        raise ChekanError(f"--live {text!r}: expected [HOST:]PORT, e.g. 8050 or 0.0.0.0:8050")
+        raise ChekanError(
+            f"--live {text!r}: expected [HOST:]PORT, e.g. 8050 or 0.0.0.0:8050"
+        ) from None
     if not 0 <= p <= 65535:
         raise ChekanError(f"--live {text!r}: port must be 0…65535")
     return host, p
@@ -69,7 +71,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.end_headers()
         self.wfile.write(body)
 
-    def do_GET(self):  # noqa: N802 (http.server's name)
+    def do_GET(self):
         url = urlparse(self.path)
         st = self.server.state
         try:

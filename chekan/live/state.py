@@ -268,7 +268,7 @@ class LiveState:
             phase, done_n = "done", need
         elif self.hold is not None and t_last is not None:
             phase = "dwell"
-            done_n = min(need, int(round((t_last - float(self.hold["t_s"])) * self.rate)) + 1)
+            done_n = min(need, round((t_last - float(self.hold["t_s"])) * self.rate) + 1)
         moving_s = None
         if phase == "moving" and t_last is not None and cur.get("t_s") is not None:
             moving_s = t_last - float(cur["t_s"])
