@@ -89,7 +89,7 @@ class LiveState:
         self.sensor_status = "OK"
         self.hold_trouble: dict[int, list[str]] = {}
         self.classical: dict | None = None
-        self._pairs_seen = -1
+        self._done_seen: set[int] = set()
         self._rounds_sent = 0
         self.expected: dict | None = None
         if self.program is not None:
@@ -224,16 +224,15 @@ class LiveState:
         if not self.n or "g_local_mgal" not in meta:
             return
         done = self.complete_steps()
-        if not done:
-            return
+        if not done or done == self._done_seen:
+            return  # the classical fit changes only when a step completes
+        self._done_seen = set(done)
         rec = calib.partial_record(meta, self.cols(), done)
         snap = calib.classical_snapshot(rec)
         if snap is None:
             return
-        if snap["pairs"] != self._pairs_seen:
-            self._pairs_seen = snap["pairs"]
-            with self.lock:
-                self.classical = snap
+        with self.lock:
+            self.classical = snap
         if snap["rounds_complete"] > self._rounds_sent:
             self._rounds_sent = snap["rounds_complete"]
             self.map.submit(self._rounds_sent, rec)
