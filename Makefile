@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO := demo
 
-.PHONY: venv demo test lint bench clean
+.PHONY: venv browser demo test lint bench clean
 
 $(BIN)/chekan: pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) (set PY=python3)"; exit 1; }
@@ -13,7 +13,15 @@ $(BIN)/chekan: pyproject.toml
 	$(BIN)/pip install -q -e ".[dev,report,dask]"
 	@touch $@
 
-venv: $(BIN)/chekan
+venv: $(BIN)/chekan browser
+
+# Debian's chromium for the live page's end-to-end test (playwright drives it; it never
+# downloads a browser). Needs root or sudo; without it the test is skipped with the reason.
+browser:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq chromium; \
+	  elif sudo -n true 2>/dev/null; then sudo -n apt-get update -qq && sudo -n apt-get install -y -qq chromium; \
+	  else echo "browser: no chromium and no root (or password-less sudo): the live-page browser test will be skipped"; fi; }
 
 demo: venv
 	$(BIN)/chekan demo --out $(DEMO) --quick

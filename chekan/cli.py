@@ -228,6 +228,9 @@ def _add_optional(sub) -> None:
     from chekan.report import add_report_parser
 
     add_report_parser(sub)
+    from chekan.live import add_live_parser
+
+    add_live_parser(sub)
     try:
         from chekan.archive import cli as archive_cli
     except ImportError:  # the archive package is optional until it lands

@@ -167,6 +167,12 @@ def add_acquire_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--give-up-s", type=float, help="time without data before giving up (120)")
     p.add_argument("--reply-timeout-s", type=float, help="wait for a reply to a query (2)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    p.add_argument(
+        "--live",
+        metavar="[HOST:]PORT",
+        help="serve a live page of the run (default host 127.0.0.1; port 0: any free port, "
+        "printed); a separate process that only reads the record and journal",
+    )
     p.set_defaults(func=cmd_acquire)
     return p
 
@@ -187,6 +193,20 @@ class _Terminate(KeyboardInterrupt):
 
 def _on_sigterm(signum, frame) -> None:
     raise _Terminate()
+
+
+def _start_live(args: argparse.Namespace, record) -> None:
+    """``--live``: the page in its own process (chekan.live); whatever happens to it, the
+    acquisition goes on."""
+    if not getattr(args, "live", None):
+        return
+    try:
+        from chekan.live import start_beside
+
+        _proc, line = start_beside(record, args.live)
+    except Exception as e:  # the run matters more than its page
+        line = f"the live page did not start: {type(e).__name__}: {e}"
+    print(line, flush=True)
 
 
 def cmd_acquire(args: argparse.Namespace) -> int:
@@ -217,6 +237,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
             ]
             if ignored:
                 print(f"resume: {', '.join(ignored)} ignored (taken from the record's journal)")
+            _start_live(args, rec)
             summary = resume(
                 rec,
                 sensor_url=args.sensor,
@@ -239,6 +260,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
                 if v is not None:
                     setattr(opts, k, v)
             print(f"program {program.describe()}", flush=True)
+            _start_live(args, args.out)
             summary = acquire(
                 args.out,
                 program,

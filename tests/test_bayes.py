@@ -65,7 +65,9 @@ def test_normal_equations_equal_dense_marginal(short_session, encoder):
     ).reshape(-1)
     A2 = np.asarray(A).reshape(-1, A.shape[-1])
     r = np.where(np.asarray(data.mask), np.asarray(data.y - f), 0).reshape(-1)
-    lhs = A2.T @ (W[:, None] * A2) + np.diag(1 / np.asarray(cm.beta_prior_var(v, model.structure, data)))
+    lhs = A2.T @ (W[:, None] * A2) + np.diag(
+        1 / np.asarray(cm.beta_prior_var(v, model.structure, data))
+    )
     np.testing.assert_allclose(lhs @ np.asarray(beta), A2.T @ (W * r), rtol=1e-8, atol=1e-8)
 
 

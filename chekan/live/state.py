@@ -1,0 +1,422 @@
+"""What the live page shows, built from the files an acquisition writes.
+
+:class:`LiveState` follows the record, its journal and its raw log
+(:mod:`chekan.live.follow`), keeps the rows so far, and derives from them the current
+step and its dwell, the time left, link health, alarms and the running calibration
+(:mod:`chekan.live.calib`). :meth:`LiveState.update` is cheap when nothing changed and is
+called from one thread; readers take :meth:`status` and :meth:`rows_since`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from chekan.live import calib
+from chekan.live.follow import COLUMNS, JournalFollower, RawLogFollower, RecordFollower
+
+STALL_S = 20.0  # wall seconds without a new row (run not stopped) before the stall alarm
+CCD_MARGIN = 0.05  # fraction of the CCD range near either end that raises the alarm
+MOVE_ALARM_S = 180.0  # sample-clock seconds a step may wait for HOLD before the alarm
+
+_PLOT = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec")
+_DEC = {"t_s": 3, "m1_pix": 4, "m2_pix": 4, "tilt_x_arcsec": 2, "tilt_y_arcsec": 2}
+
+
+def _jsonable(a: np.ndarray, decimals: int) -> list:
+    r = np.round(a, decimals)
+    return [None if v != v else v for v in r.tolist()]  # NaN → null
+
+
+class LiveState:
+    def __init__(
+        self,
+        record_path: str | Path,
+        *,
+        map_runner: calib.MapRunner | None = None,
+        clock=time.monotonic,
+        stall_s: float = STALL_S,
+        program=None,
+    ):
+        self.path = Path(record_path)
+        self.record = RecordFollower(self.path)
+        self.journal = JournalFollower(f"{self.path}.journal.jsonl")
+        self.raw = RawLogFollower(f"{self.path}.raw.log")
+        self.map = map_runner if map_runner is not None else calib.MapRunner()
+        self._clock = clock
+        self.stall_s = stall_s
+        self.lock = threading.Lock()
+        self.changed = threading.Condition(self.lock)
+        self.version = 0
+        self.program = program
+        self._reset()
+
+    def quiet_s(self) -> float:
+        """Wall seconds since the record last grew."""
+        return self._clock() - self.last_growth
+
+    def _reset(self) -> None:
+        self._chunks: list[dict[str, np.ndarray]] = []
+        self._cols: dict[str, np.ndarray] = {c: np.zeros(0) for c in COLUMNS}
+        self.n = 0
+        self.events: list[dict] = []
+        self.plan: list[dict] = []
+        self.rate = 1.0
+        self.run_start: dict | None = None
+        self.run_stop: dict | None = None
+        self.current: dict | None = None  # last step_start
+        self.hold: dict | None = None  # hold event of the current step
+        self.done_steps: set[int] = set()
+        self.runs: list[list] = []  # [t0, t1, step] of the step column's runs
+        self.gaps = 0
+        self.lost = 0
+        self.health = {
+            "reconnects": {},
+            "link_lost": {},
+            "faults": 0,
+            "hold_lost": 0,
+            "hold_timeouts": 0,
+            "reply_timeouts": 0,
+            "sat_episodes": 0,
+            "therm_episodes": 0,
+        }
+        self.link_down: dict[str, str] = {}
+        self.sensor_status = "OK"
+        self.hold_trouble: dict[int, list[str]] = {}
+        self.classical: dict | None = None
+        self._done_seen: set[int] = set()
+        self._rounds_sent = 0
+        self.expected: dict | None = None
+        if self.program is not None:
+            self.expected = calib.expected_sd(self.program)
+        self.last_growth = self._clock()
+        self.started_mono = self._clock()
+
+    # ------------------------------------------------------------------ updating
+    def update(self) -> bool:
+        """Read what is new in the files; True if anything the page shows changed."""
+        changed = False
+        new = self.record.poll()
+        if new is not None and "reset" in new:
+            with self.lock:
+                self._reset()
+            return True
+        evs = self.journal.poll()
+        if self.raw.poll():
+            changed = True
+        if new is not None:
+            self._add_rows(new)
+            self.last_growth = self._clock()
+            changed = True
+        for ev in evs:
+            self._on_event(ev)
+            changed = True
+        if self.map.poll():
+            changed = True
+        if changed:
+            self._recalibrate()
+        with self.changed:
+            self.version += 1 if changed else 0
+            self.changed.notify_all()
+        return changed
+
+    def _add_rows(self, new: dict[str, np.ndarray]) -> None:
+        t = new["t_s"]
+        prev = self._cols["t_s"][-1] if self.n else None
+        tt = t if prev is None else np.concatenate([[prev], t])
+        d = np.diff(tt) * self.rate
+        jumps = d > 1.5
+        self.gaps += int(jumps.sum())
+        self.lost += int(np.round(d[jumps]).sum() - jumps.sum())
+        step = new["step"]
+        for i in range(len(t)):
+            s = step[i]
+            s = int(s) if s == s else -1
+            if self.runs and self.runs[-1][2] == s:
+                self.runs[-1][1] = float(t[i])
+            else:
+                self.runs.append([float(t[i]), float(t[i]), s])
+        with self.lock:
+            self._cols = {c: np.concatenate([self._cols[c], new[c]]) for c in COLUMNS}
+            self.n = len(self._cols["t_s"])
+
+    def _on_event(self, ev: dict) -> None:
+        if ev.get("event") == "_reset":
+            return
+        self.events.append(ev)
+        kind = ev["event"]
+        h = self.health
+        if kind == "run_start":
+            self.run_start = ev
+            self.plan = list(ev.get("plan") or [])
+            self.rate = float(ev.get("rate_hz") or 1.0)
+            self.run_stop = None
+            if self.plan and self.expected is None:
+                prog = calib.program_from_plan(self.plan, ev.get("program") or "recorded")
+                self.expected = calib.expected_sd(prog)
+        elif kind == "resume":
+            self.run_stop = None
+        elif kind == "step_start":
+            self.current, self.hold = ev, None
+        elif kind == "hold":
+            self.hold = ev
+        elif kind == "step_done":
+            self.done_steps.add(int(ev["step"]))
+        elif kind == "hold_lost":
+            h["hold_lost"] += 1
+            self.hold = None
+            self._trouble(ev, f"hold lost ({ev.get('state')})")
+        elif kind == "hold_timeout":
+            h["hold_timeouts"] += 1
+            self._trouble(ev, "no HOLD within the hold timeout")
+        elif kind == "fault":
+            h["faults"] += 1
+            self._trouble(ev, "platform FAULT")
+        elif kind == "link_lost":
+            p = ev.get("port", "?")
+            h["link_lost"][p] = h["link_lost"].get(p, 0) + 1
+            self.link_down[p] = str(ev.get("reason", ""))
+        elif kind == "reconnect":
+            p = ev.get("port", "?")
+            h["reconnects"][p] = h["reconnects"].get(p, 0) + 1
+            self.link_down.pop(p, None)
+        elif kind == "reply_timeout":
+            h["reply_timeouts"] += 1
+        elif kind == "sensor_status":
+            st = ev.get("status") or "OK"
+            if st == "THERM":
+                h["therm_episodes"] += 1
+            elif st == "SAT":
+                h["sat_episodes"] += 1
+            self.sensor_status = st
+        elif kind == "run_stop":
+            self.run_stop = ev
+
+    def _trouble(self, ev: dict, what: str) -> None:
+        step = ev.get("step")
+        if step is not None:
+            t = ev.get("t_s")
+            at = f" at t = {t:.0f} s" if isinstance(t, int | float) else ""
+            self.hold_trouble.setdefault(int(step), []).append(what + at)
+
+    def complete_steps(self) -> set[int]:
+        """Steps whose dwell is complete: journalled ``step_done``, or (no journal) a run of
+        the step column that a later row closed, or a finished run's last one."""
+        if self.run_start is not None:
+            return set(self.done_steps)
+        done = {r[2] for r in self.runs[:-1] if r[2] >= 0}
+        if self.runs and self.runs[-1][2] >= 0:
+            dwell = float(self.record.meta.get("program_dwell_s", "nan") or "nan")
+            last = self.runs[-1]
+            if last[1] - last[0] + 1.0 / self.rate >= dwell - 1e-9 or (
+                self._clock() - self.last_growth > self.stall_s
+            ):
+                done.add(last[2])
+        return done
+
+    def _recalibrate(self) -> None:
+        meta = self.record.meta
+        if not self.n or "g_local_mgal" not in meta:
+            return
+        done = self.complete_steps()
+        if not done or done == self._done_seen:
+            return  # the classical fit changes only when a step completes
+        self._done_seen = set(done)
+        rec = calib.partial_record(meta, self.cols(), done)
+        snap = calib.classical_snapshot(rec)
+        if snap is None:
+            return
+        with self.lock:
+            self.classical = snap
+        if snap["rounds_complete"] > self._rounds_sent:
+            self._rounds_sent = snap["rounds_complete"]
+            self.map.submit(self._rounds_sent, rec)
+
+    # ------------------------------------------------------------------ reading
+    def cols(self) -> dict[str, np.ndarray]:
+        with self.lock:
+            return dict(self._cols)
+
+    def rows_since(self, start: int) -> dict:
+        """Plot columns of rows ``start…`` (JSON-able; NaN as null)."""
+        with self.lock:
+            cols = {c: self._cols[c][start:] for c in _PLOT}
+            n = self.n
+        out = {c: _jsonable(v, _DEC[c]) for c, v in cols.items()}
+        out["start"] = start
+        out["n"] = n
+        return out
+
+    def _step_info(self) -> dict | None:
+        t_last = float(self._cols["t_s"][-1]) if self.n else None
+        cur = self.current
+        if cur is None:
+            if not self.runs:
+                return None
+            r = self.runs[-1]
+            return {"index": r[2] if r[2] >= 0 else None, "phase": "moving" if r[2] < 0 else "hold"}
+        idx = int(cur["step"])
+        phase = "moving"
+        done_n, need = 0, int(cur.get("dwell_samples") or 0)
+        if idx in self.done_steps:
+            phase, done_n = "done", need
+        elif self.hold is not None and t_last is not None:
+            phase = "dwell"
+            done_n = min(need, round((t_last - float(self.hold["t_s"])) * self.rate) + 1)
+        moving_s = None
+        if phase == "moving" and t_last is not None and cur.get("t_s") is not None:
+            moving_s = t_last - float(cur["t_s"])
+        return {
+            "index": idx,
+            "round": cur.get("round"),
+            "kind": cur.get("kind"),
+            "label": cur.get("label"),
+            "phase": phase,
+            "dwell_done": done_n,
+            "dwell_samples": need,
+            "progress": done_n / need if need else None,
+            "moving_s": moving_s,
+        }
+
+    def _remaining_s(self, step: dict | None) -> float | None:
+        if not self.plan:
+            return None
+        if self.run_stop is not None:
+            return 0.0
+        left = 0.0
+        cur = step["index"] if step else None
+        for s in self.plan:
+            i = int(s["index"])
+            if i in self.done_steps:
+                continue
+            if i == cur and step and step["phase"] == "dwell":
+                left += (step["dwell_samples"] - step["dwell_done"]) / self.rate
+            else:
+                left += float(s["dwell_s"])
+        return left
+
+    def _dropped(self) -> dict:
+        if self.run_stop is not None:
+            summ = self.run_stop.get("summary") or {}
+            d = summ.get("dropped") or {}
+            return {p: {k: v for k, v in c.items() if v} for p, c in d.items()}
+        return self.raw.dropped()
+
+    def alarms(self, step: dict | None) -> list[dict]:
+        out: list[dict] = []
+        running = self.run_stop is None and self.run_start is not None
+        quiet = self._clock() - self.last_growth
+        if running and self.n and quiet > self.stall_s:
+            out.append({"level": "alarm", "text": f"link stalled: no new sample for {quiet:.0f} s"})
+        for p, why in self.link_down.items():
+            if running:
+                out.append({"level": "alarm", "text": f"{p} link down: {why}"})
+        if step and step.get("index") is not None:
+            i = step["index"]
+            trouble = self.hold_trouble.get(i, [])
+            ms = step.get("moving_s")
+            if ms is not None and ms > MOVE_ALARM_S and running:
+                trouble = [*trouble, f"no HOLD after {ms:.0f} s of sample clock"]
+            if trouble and running and step["phase"] != "done":
+                out.append(
+                    {"level": "alarm", "text": f"step {i} cannot hold: " + "; ".join(trouble[-3:])}
+                )
+        if self.sensor_status == "THERM" and running:
+            out.append({"level": "alarm", "text": "thermostat out of regulation (THERM flag)"})
+        elif self.health["therm_episodes"]:
+            n = self.health["therm_episodes"]
+            out.append({"level": "warn", "text": f"{n} THERM episode(s): samples flagged"})
+        if self.sensor_status == "SAT" and running:
+            out.append({"level": "alarm", "text": "an image is off the CCD (SAT)"})
+        if self.n:
+            lo, hi = self._ccd_range()
+            span = hi - lo
+            for j, c in enumerate(("m1_pix", "m2_pix")):
+                v = self._cols[c][-50:]
+                v = v[np.isfinite(v)]
+                if v.size == 0:
+                    continue
+                last = float(v[-1])
+                if last < lo + CCD_MARGIN * span or last > hi - CCD_MARGIN * span:
+                    out.append(
+                        {
+                            "level": "alarm",
+                            "text": f"system {j + 1} reading {last:.1f} pix near the CCD end "
+                            f"(usable {lo:g}…{hi:g})",
+                        }
+                    )
+        if self.run_stop is not None and self.run_stop.get("exit_code"):
+            out.append(
+                {
+                    "level": "alarm",
+                    "text": f"run {self.run_stop.get('status')}: {self.run_stop.get('message')}",
+                }
+            )
+        for e in self.map.errors[-2:]:
+            out.append({"level": "warn", "text": f"running MAP failed: {e}"})
+        return out
+
+    def _ccd_range(self) -> tuple[float, float]:
+        parts = self.record.meta.get("ccd_range_pix", "0 2048").replace(",", " ").split()
+        try:
+            lo, hi = (float(p) for p in parts)
+            if math.isfinite(lo) and math.isfinite(hi) and lo < hi:
+                return lo, hi
+        except ValueError:
+            pass
+        return 0.0, 2048.0
+
+    def status(self) -> dict:
+        step = self._step_info()
+        meta = self.record.meta
+        if self.run_stop is not None:
+            state = self.run_stop.get("status", "stopped")
+        elif self.run_start is None and not self.n:
+            state = "waiting for the record"
+        elif self.run_start is None:
+            state = "record (no journal)"
+        else:
+            state = "running"
+        h = dict(self.health)
+        h["gaps"], h["lost_samples"] = self.gaps, self.lost
+        h["dropped"] = self._dropped()
+        h["bad_rows"] = self.record.bad_rows
+        h["link_down"] = dict(self.link_down)
+        rstop = (self.run_stop or {}).get("summary") or {}
+        if rstop:
+            h["gaps"], h["lost_samples"] = (
+                rstop.get("gaps", self.gaps),
+                rstop.get("lost_samples", self.lost),
+            )
+        return {
+            "record": str(self.path),
+            "meta": {
+                k: meta.get(k)
+                for k in ("serial", "program", "started", "g_local_mgal", "ccd_range_pix", "site")
+            },
+            "state": state,
+            "n": self.n,
+            "t_s": float(self._cols["t_s"][-1]) if self.n else None,
+            "rate_hz": self.rate,
+            "n_steps": len(self.plan) or None,
+            "steps_done": len(self.done_steps) if self.run_start else None,
+            "step": step,
+            "remaining_s": self._remaining_s(step),
+            "holds": [r for r in self.runs if r[2] >= 0],
+            "plan": [
+                {"index": s["index"], "kind": s["kind"], "label": s["label"]} for s in self.plan
+            ],
+            "health": h,
+            "alarms": self.alarms(step),
+            "classical": self.classical,
+            "map": list(self.map.results),
+            "map_busy_round": self.map.busy_round,
+            "expected_sd": self.expected,
+            "quiet_s": round(self._clock() - self.last_growth, 1),
+            "pid": os.getpid(),
+        }

@@ -1,0 +1,392 @@
+"""The live page (chekan.live): file followers, running calibration, crash isolation, browser."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from chekan.live import calib
+from chekan.live.follow import JournalFollower, RawLogFollower, RecordFollower
+from chekan.live.state import LiveState
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = "/usr/bin/chromium"
+HEADER = "# format: chekan-record/1\n# serial: 46\n# g_local_mgal: 981922.05\n"
+COLS = "t_s,m1_pix,m2_pix,tilt_x_arcsec,tilt_y_arcsec,step,temp_c\n"
+SHORT_TOML = """name = "live-e2e"
+angles = ["3°10'", "5°10'"]
+axis = "y"
+dwell_s = 90
+settle_s = 45
+rounds = 2
+"""
+
+
+# ----------------------------------------------------------------------------- followers
+
+
+def test_record_follower_torn_line_and_growing_file(tmp_path):
+    p = tmp_path / "rec.csv"
+    f = RecordFollower(p)
+    assert f.poll() is None  # not there yet
+    p.write_text(HEADER + COLS + "0,1000.5,990.25,0.1,-0.2,0,45.0\n1,1000.6,9")  # torn
+    rows = f.poll()
+    assert rows["t_s"].tolist() == [0.0]
+    assert f.meta["serial"] == "46" and f.pending == b"1,1000.6,9"
+    assert f.poll() is None  # nothing new: the torn line stays aside
+    with open(p, "a") as fh:
+        fh.write("90.5,0.1,-0.2,,45.0\n2,1000.7,990.7,0.1,-0.2,1,\n")
+    rows = f.poll()
+    assert rows["t_s"].tolist() == [1.0, 2.0]
+    assert rows["m2_pix"][0] == pytest.approx(990.5)
+    assert np.isnan(rows["step"][0]) and rows["step"][1] == 1 and np.isnan(rows["temp_c"][1])
+    with open(p, "a") as fh:
+        fh.write("3,1,2,3\n4,x,1,1,1,1,1\n5,1,1,1,1,1,1\n")  # two malformed rows are skipped
+    assert f.poll()["t_s"].tolist() == [5.0] and f.bad_rows == 2
+    p.write_text(HEADER + COLS + "0,1,1,1,1,0,1\n")  # replaced by a shorter file
+    assert "reset" in f.poll()
+    assert f.poll()["t_s"].tolist() == [0.0]
+
+
+def test_record_follower_columns_in_any_order_without_temp(tmp_path):
+    p = tmp_path / "rec.csv"
+    p.write_text(HEADER + "step,t_s,m2_pix,m1_pix,tilt_y_arcsec,tilt_x_arcsec\n3,7,2,1,5,4\n")
+    rows = RecordFollower(p).poll()
+    assert [rows[c][0] for c in ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "step")] == [
+        7,
+        1,
+        2,
+        4,
+        3,
+    ]
+    assert np.isnan(rows["temp_c"][0])
+
+
+def test_journal_and_raw_log_followers(tmp_path):
+    j = tmp_path / "rec.csv.journal.jsonl"
+    j.write_text('{"event": "run_start", "utc": "x"}\n{"event": "ste')
+    f = JournalFollower(j)
+    assert [e["event"] for e in f.poll()] == ["run_start"]
+    with open(j, "a") as fh:
+        fh.write('p_done", "step": 0}\n')
+    assert f.poll() == [{"event": "step_done", "step": 0}]
+
+    from hw.nmea import encode
+
+    good = encode("GRV", 1, "1000.1", "990.2", "45.0", "OK").decode().strip()
+    raw = tmp_path / "rec.csv.raw.log"
+    raw.write_text(
+        f"sensor< {good}\nsensor< $GRV,2,1,2,45,OK*00\nsensor< noise\\x01\n"
+        "platform> $PLQ,LEVEL*5A\nplatform< $PLT,1,0,0,HOLD*00\n"
+    )
+    r = RawLogFollower(raw)
+    assert r.poll()
+    d = r.dropped()
+    assert d["sensor"]["bad_checksum"] == 1 and d["platform"]["bad_checksum"] == 1
+    assert d["sensor"].get("garbage_bytes", 0) > 0
+
+
+# ----------------------------------------------------------------------------- calibration
+
+
+class _FakeRunner(calib.MapRunner):
+    def __init__(self):
+        super().__init__()
+        self.submitted: list[tuple[int, int]] = []
+
+    def submit(self, round_no, record):
+        self.submitted.append((round_no, record.n))
+
+
+def _write_in_chunks(src: bytes, dst: Path, state: LiveState, n_chunks: int):
+    """Grow ``dst`` from ``src`` in pieces cut anywhere (torn lines included)."""
+    cuts = np.linspace(0, len(src), n_chunks + 1).astype(int)
+    snaps = []
+    for a, b in itertools.pairwise(cuts):
+        with open(dst, "ab") as fh:
+            fh.write(src[a:b])
+        state.update()
+        snaps.append(state.classical)
+    return snaps
+
+
+def test_running_classical_converges_and_map_is_asked_per_round(short_session, tmp_path):
+    path, rec, _ = short_session
+    dst = tmp_path / "growing.csv"
+    runner = _FakeRunner()
+    st = LiveState(dst, map_runner=runner)
+    snaps = _write_in_chunks(path.read_bytes(), dst, st, 60)
+    assert st.n == rec.n
+    pairs = [s["pairs"] for s in snaps if s]
+    assert pairs[0] >= 1 and pairs == sorted(pairs)  # one more pair at a time, never fewer
+    final = snaps[-1]
+    assert final["pairs"] == 16 and final["rounds_complete"] == 2
+    # the last snapshot is the classical method on the whole record
+    from chekan.classical import calibrate_record
+    from chekan.records import read_record
+
+    cres, _ = calibrate_record(read_record(path))
+    np.testing.assert_allclose(final["b_mean"], cres.b_mean, rtol=1e-12)
+    assert final["a"] == pytest.approx(cres.a)
+    assert np.array(final["delta_g_mgal"]).shape == (2, 2, 8)
+    # one MAP per completed round, on the rows up to that round's closing level hold
+    assert [r for r, _ in runner.submitted] == [1, 2]
+    assert runner.submitted[0][1] < runner.submitted[1][1] <= rec.n
+    s = st.status()
+    assert s["state"] == "record (no journal)" and s["holds"] and not s["alarms"]
+
+
+def test_partial_record_keeps_only_completed_steps(short_session):
+    _, rec, _ = short_session
+    cols = {c: getattr(rec, c) for c in ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec")}
+    cols |= {"tilt_y_arcsec": rec.tilt_y_arcsec, "step": rec.step.astype(float), "temp_c": None}
+    part = calib.partial_record(rec.meta, cols, {0, 1, 2})
+    assert set(np.unique(part.step)) == {-1, 0, 1, 2}
+    assert calib.classical_snapshot(part)["pairs"] == 1
+    assert calib.classical_snapshot(calib.partial_record(rec.meta, cols, {0, 1})) is None
+
+
+def test_expected_sd_from_the_journal_plan_matches_chekan_design(short_program):
+    from chekan.design import expected_precision
+    from hw.acquisition import plan_from_program
+
+    plan = [vars(s) for s in plan_from_program(short_program)]
+    prog = calib.program_from_plan(plan)
+    assert prog.axis == short_program.axis and len(prog.angles_rad) == 8
+    got = calib.expected_sd(prog)
+    want = expected_precision(short_program).sd
+    for k in ("b1", "b2", "a"):
+        assert got[k] == pytest.approx(want[k], rel=1e-3)  # the plan's angles are arcsec
+
+
+def test_map_runner_reports_a_failing_job_and_goes_on():
+    r = calib.MapRunner(job=_boom)
+    try:
+        r.submit(1, None)
+        deadline = time.monotonic() + 60
+        while not r.poll() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert r.errors and "boom 1" in r.errors[0] and r.busy_round is None
+    finally:
+        r.close()
+
+
+def _boom(record, round_no):  # module level: the worker process imports it
+    raise RuntimeError(f"boom {round_no}")
+
+
+def test_update_errors_do_not_stop_the_page(tmp_path):
+    from chekan.live.server import LiveServer
+
+    st = LiveState(tmp_path / "rec.csv", map_runner=_FakeRunner())
+    calls = []
+
+    def broken():
+        calls.append(1)
+        raise ValueError("injected")
+
+    st.update = broken
+    srv = LiveServer(("127.0.0.1", 0), st)
+    import threading
+
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    t = threading.Thread(target=srv.follow, kwargs={"poll_s": 0.01}, daemon=True)
+    t.start()
+    time.sleep(0.3)
+    try:
+        assert len(calls) > 3 and t.is_alive()
+        with urllib.request.urlopen(srv.url + "api/status", timeout=5) as resp:
+            assert json.load(resp)["state"] == "waiting for the record"
+        with urllib.request.urlopen(srv.url, timeout=5) as resp:
+            assert b"uPlot" in resp.read()
+    finally:
+        srv.stop()
+        srv.server_close()
+
+
+def test_bad_live_address_is_refused():
+    from chekan.errors import ChekanError
+    from chekan.live.server import parse_address
+
+    assert parse_address("0") == ("127.0.0.1", 0)
+    assert parse_address("0.0.0.0:8050") == ("0.0.0.0", 8050)
+    for bad in ("x", "1:99999"):
+        with pytest.raises(ChekanError):
+            parse_address(bad)
+
+
+# ----------------------------------------------------------------------------- end to end
+
+_HW = "import sys; from hw.cli import main; sys.exit(main(sys.argv[1:]))"
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+class _Run:
+    """Emulator and ``acquire --live 127.0.0.1:0`` as subprocesses."""
+
+    def __init__(self, tmp: Path, speed: float, *extra: str):
+        self.tmp = tmp
+        (tmp / "prog.toml").write_text(SHORT_TOML, encoding="utf-8")
+        self.rec = tmp / "rec.csv"
+        sensor, platform = tmp / "sensor", tmp / "platform"
+        self.emu = subprocess.Popen(
+            [
+                *(sys.executable, "-c", _HW, "emulate", "--sensor", str(sensor), "--platform"),
+                *(str(platform), "--speed", str(speed), "--seed", "4", "--duration-s", "400"),
+            ],
+            cwd=ROOT,
+            env=_env(),
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        self.emu.stdout.readline()  # the emulator's first line: its ports exist
+        self.acq = subprocess.Popen(
+            [
+                *(sys.executable, "-c", _HW, "acquire", "--sensor", str(sensor), "--platform"),
+                *(str(platform), "--out", str(self.rec), "--program", str(tmp / "prog.toml")),
+                *("--g-local-mgal", "981922.05", "--quiet", "--live", "127.0.0.1:0", *extra),
+            ],
+            cwd=ROOT,
+            env=_env(),
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        self.lines: list[str] = []
+        self.url = self.live_pid = None
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            line = self.acq.stdout.readline()
+            if not line:
+                break
+            self.lines.append(line)
+            m = re.match(r"live page (\S+) \(pid (\d+)", line)
+            if m:
+                self.url, self.live_pid = m[1], int(m[2])
+                break
+        assert self.url, f"no live page line in {self.lines}"
+
+    def finish(self, timeout_s: float = 240) -> tuple[int, str]:
+        out, _ = self.acq.communicate(timeout=timeout_s)
+        return self.acq.returncode, "".join(self.lines) + out
+
+    def close(self) -> None:
+        for p in (self.acq, self.emu):
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                try:
+                    p.wait(10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        if self.live_pid is not None:
+            try:
+                os.kill(self.live_pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+
+
+def _check_complete(rec: Path, n_steps: int = 12):
+    from chekan.records import read_record
+    from hw.journal import read_journal
+
+    r = read_record(rec)
+    assert set(np.unique(r.step[r.step >= 0])) == set(range(n_steps))
+    stop = [e for e in read_journal(f"{rec}.journal.jsonl") if e["event"] == "run_stop"]
+    assert stop and stop[-1]["status"] == "completed" and stop[-1]["exit_code"] == 0
+
+
+@pytest.mark.slow
+def test_killing_the_live_page_never_stops_the_acquisition(tmp_path):
+    run = _Run(tmp_path, speed=100)
+    try:
+        with urllib.request.urlopen(run.url + "api/status", timeout=10) as resp:
+            assert json.load(resp)["pid"] == run.live_pid
+        os.kill(run.live_pid, signal.SIGKILL)  # the page crashes mid-run
+        code, out = run.finish()
+        assert code == 0, out
+        assert "acquisition completed (exit 0)" in out
+        _check_complete(run.rec)
+    finally:
+        run.close()
+
+
+def _screenshot_dirs(tmp_path: Path) -> list[Path]:
+    dirs = [tmp_path]
+    if os.environ.get("CHEKAN_ARTEFACTS"):
+        d = Path(os.environ["CHEKAN_ARTEFACTS"])
+        d.mkdir(parents=True, exist_ok=True)
+        dirs.append(d)
+    return dirs
+
+
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} absent (make browser)")
+@pytest.mark.timeout(300)
+def test_live_page_in_a_browser_end_to_end(tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api")
+    run = _Run(tmp_path, speed=25)
+    profile = tempfile.mkdtemp(prefix="chekan-chromium-")
+    try:
+        with sync_api.sync_playwright() as pw:
+            ctx = pw.chromium.launch_persistent_context(
+                profile,
+                executable_path=CHROMIUM,
+                args=CHROMIUM_ARGS,
+                headless=True,
+                viewport={"width": 1500, "height": 1000},
+            )
+            page = ctx.new_page()
+            page.goto(run.url)
+            page.wait_for_function("Number(document.body.dataset.points || 0) > 5", timeout=60_000)
+            first = int(page.evaluate("document.body.dataset.step || '0'"))
+            page.wait_for_function(
+                f"Number(document.body.dataset.step || -1) > {first}", timeout=90_000
+            )
+            assert page.locator("#step-counter").inner_text().endswith("/ 12")
+            # a running b after the first round (MAP in the page's worker process)
+            page.wait_for_function(
+                "Number(document.body.dataset.mapRounds || 0) >= 1", timeout=200_000
+            )
+            b1 = page.locator(".map-b1").first.inner_text()
+            assert re.match(r"\d+\.\d+ ± \d+\.\d+", b1), b1
+            assert int(page.evaluate("document.body.dataset.points")) > 100
+            page.wait_for_timeout(500)
+            for d in _screenshot_dirs(tmp_path):
+                page.screenshot(path=str(d / "live_page.png"), full_page=True)
+            ctx.close()
+        code, out = run.finish()
+        assert code == 0, out
+        _check_complete(run.rec)
+        assert (tmp_path / "live_page.png").stat().st_size > 10_000
+    finally:
+        run.close()
+        shutil.rmtree(profile, ignore_errors=True)
