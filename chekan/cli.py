@@ -79,6 +79,8 @@ def _cmd_calibrate(args) -> int:
         seed=args.seed,
         progress=not args.quiet,
         encoder_error=args.encoder_error,
+        angle_errors=args.angle_errors,
+        angle_bound_arcsec=args.angle_bound_arcsec,
         quick=args.quick,
     )
     json_path = Path(args.json) if args.json else None
@@ -182,6 +184,20 @@ def build_parser() -> argparse.ArgumentParser:
         "--encoder-error",
         action="store_true",
         help="bayes/map: also model a smooth systematic angle error of the encoder",
+    )
+    p.add_argument(
+        "--angle-errors",
+        choices=("systematic", "independent"),
+        default="systematic",
+        help="map/bayes: the platform angle sensors' error: a systematic part per commanded "
+        "angle and a scale error shared by all rounds plus a random part per hold "
+        "(default), or independent per hold (the model before 0.2)",
+    )
+    p.add_argument(
+        "--angle-bound-arcsec",
+        type=float,
+        help="map/bayes: bound of the angle sensors' systematic error, read as rectangular "
+        "(GUM Type B); default: the record's platform_angle_bound_arcsec, else 3 (the paper)",
     )
     p.add_argument("--seed", type=int, default=0, help="sampler seed")
     p.add_argument("--quick", action="store_true", help="bayes: cap the sampler at 6000 steps")

@@ -3,8 +3,12 @@
 The readings come from the exact forward model (:mod:`chekan.model`) at the *true*
 platform attitude, passed through the first-order damping lag, plus a polynomial
 drift and white noise. The platform's angle sensor reports the attitude with a
-readout error that is constant over each hold (σ ≈ 2″, the paper's platform: ≤ 3″)
-and a small jitter; the true attitude is the commanded one minus that error.
+readout error that is constant over each hold and a small jitter; the true attitude is
+the commanded one minus that error. The error has a **systematic part**, a fixed
+function of the angle repeated in every round (:func:`systematic_angle_error`: periodic
+graduation/interpolation errors, a scale error, a zero offset, per-graduation errors; up
+to ``angle_systematic_arcsec``, drawn per session from its own random stream), and a
+random part per hold (σ = ``angle_error_sd_arcsec``).
 Defaults give classical residuals like the paper's (RMS 0.5–1 mGal per column).
 """
 
@@ -41,13 +45,16 @@ class Truth:
     drift_pix_per_h2: tuple[float, float] = (0.002, 0.001)
     noise_pix: tuple[float, float] = (0.15, 0.15)
     hold_offset_sd_pix: float = 0.08  # per hold and system (elastic after-effect, thermal)
-    angle_error_sd_arcsec: float = 2.0
+    angle_error_sd_arcsec: float = 2.0  # random part, per hold
+    angle_systematic_arcsec: float = 1.5  # bound of the systematic part (0: none)
+    angle_systematic_shape: str = "mixed"  # see SYSTEMATIC_SHAPES
     tilt_jitter_arcsec: float = 0.3
     slew_deg_per_s: float = 0.5
     platform_settle_s: float = 3.0
     temp_c: float = 45.0
     sample_rate_hz: float = 1.0
     angle_error_arcsec: list[float] = field(default_factory=list)  # per step, drawn if empty
+    angle_systematic_per_step_arcsec: list[float] = field(default_factory=list)  # its part
     hold_offset_pix: list[list[float]] = field(default_factory=list)  # per step × system
 
     def params(self) -> fm.SensorParams:
@@ -93,6 +100,59 @@ class Truth:
         return d
 
 
+SYSTEMATIC_SHAPES = ("mixed", "periodic", "scale", "graduation", "offset", "none")
+
+
+def systematic_angle_error(
+    shape: str, bound_arcsec: float, theta_max_rad: float, rng: np.random.Generator
+):
+    """A systematic angle-sensor error δ(θ) (reported − true, arcsec), fixed for a session.
+
+    Shapes: ``periodic`` (graduation/interpolation errors: two or three sinusoids in θ of
+    periods 0.5°–4°), ``scale`` (s·θ), ``graduation`` (independent errors at 20′ nodes,
+    linearly interpolated: no smooth shape), ``offset`` (a zero offset), ``mixed`` (a
+    random combination of all), ``none``. Scaled so that max |δ| over ±θ_max is
+    ``bound_arcsec``·U(0.4, 1) (the specification bounds it).
+    """
+    if shape not in SYSTEMATIC_SHAPES:
+        raise ValueError(f"unknown systematic shape {shape!r}; one of {SYSTEMATIC_SHAPES}")
+    tmax = max(float(theta_max_rad), 1e-6)
+    if shape == "none" or bound_arcsec <= 0:
+        return lambda theta: np.zeros_like(np.asarray(theta, dtype=float))
+    parts = ("periodic", "scale", "graduation", "offset") if shape == "mixed" else (shape,)
+    weights = rng.uniform(0.2, 1.0, len(parts)) if shape == "mixed" else np.ones(1)
+    n_per = int(rng.integers(2, 4))
+    periods = np.deg2rad(rng.uniform(0.5, 4.0, n_per))
+    phases = rng.uniform(0, 2 * np.pi, n_per)
+    amps = rng.normal(0, 1, n_per)
+    sign = rng.choice([-1.0, 1.0], 2)
+    nodes = np.arange(-tmax - np.deg2rad(1 / 3), tmax + np.deg2rad(2 / 3), np.deg2rad(1 / 3))
+    node_err = rng.normal(0, 1, nodes.size)
+
+    def raw(theta):
+        th = np.asarray(theta, dtype=float)
+        out = np.zeros_like(th)
+        for w, part in zip(weights, parts, strict=True):
+            if part == "periodic":
+                comp = sum(
+                    a * np.sin(2 * np.pi * th / p + f)
+                    for a, p, f in zip(amps, periods, phases, strict=True)
+                )
+            elif part == "scale":
+                comp = sign[0] * th / tmax
+            elif part == "graduation":
+                comp = np.interp(th, nodes, node_err)
+            else:
+                comp = sign[1] * np.ones_like(th)
+            out = out + w * comp
+        return out
+
+    grid = np.linspace(-tmax, tmax, 2001)
+    peak = max(float(np.max(np.abs(raw(grid)))), 1e-12)
+    gain = bound_arcsec * rng.uniform(0.4, 1.0) / peak
+    return lambda theta: gain * raw(theta)
+
+
 def random_truth(rng: np.random.Generator, serial: str = "SIM-1", **overrides) -> Truth:
     """Draw a plausible instrument: b ≈ 6.8–7.1 mGal/pix, |ε| ≲ 10′, |Δγ| ≲ 20′, τ 15–60 s."""
     kw = dict(
@@ -123,14 +183,22 @@ class Timeline:
 
 
 def program_timeline(
-    program: TiltProgram, truth: Truth, rng: np.random.Generator
+    program: TiltProgram,
+    truth: Truth,
+    rng: np.random.Generator,
+    systematic_arcsec: np.ndarray | None = None,
 ) -> tuple[Timeline, np.ndarray]:
-    """Lay the program out at the sample rate: slews between holds, holds of ``dwell_s``."""
+    """Lay the program out at the sample rate: slews between holds, holds of ``dwell_s``.
+
+    The angle error of step k is the random draw (or ``truth.angle_error_arcsec``) plus
+    ``systematic_arcsec[k]`` when given."""
     dt = 1.0 / truth.sample_rate_hz
     n_steps = program.n_steps
     err = np.asarray(truth.angle_error_arcsec, dtype=float)
     if err.size == 0:
         err = rng.normal(0.0, truth.angle_error_sd_arcsec, n_steps)
+        if systematic_arcsec is not None:
+            err = err + np.asarray(systematic_arcsec, dtype=float)
     if err.size != n_steps:
         raise ValueError(f"angle_error_arcsec has {err.size} values, program has {n_steps} steps")
     seg_t, seg_step, seg_tx, seg_ty, seg_rx, seg_ry = [], [], [], [], [], []
@@ -196,7 +264,22 @@ def simulate_session(
     program = program or default_program()
     rng = np.random.default_rng(seed)
     truth = truth or Truth()
-    tl, err = program_timeline(program, truth, rng)
+    systematic = None
+    if not truth.angle_error_arcsec:
+        # the platform's systematic error: its own stream, so the other draws do not move
+        sys_rng = np.random.default_rng([seed, 0x5157])
+        theta = np.array(
+            [s.tilt_y_rad if program.axis == "y" else s.tilt_x_rad for s in program.steps]
+        )
+        fn = systematic_angle_error(
+            truth.angle_systematic_shape,
+            truth.angle_systematic_arcsec,
+            float(np.max(np.abs(theta))),
+            sys_rng,
+        )
+        systematic = fn(theta)
+        truth.angle_systematic_per_step_arcsec = [float(e) for e in systematic]
+    tl, err = program_timeline(program, truth, rng, systematic)
     truth.angle_error_arcsec = [float(e) for e in err]
     if not truth.hold_offset_pix:
         off = rng.normal(0.0, truth.hold_offset_sd_pix, (program.n_steps, 2))

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -50,6 +51,8 @@ from typing import Any
 
 import numpy as np
 
+from chekan.validate_scenario import DEFAULT_SCENARIO, Scenario, scenario_line, session_truth
+
 CASES = ("typical", "misaligned", "drift", "slow")
 LEVELS = (0.5, 0.9, 0.95)
 PARAMS = ("b1", "b2", "a")
@@ -60,23 +63,6 @@ BAND_PROB = 0.999  # probability mass of the binomial band of an honest interval
 SEED_STRIDE = 100_000  # session i of a study with seed s is simulated with seed s·stride + i
 _INT_COLS = ("session", "seed")
 _STR_COLS = ("case", "program")
-
-
-# ---------------------------------------------------------------------------- sessions
-def _truth(case: str, rng: np.random.Generator, i: int):
-    from chekan.simulate import random_truth
-
-    kw = {}
-    if case == "misaligned":
-        kw = dict(
-            eps_arcmin=tuple(rng.choice([-1, 1], 2) * rng.uniform(8, 10, 2)),
-            dgamma_arcmin=float(rng.choice([-1, 1]) * rng.uniform(15, 20)),
-        )
-    elif case == "drift":
-        kw = dict(drift_pix_per_h=tuple(rng.choice([-1, 1], 2) * 0.3))
-    elif case == "slow":
-        kw = dict(tau_s=90.0)
-    return random_truth(rng, serial=f"V{i}", **kw)
 
 
 def fieldnames(methods: Sequence[str] = DEFAULT_METHODS) -> list[str]:
@@ -113,6 +99,7 @@ def run_session(
     seed: int,
     settle_s: float,
     methods: Sequence[str] = DEFAULT_METHODS,
+    scenario: Scenario = DEFAULT_SCENARIO,
 ) -> dict[str, Any]:
     """One simulated session through ``methods``; returns estimates, sds and truth.
 
@@ -123,7 +110,7 @@ def run_session(
     from chekan.simulate import simulate_session
 
     rng = np.random.default_rng(seed)
-    truth = _truth(case, rng, i)
+    truth = session_truth(case, rng, i, scenario)
     rec, truth = simulate_session(program, truth, seed=seed)
     t = truth.derived()
     row: dict[str, Any] = {"session": i, "case": case, "seed": seed, "program": program.name}
@@ -142,8 +129,8 @@ def run_session(
             classical_error="",
         )
     joint = (
-        ("map", lambda: _map_columns(rec, cres, settle_s)),
-        ("bayes", lambda: _bayes_columns(rec, settle_s, seed)),
+        ("map", lambda: _map_columns(rec, cres, settle_s, scenario)),
+        ("bayes", lambda: _bayes_columns(rec, settle_s, seed, scenario)),
     )
     for method, columns in joint:
         if method not in methods:
@@ -158,12 +145,13 @@ def run_session(
     return row
 
 
-def _map_columns(rec, cres, settle_s: float) -> dict[str, Any]:
+def _map_columns(rec, cres, settle_s: float, scenario: Scenario) -> dict[str, Any]:
     """MAP + Laplace on the in-memory record (the steps of ``chekan.joint.estimate``)."""
     from chekan.joint import fit_map_em, initial_values, prepare
     from chekan.joint.derived import map_derived
 
-    _, model = prepare(rec, settle_s)
+    spec = scenario.options().angle_spec(rec.meta)
+    _, model = prepare(rec, settle_s, angle_spec=spec)
     fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
     md = map_derived(fit)
     out: dict[str, Any] = {}
@@ -173,12 +161,12 @@ def _map_columns(rec, cres, settle_s: float) -> dict[str, Any]:
     return out
 
 
-def _bayes_columns(rec, settle_s: float, seed: int) -> dict[str, Any]:
+def _bayes_columns(rec, settle_s: float, seed: int, scenario: Scenario) -> dict[str, Any]:
     """The posterior of a record written to a temporary file, through the public pipeline."""
-    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.pipeline import calibrate_file
     from chekan.records import write_record
 
-    opts = CalibrationOptions(
+    opts = scenario.options(
         method="bayes", quick=True, progress=False, settle_s=settle_s, seed=seed
     )
     with tempfile.TemporaryDirectory(prefix="chekan-validate-") as tmp:
@@ -312,6 +300,7 @@ def markdown_report(summary: dict, settings: dict, figures: Sequence[str] = ()) 
         f"| program | {st['program']} |",
         f"| seed | {st['seed']} (session i: seed·{SEED_STRIDE} + i) |",
         f"| worker processes | {st['jobs']} |",
+        f"| angle sensor (simulated; model) | {scenario_line(st.get('scenario'))} |",
         f"| seconds | {st['seconds']:.0f} wall ({st['sessions_run']} sessions run now, "
         f"{st['sessions'] - st['sessions_run']} taken from an earlier run) |",
     ]
@@ -434,6 +423,7 @@ def _run_sessions(
     jobs: int,
     progress: bool,
     on_row: Callable[[dict], None],
+    scenario: Scenario = DEFAULT_SCENARIO,
 ) -> None:
     """Run the planned sessions in this process (``jobs`` ≤ 1) or in spawned workers."""
     from tqdm.auto import tqdm
@@ -442,7 +432,7 @@ def _run_sessions(
     with tqdm(total=len(plan), desc="sessions", unit="session", disable=not progress) as bar:
         if jobs <= 1 or len(plan) <= 1:
             for i, case, s in plan:
-                on_row(run_session(i, case, program, s, settle, methods))
+                on_row(run_session(i, case, program, s, settle, methods, scenario))
                 bar.update()
             return
         import concurrent.futures as cf
@@ -455,7 +445,8 @@ def _run_sessions(
             max_workers=min(jobs, len(plan)), mp_context=ctx, initializer=configure_worker_env
         ) as ex:
             futs = [
-                ex.submit(run_session, i, case, program, s, settle, methods) for i, case, s in plan
+                ex.submit(run_session, i, case, program, s, settle, methods, scenario)
+                for i, case, s in plan
             ]
             for fut in cf.as_completed(futs):
                 on_row(fut.result())
@@ -477,6 +468,7 @@ def run_study(
     resume: bool = False,
     figures: bool = True,
     command: str | None = None,
+    scenario: Scenario = DEFAULT_SCENARIO,
 ) -> dict:
     """Run the study and write its files into ``out``; returns the summary.
 
@@ -513,7 +505,7 @@ def run_study(
             writer.writerow(row)
             f.flush()
 
-        _run_sessions(todo, program, methods, jobs, progress, on_row)
+        _run_sessions(todo, program, methods, jobs, progress, on_row, scenario)
     rows = [done[i] for i, _, _ in plan]
     _write_csv(csv_path, cols, rows)  # sorted by session
     seconds = time.perf_counter() - t0
@@ -539,6 +531,7 @@ def run_study(
             for m in methods
         },
         "failures": {m: sum(1 for r in rows if r.get(f"{m}_error")) for m in methods},
+        "scenario": dataclasses.asdict(scenario),
     }
     if "map" in methods:
         settings["map_not_converged"] = sum(
@@ -586,6 +579,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="estimators to compare (bayes: ~1 min per session)",
     )
     ap.add_argument("--quick", action="store_true", help="3 h program instead of the paper's 9 h")
+    ap.add_argument(
+        "--systematic-arcsec",
+        type=float,
+        default=Scenario.systematic_arcsec,
+        help="bound of the simulated systematic angle-sensor error (0: none; default 1.5)",
+    )
+    ap.add_argument("--shape", default="mixed", help="its shape (mixed, periodic, scale, …)")
+    ap.add_argument(
+        "--random-arcsec",
+        type=float,
+        nargs=2,
+        metavar=("LO", "HI"),
+        help="draw the random angle error's sd per session in [LO, HI] (default 2″)",
+    )
+    ap.add_argument(
+        "--angle-errors",
+        choices=("systematic", "independent"),
+        default="systematic",
+        help="the model's angle errors (default systematic)",
+    )
+    ap.add_argument("--angle-bound-arcsec", type=float, help="the model's sensor bound (3″)")
     ap.add_argument("--program", help="a tilt program file (TOML) instead of the paper's")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("-j", "--jobs", type=int, default=1, help="worker processes (default 1)")
@@ -632,6 +646,13 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
         program=program,
         resume=args.resume,
         command="python -m chekan.validate " + " ".join(sys.argv[1:] if argv is None else argv),
+        scenario=Scenario(
+            systematic_arcsec=args.systematic_arcsec,
+            shape=args.shape,
+            random_arcsec=tuple(args.random_arcsec) if args.random_arcsec else None,
+            angle_errors=args.angle_errors,
+            angle_bound_arcsec=args.angle_bound_arcsec,
+        ),
     )
     for key in summary_groups(s):
         print(f"\n== {key} ==")

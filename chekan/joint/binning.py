@@ -187,4 +187,4 @@ def prepare_record(
         hold_mask=jnp.ones(H, dtype=bool),  # False for padding (see pad_model)
     )
     structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L, S)
-    return RecordModel(structure, data, holds.step, t_mid, (t0, t1))
+    return RecordModel(structure, data, holds.step, t_mid, (t0, t1), angle_spec)

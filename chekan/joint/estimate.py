@@ -7,6 +7,7 @@ the fit to :func:`map_result` or :func:`posterior_result`; batch re-analysis cal
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 
@@ -14,6 +15,7 @@ import jax
 import numpy as np
 
 from chekan.holds import HoldTable
+from chekan.joint.angles import AngleSensorSpec
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
 from chekan.joint.derived import map_derived, posterior_draws
@@ -37,7 +39,7 @@ def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpti
         record,
         options.settle_s,
         encoder=options.encoder_error,
-        angle_spec=options.angle_spec(record.meta),
+        angle_spec=options.angle_spec(record.meta, str(base.get("record", "record"))),
     )
     init = initial_values(classical, record.g_local_mgal)
     if options.progress:
@@ -51,11 +53,25 @@ def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpti
     return posterior_result(fit, holds, record, base, options, t_start)
 
 
+def angle_sensor_entry(spec: AngleSensorSpec | None) -> dict:
+    """The result's ``angle_sensor``: how the platform's angle errors were modelled."""
+    if spec is None:
+        return {"model": "independent"}
+    return {
+        "model": "systematic",
+        "bound_arcsec": spec.bound_arcsec,
+        "distribution": "rectangular",
+        "u_per_angle_arcsec": math.sqrt(spec.per_angle_var),
+        "u_scale_arcsec": math.sqrt(spec.scale_var),
+    }
+
+
 def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict, dict]:
     """The result's header and the MAP's diagnostics, shared by map and bayes."""
     res = fit.result
     out = dict(base)
     out["method"] = options.method
+    out["angle_sensor"] = angle_sensor_entry(fit.model.angle_spec)
     out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2") if k in base["parameters"]}
     diag = {
         "converged": bool(res.converged),

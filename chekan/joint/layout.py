@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
+from chekan.joint.angles import AngleSensorSpec
 
 
 @dataclass(frozen=True)
@@ -159,6 +160,7 @@ class RecordModel:
     hold_steps: np.ndarray  # program step of each real hold
     bin_t_s: np.ndarray  # s, mid-time of each real bin
     t_span_s: tuple[float, float]  # s, first and last sample
+    angle_spec: AngleSensorSpec | None = None  # the systematic angle-error prior, if modelled
 
     @property
     def n_holds(self) -> int:
