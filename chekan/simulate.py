@@ -187,11 +187,13 @@ def program_timeline(
     truth: Truth,
     rng: np.random.Generator,
     systematic_arcsec: np.ndarray | None = None,
+    systematic_fn=None,
 ) -> tuple[Timeline, np.ndarray]:
     """Lay the program out at the sample rate: slews between holds, holds of ``dwell_s``.
 
     The angle error of step k is the random draw (or ``truth.angle_error_arcsec``) plus
-    ``systematic_arcsec[k]`` when given."""
+    ``systematic_arcsec[k]`` when given. ``systematic_fn`` (θ rad → arcsec): the same
+    sensor reads the slews, so their reported angles carry its error too."""
     dt = 1.0 / truth.sample_rate_hz
     n_steps = program.n_steps
     err = np.asarray(truth.angle_error_arcsec, dtype=float)
@@ -215,8 +217,13 @@ def program_timeline(
             seg_step.append(np.full(n_move, -1))
             seg_tx.append(mx)
             seg_ty.append(my)
-            seg_rx.append(mx * ARCSEC_PER_RAD)
-            seg_ry.append(my * ARCSEC_PER_RAD)
+            ex = ey = 0.0
+            if systematic_fn is not None:  # reported = true + the sensor's error
+                ex, ey = (
+                    (0.0, systematic_fn(my)) if program.axis == "y" else (systematic_fn(mx), 0.0)
+                )
+            seg_rx.append(mx * ARCSEC_PER_RAD + ex)
+            seg_ry.append(my * ARCSEC_PER_RAD + ey)
         n_hold = round(s.dwell_s / dt)
         e = err[k] / ARCSEC_PER_RAD  # readout − true, about the program axis
         tx_true, ty_true = (cmd[0], cmd[1] - e) if program.axis == "y" else (cmd[0] - e, cmd[1])
@@ -279,7 +286,9 @@ def simulate_session(
         )
         systematic = fn(theta)
         truth.angle_systematic_per_step_arcsec = [float(e) for e in systematic]
-    tl, err = program_timeline(program, truth, rng, systematic)
+    tl, err = program_timeline(
+        program, truth, rng, systematic, fn if systematic is not None else None
+    )
     truth.angle_error_arcsec = [float(e) for e in err]
     if not truth.hold_offset_pix:
         off = rng.normal(0.0, truth.hold_offset_sd_pix, (program.n_steps, 2))

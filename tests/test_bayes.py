@@ -21,16 +21,19 @@ TRUTH_VALUES = {
 }
 
 
-def _setup(rec, encoder=False):
+def _setup(rec, encoder=False, angle_spec=None):
     cres, _ = calibrate_record(rec, settle_s=200)
-    holds, model = joint.prepare(rec, 200, encoder=encoder)
+    holds, model = joint.prepare(rec, 200, encoder=encoder, angle_spec=angle_spec)
     return cres, holds, model, joint.problem_for(model.structure)
 
 
-@pytest.mark.parametrize("encoder", [False, True])
-def test_normal_equations_equal_dense_marginal(short_session, encoder):
+@pytest.mark.parametrize("encoder,systematic", [(False, False), (True, False), (True, True)])
+def test_normal_equations_equal_dense_marginal(short_session, encoder, systematic):
+    from chekan.joint.angles import AngleSensorSpec
+
     _, rec, truth = short_session
-    _, _, model, prob = _setup(rec, encoder)
+    spec = AngleSensorSpec(3.0) if systematic else None
+    _, _, model, prob = _setup(rec, encoder, spec)
     d = truth.derived()
     vals = {
         "b1": d["b1"],

@@ -31,7 +31,8 @@ def test_classical_and_map_reproduce_the_snapshot(paper_protocol):
     assert sorted(now) == sorted(stored)
     bad = []
     for run, figures in stored.items():
-        assert sorted(now[run]) == sorted(figures), run
+        # every stored figure is reproduced (a result may report more figures now)
+        assert set(figures) <= set(now[run]), (run, set(figures) - set(now[run]))
         for key, ref in figures.items():
             got = now[run][key]
             if abs(got - ref) > 1e-9 * max(abs(ref), abs(got)) + 1e-15:

@@ -92,16 +92,44 @@ def commanded_groups(theta_rad: np.ndarray) -> np.ndarray:
     return inverse.reshape(-1)
 
 
+@dataclass(frozen=True)
+class SystematicBasis:
+    """The systematic angle error as a function of the angle: ζ at the commanded angles
+    (``nodes_rad``, sorted; hat functions, so at a commanded angle only its own ζ acts and
+    between two of them the error is interpolated linearly — what the slews see), then
+    the scale error ξ·θ/θ_max."""
+
+    nodes_rad: np.ndarray
+    theta_max_rad: float
+
+    @classmethod
+    def for_holds(cls, theta_rad: np.ndarray) -> SystematicBasis:
+        """The basis of a record's holds (their commanded angles)."""
+        theta = np.asarray(theta_rad, dtype=float)
+        group = commanded_groups(theta)
+        nodes = np.array([theta[group == a].mean() for a in range(int(group.max()) + 1)])
+        return cls(np.sort(nodes), max(float(np.max(np.abs(theta))), 1e-9))
+
+    @property
+    def size(self) -> int:
+        return self.nodes_rad.size + 1
+
+    def at(self, theta_rad: np.ndarray) -> np.ndarray:
+        """Basis values (..., A + 1) at angles ``theta_rad`` (clamped beyond the ends)."""
+        theta = np.asarray(theta_rad, dtype=float)
+        eye = np.eye(self.nodes_rad.size)
+        hats = [np.interp(theta, self.nodes_rad, eye[a]) for a in range(eye.shape[0])]
+        return np.concatenate([np.stack(hats, -1), (theta / self.theta_max_rad)[..., None]], -1)
+
+    def prior_var(self, spec: AngleSensorSpec) -> np.ndarray:
+        """Prior variances of (ζ, ξ), arcsec² (a zero bound: a tiny variance keeps the
+        normal equations regular)."""
+        A = self.nodes_rad.size
+        return np.maximum(np.concatenate([np.full(A, spec.per_angle_var), [spec.scale_var]]), 1e-12)
+
+
 def systematic_basis(theta_rad: np.ndarray, spec: AngleSensorSpec) -> tuple[np.ndarray, np.ndarray]:
-    """The systematic angle-error basis (H, A + 1) and its prior variances (A + 1,):
-    an indicator column per commanded angle, then θₖ/θ_max (the scale error at θ_max)."""
-    theta = np.asarray(theta_rad, dtype=float)
-    group = commanded_groups(theta)
-    A = int(group.max()) + 1 if group.size else 0
-    ind = np.zeros((theta.size, A))
-    ind[np.arange(theta.size), group] = 1.0
-    tmax = max(float(np.max(np.abs(theta))) if theta.size else 0.0, 1e-9)
-    basis = np.concatenate([ind, (theta / tmax)[:, None]], axis=1)
-    var = np.concatenate([np.full(A, spec.per_angle_var), [spec.scale_var]])
-    # a zero bound: no systematic error (tiny variance keeps the normal equations regular)
-    return basis, np.maximum(var, 1e-12)
+    """The systematic angle-error basis at the holds (H, A + 1) and its prior variances:
+    one column per commanded angle (an indicator at the holds), then θₖ/θ_max."""
+    basis = SystematicBasis.for_holds(theta_rad)
+    return basis.at(theta_rad), basis.prior_var(spec)

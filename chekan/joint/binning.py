@@ -18,7 +18,7 @@ import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
 from chekan.holds import HoldTable, segment_record
-from chekan.joint.angles import AngleSensorSpec, systematic_basis
+from chekan.joint.angles import AngleSensorSpec, SystematicBasis
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.units import ARCSEC_PER_RAD
 
@@ -152,12 +152,15 @@ def prepare_record(
     L = 3 if encoder else 0
     enc = np.polynomial.legendre.legvander(theta / tmax, L)[:, 1:] if L else np.zeros((H, 0))
     basis, prior_var = enc, np.full(L, 4.0)  # legacy encoder terms: N(0, 2″)
+    mv_basis = np.zeros((*mv_tx.shape, L))  # the legacy terms act at the holds only
     S = 0
     if angle_spec is not None:
-        sys_basis, sys_var = systematic_basis(theta, angle_spec)
-        basis = np.concatenate([basis, sys_basis], axis=1)
-        prior_var = np.concatenate([prior_var, sys_var])
-        S = sys_basis.shape[1]
+        sb = SystematicBasis.for_holds(theta)
+        basis = np.concatenate([basis, sb.at(theta)], axis=1)
+        prior_var = np.concatenate([prior_var, sb.prior_var(angle_spec)])
+        mv_theta = mv_ty if holds.axis == "y" else mv_tx
+        mv_basis = np.concatenate([mv_basis, sb.at(mv_theta) * mv_mask[..., None]], axis=-1)
+        S = sb.size
     direction = np.array([0.0, 1.0]) if holds.axis == "y" else np.array([1.0, 0.0])
     data = RecordData(
         g=jnp.asarray(record.g_local_mgal, dtype=jnp.float64),
@@ -183,6 +186,7 @@ def prepare_record(
         drift_basis=jnp.asarray(P),
         angle_basis=jnp.asarray(basis),
         angle_prior_var=jnp.asarray(prior_var),
+        mv_angle_basis=jnp.asarray(mv_basis),
         sigma_base=jnp.asarray(_robust_sigma(record, holds)),
         hold_mask=jnp.ones(H, dtype=bool),  # False for padding (see pad_model)
     )

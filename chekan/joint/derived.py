@@ -130,11 +130,11 @@ def _draws_jit(structure: ModelStructure, dur_h: float):
 
     def one(z, key, data: RecordData):
         v = space.to_values(z)
-        ne, (_, G, s_ang, r, _, nv, _) = normal_equations(v, v, structure, data)
+        ne, (_, G, s_ang, r, _, nv, _, P) = normal_equations(v, v, structure, data)
         beta = draw_beta_normal(key, ne, beta_prior_var(v, structure, data))
         # pointwise log-likelihood of each bin mean given this draw's (θ, β): conditional,
         # because the marginal over β does not factorise over bins
-        res_b = r - apply_A(beta, G, s_ang, structure, data)
+        res_b = r - apply_A(beta, G, s_ang, structure, data, P)
         loglik = jnp.where(data.mask, -0.5 * (res_b**2 / nv + jnp.log(2 * jnp.pi * nv)), 0.0)
         q, m_level, dr = physical_quantities(v, beta, structure, data, dur_h)
         delta = beta[blocks["angle_error"]]

@@ -121,10 +121,10 @@ def _beta_at_jit(structure: ModelStructure):
 
     def fn(z, h, data: RecordData):
         v = space.to_values(z)
-        rw, beta, L, (_, G, s, _, _, nv, trans) = solve_beta(v, h, structure, data, extras=True)
+        rw, beta, L, (_, G, s, _, _, nv, trans, P) = solve_beta(v, h, structure, data, extras=True)
         Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
         # leverage of each bin: (Ã M⁻¹ Ãᵀ)ᵢᵢ with Ã the whitened design (E[r²] = r̂² + lev)
-        A = dense_design(G, s, structure, data)  # (N, 2, p)
+        A = dense_design(G, s, structure, data, P)  # (N, 2, p)
         sw = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
         X = jnp.einsum("qp,njp->njq", Linv, A * sw[..., None])
         lev = jnp.sum(X**2, axis=-1)

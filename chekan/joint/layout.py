@@ -119,6 +119,7 @@ class RecordData(eqx.Module):
     mv_ty: jax.Array = _padded("HM", 0.0)
     mv_lag: jax.Array = _padded("HM", 0.0)  # (H, M) s, t_last − tᵢ
     mv_mask: jax.Array = _padded("HM", False)
+    mv_angle_basis: jax.Array = _padded("HMQ", 0.0)  # (H, M, Q) shared terms along slews
 
     def pad(self, H: int, N: int, M: int, Q: int | None = None) -> RecordData:
         """The same record laid out for H holds, N bins, M slew samples and Q shared

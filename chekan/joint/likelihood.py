@@ -93,6 +93,30 @@ def linear_terms(v: dict, data: RecordData):
     return f, G, -S / ARCSEC_PER_RAD, trans
 
 
+def slew_angle_columns(v: dict, data: RecordData) -> jax.Array:
+    """P (N, Q, 2): how the shared angle-error terms move each bin through the slews.
+
+    The slews are read by the same angle sensor, so its systematic error is in the
+    measured slew path too: the lag state after slew k, Mvₖ = Σₘ wₖₘ E(θₖₘ), becomes
+    Σₘ wₖₘ E(θₖₘ − Σ_q B_q(θₖₘ) ζ_q), whose ζ-derivative enters the bins as
+    wᵢ · (own · ∂Mv/∂ζ). B along the path (``data.mv_angle_basis``) is the hold basis
+    continued between the commanded angles (piecewise linear; the scale term θ/θ_max).
+    """
+    p = sensor_params(v, data)
+    dirn = data.direction
+
+    def path(h):
+        return fm.equilibrium_readings(p, data.mv_tx + h * dirn[0], data.mv_ty + h * dirn[1])
+
+    zero = jnp.zeros_like(data.mv_tx)
+    _, dEm = jax.jvp(path, (zero,), (jnp.ones_like(zero),))  # (H, M, 2) per rad
+    tau = v["tau_s"]
+    wm = jnp.where(data.mv_mask, -jnp.expm1(-data.dt / tau) * jnp.exp(-data.mv_lag / tau), 0.0)
+    dMv = jnp.einsum("hm,hmj,hmq->hqj", wm, -dEm / ARCSEC_PER_RAD, data.mv_angle_basis)
+    w = lag_weights(tau, data)
+    return w[:, None, None] * jnp.einsum("nh,hqj->nqj", data.own, dMv)
+
+
 def _unsettled_carry(E, Mv, wprev, rho):
     """Rₖ: the part of the lag state after slew k left over from holds that had not settled.
 
@@ -110,19 +134,21 @@ def _unsettled_carry(E, Mv, wprev, rho):
     return jnp.concatenate([jnp.zeros((1, E.shape[1])), R], axis=0)
 
 
-def _local_columns(G, s_j, Q, enc):
-    """System j's columns [Q, G, G·diag(sⱼ), G·diag(sⱼ)·E] (only used for A·β products)."""
+def _local_columns(G, s_j, Q, enc, P_j=None):
+    """System j's columns [Q, G, G·diag(sⱼ), G·diag(sⱼ)·E (+ Pⱼ)] (for A·β products)."""
     Gs = G * s_j[None, :]
-    return jnp.concatenate([Q, G, Gs, Gs @ enc], axis=1)
+    X = Gs @ enc if P_j is None else Gs @ enc + P_j
+    return jnp.concatenate([Q, G, Gs, X], axis=1)
 
 
-def apply_A(beta, G, s, structure: ModelStructure, data: RecordData):
-    """A·β as (N, 2), without forming A."""
+def apply_A(beta, G, s, structure: ModelStructure, data: RecordData, P=None):
+    """A·β as (N, 2), without forming A (``P``: :func:`slew_angle_columns` or None)."""
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
     out = []
     for j in range(2):
         bj = beta[structure.beta_index(j)]
-        out.append(_local_columns(G, s[:, j], Q, data.angle_basis) @ bj)
+        Pj = None if P is None else P[..., j]
+        out.append(_local_columns(G, s[:, j], Q, data.angle_basis, Pj) @ bj)
     return jnp.stack(out, axis=1)
 
 
@@ -169,27 +195,42 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
         )
     else:
         rows = [row[:-1] for row in rows]
-    Mg = jnp.block(rows)
     bdt = bd[0] + bd[1]
-    g = jnp.concatenate([bq[0], bq[1], bo[0], bo[1], bdt] + ([E.T @ bdt] if L else []))
+    gx = E.T @ bdt
+    P = slew_angle_columns(v, data) if structure.n_systematic else None
+    if P is not None:  # the slews' share of the systematic columns (see slew_angle_columns)
+        for j in range(2):
+            WP = P[..., j] * W[:, j][:, None]  # (N, Q)
+            GsE = (G * s[:, j][None, :]) @ E
+            rows[j][5] = rows[j][5] + Q.T @ WP
+            rows[2 + j][5] = rows[2 + j][5] + G.T @ WP
+            rows[4][5] = rows[4][5] + s[:, j][:, None] * (G.T @ WP)
+            rows[5][5] = rows[5][5] + GsE.T @ WP + WP.T @ GsE + P[..., j].T @ WP
+            gx = gx + WP.T @ r[:, j]
+        for i in range(5):
+            rows[5][i] = rows[i][5].T
+    Mg = jnp.block(rows)
+    g = jnp.concatenate([bq[0], bq[1], bo[0], bo[1], bdt] + ([gx] if L else []))
     rWr = jnp.sum(W * r * r)
     logdet_n = jnp.sum(jnp.where(mask, jnp.log(nv), 0.0))
-    return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), (f, G, s, r, W, nv, trans)
+    pieces = (f, G, s, r, W, nv, trans, P)
+    return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), pieces
 
 
 def predict(v: dict, structure: ModelStructure, data: RecordData):
     """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
     f, G, s, _ = linear_terms(v, data)
-    return f, dense_design(G, s, structure, data)
+    P = slew_angle_columns(v, data) if structure.n_systematic else None
+    return f, dense_design(G, s, structure, data, P)
 
 
-def dense_design(G, s, structure: ModelStructure, data: RecordData) -> jax.Array:
+def dense_design(G, s, structure: ModelStructure, data: RecordData, P=None) -> jax.Array:
     """The design ``A`` (N, 2, p) formed from the pieces of :func:`linear_terms`."""
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
     N = G.shape[0]
     cols = []
     for j in range(2):
-        X = _local_columns(G, s[:, j], Q, data.angle_basis)
+        X = _local_columns(G, s[:, j], Q, data.angle_basis, None if P is None else P[..., j])
         A = jnp.zeros((N, structure.n_beta)).at[:, structure.beta_index(j)].add(X)
         cols.append(A)
     return jnp.stack(cols, axis=1)
@@ -226,14 +267,14 @@ def solve_beta(v: dict, h: dict, structure: ModelStructure, data: RecordData, ex
     """β̂(θ) = argmin ‖N^{-1/2}(y − f − Aβ)‖² + ‖Λ^{-1/2}β‖² and the whitened residuals.
 
     Returns ``(r_w (2N,), beta_hat (p,), L)`` with LLᵀ = M = AᵀN⁻¹A + Λ⁻¹, and with
-    ``extras`` also the pieces ``(f, G, s, r, W, nv, trans)`` of :func:`normal_equations`.
+    ``extras`` also the pieces ``(f, G, s, r, W, nv, trans, P)`` of :func:`normal_equations`.
     """
     ne, pieces = normal_equations(v, h, structure, data)
-    _, G, s, r, _, nv, _ = pieces
+    _, G, s, r, _, nv, _, P = pieces
     beta, L = posterior_beta_normal(ne, beta_prior_var(h, structure, data))
     # not sqrt(W): its derivative is infinite where W = 0 (masked bins), giving 0·∞ = NaN
     sqrt_w = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
-    rw = sqrt_w * (r - apply_A(beta, G, s, structure, data))
+    rw = sqrt_w * (r - apply_A(beta, G, s, structure, data, P))
     if extras:
         return rw.reshape(-1), beta, L, pieces
     return rw.reshape(-1), beta, L
