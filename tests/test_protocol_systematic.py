@@ -70,3 +70,18 @@ def test_zero_bound_equals_independent(paper_protocol):
         )
         assert zero["parameters"][k]["sd"] == pytest.approx(ind["parameters"][k]["sd"], rel=1e-6)
     assert np.isfinite(zero["uncertainty_budget"]["b1"]["angle_systematic"])
+
+
+def test_bound_from_the_protocol_header(paper_protocol, tmp_path):
+    lines = paper_protocol.read_text(encoding="utf-8").splitlines(keepends=True)
+    path = tmp_path / "p.csv"
+    path.write_text(lines[0] + "# platform_angle_bound_arcsec: 6\n" + "".join(lines[1:]), "utf-8")
+    wide = _map(path)
+    base = _map(paper_protocol)
+    assert wide["angle_sensor"]["bound_arcsec"] == 6.0
+    for k in ("b1", "b2"):
+        s6 = wide["uncertainty_budget"][k]["angle_systematic"]
+        s3 = base["uncertainty_budget"][k]["angle_systematic"]
+        assert s6 == pytest.approx(2 * s3, rel=0.05)  # linear in the bound
+    # the option overrides the header
+    assert _map(path, angle_bound_arcsec=3.0)["angle_sensor"]["bound_arcsec"] == 3.0
