@@ -284,7 +284,7 @@ def test_bayes_certificate(bayes, outdir):
     assert_in("b₂ = 6.88213 mGal/pix, U = 0.00022 mGal/pix (k = 2)", text)
     assert_in("Uncertainty budget of b", text)
     for label in (
-        "angle readout of the platform",
+        "angle readout, random (Type A)",
         "reading noise",
         "drift",
         "quadratic coefficient a",
@@ -293,7 +293,11 @@ def test_bayes_certificate(bayes, outdir):
     ):
         assert_in(label, text)
     bud = res["uncertainty_budget"]["b1"]
-    assert_in(f"angle readout of the platform {bud['angle_readout']:.6f}", text)
+    assert_in(f"angle readout, random (Type A) A {bud['angle_readout']:.6f}", text)
+    assert_in("Source Type u(b₁)", text)
+    assert_in("drift A", text)
+    assert_in("quadratic coefficient a B", text)
+    assert "angle sensor, systematic" not in text  # this result has no such line
     assert_in("expanded U (k = 2) 0.00021 30 0.00022 32", text)  # U and U/b in ppm
     # posterior summary with HDI, R-hat and ESS for every parameter
     assert_in("95 % HDI", text)
@@ -321,6 +325,75 @@ def test_bayes_certificate(bayes, outdir):
         "fig2-pair.png",
         "fig3-drift.png",
     ]
+
+
+@pytest.fixture(scope="module")
+def bayes_systematic(bayes) -> tuple[dict, Path]:
+    """The Bayesian result with a systematic angle-sensor line and ``angle_sensor``, as the
+    estimator writes them (beside the posterior NetCDF)."""
+    res, path = bayes
+    res = json.loads(json.dumps(res))
+    for name, sys_u in (("b1", 0.000120), ("b2", 0.000118)):
+        b = res["uncertainty_budget"][name]
+        b["angle_systematic"] = sys_u
+        b["total"] = (b["total"] ** 2 + sys_u**2) ** 0.5
+        b["expanded_k2"] = 2 * b["total"]
+    res["angle_sensor"] = {
+        "model": "systematic",
+        "bound_arcsec": 3.0,
+        "u_per_angle_arcsec": 1.2247,
+        "u_scale_arcsec": 1.2247,
+    }
+    out = path.parent / "bayes_systematic.json"
+    out.write_text(json.dumps(res), encoding="utf-8")
+    return res, out
+
+
+@pytest.mark.parametrize(
+    ("lang", "labels"),
+    [
+        (
+            "en",
+            (
+                "angle sensor, systematic (Type B, platform specification ±3″) B 0.00012",
+                "angle readout, random (Type A) A 0.000091",
+                "Platform angle sensor bound ±3″ (rectangular), per-angle u = 1.22″, "
+                "scale u = 1.22″ at the largest angle",
+                "U includes the systematic error of the platform's angle sensor (Type B, "
+                "platform specification ±3″).",
+                "b₁ = 6.98041 mGal/pix, U = 0.00032 mGal/pix (k = 2)",
+            ),
+        ),
+        (
+            "ru",
+            (
+                "датчик угла, систематическая (тип В, паспорт платформы ±3″) В 0.00012",
+                "отсчёт угла, случайная (тип А) А 0.000091",
+                "Датчик угла платформы граница ±3″ (равномерное распределение)",
+                "U включает систематическую погрешность датчика угла платформы (тип В, "
+                "паспорт платформы ±3″).",
+            ),
+        ),
+    ],
+)
+def test_budget_systematic_angle_line(bayes_systematic, outdir, lang, labels):
+    _res, path = bayes_systematic
+    _pdf, text, _n, _figs = pdf_of("bayes_sys", lang, path, outdir)
+    for label in labels:
+        assert_in(label, text)
+    html = render_report(path, outdir / f"sys_{lang}.html", lang=lang).read_text(encoding="utf-8")
+    assert labels[0].split(")")[0] in html
+
+
+def test_budget_without_angle_sensor_has_no_bound(bayes):
+    res, _ = bayes
+    res = json.loads(json.dumps(res))
+    res["uncertainty_budget"]["b1"]["angle_systematic"] = 0.0001
+    rep = build_report(res, source=BAYES_JSON, figures=False)
+    from chekan.report.document import Table
+
+    texts = [c.text for b in rep.blocks if isinstance(b, Table) for row in b.rows for c in row]
+    assert "angle sensor, systematic (Type B, platform specification)" in texts
 
 
 def test_bayes_html_ru_self_contained(bayes, tmp_path):

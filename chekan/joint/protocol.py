@@ -15,6 +15,29 @@ Priors: b_rj ~ N(6.9, 0.5) (wide); a ~ N(a_protocol, (0.25·|a_protocol|)²) —
 fixed a, and only the quadratic curvature of eight points informs it; log σ_θ ~ N(log 2″, 0.5)
 (platform readout ≤ 3″); log σ_e ~ N(log 0.3 mGal, 1). ε and Δγ cannot be identified from
 pair means and are not reported.
+
+**Systematic angle error** (``options.angle_errors == "systematic"``, the default): the
+platform's sensor error also has a part shared by all rounds (:mod:`chekan.joint.angles`).
+For the ± pair at angle i it adds to δ_ri
+
+    s_i = (ζ₊ᵢ − ζ₋ᵢ)/2 + ξ·θᵢ/θ_max,
+
+ζ±ᵢ ~ N(0, u²/2) the per-angle error at each sign (the pair term has variance u²/4) and
+ξ ~ N(0, u²/2) the scale error at θ_max (the same sign at every angle; u = U/√3, U the
+specification's bound). s is linear in the data too and is marginalised in closed form,
+but it is shared across rounds, so the likelihood no longer factorises per (r, i): the
+residuals of all (r, j, i) are one normal vector with covariance
+
+    σ_e² I + σ_θ²/2 · (g sin θᵢ)² [same r, i] + (g sin θᵢ)(g sin θₖ)(u²/4 [i = k] + u²/2 tᵢtₖ),
+
+tᵢ = θᵢ/θ_max (32 × 32 for the paper's protocol; a dense Cholesky). With
+``"independent"`` the model is the per-(r, i) one above, unchanged.
+
+**Uncertainty budget.** At fixed σ_θ, σ_e (the MAP's; the posterior means for bayes) the
+estimate of (b, a) is generalised least squares with normal priors, so its covariance
+splits exactly, M Xᵀ C⁻¹ (Σ_g C_g) C⁻¹ X M + M P⁻¹ M with M = (Xᵀ C⁻¹ X + P⁻¹)⁻¹, into
+``noise`` (σ_e²), ``angle_readout`` (δ, Type A), ``angle_systematic`` (s, Type B), ``a``
+(its prior) and ``other_priors`` (the priors of b); each line is scaled to the reported sd.
 """
 
 from __future__ import annotations
@@ -28,6 +51,8 @@ import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
 from chekan.classical import increments_from_protocol
+from chekan.joint.angles import AngleSensorSpec, commanded_groups
+from chekan.joint.budget import budget_entries
 from chekan.result import param_entry, posterior_entry
 from chekan.units import ARCSEC_PER_RAD
 from inference.map import fit_map
@@ -89,6 +114,98 @@ def _log_lik(v, data):
     return jnp.sum(jnp.where(both, ll2, 0.0)) + jnp.sum(jnp.where(single, ll1, 0.0))
 
 
+def _cov_parts(table, spec: AngleSensorSpec | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Over the residual vector (R, 2, n) flattened: D, with σ_θ²·D the covariance of the
+    pair errors δ (shared by both systems of one round and angle); S, the covariance of the
+    systematic pair errors s (shared by all rounds; zero without a spec); the mask."""
+    R, _, n = table.x_pix.shape
+    theta = np.abs(np.deg2rad(np.asarray(table.angle_deg, dtype=float)))
+    gs = table.g_local_mgal * np.sin(theta) / ARCSEC_PER_RAD  # mGal per arcsec
+    rr, _jj, ii = (a.reshape(-1) for a in np.indices((R, 2, n)))
+    g = gs[ii]
+    gg = np.outer(g, g)
+    D = gg * ((rr[:, None] == rr[None, :]) & (ii[:, None] == ii[None, :])) / 2.0
+    S = np.zeros_like(D)
+    if spec is not None:
+        group = commanded_groups(theta)[ii]
+        t = (theta / max(float(np.max(theta)), 1e-12))[ii]
+        # (ζ₊ − ζ₋)/2 has variance per_angle_var/2; ξ·t acts with one sign at every angle
+        S = gg * (
+            spec.per_angle_var / 2.0 * (group[:, None] == group[None, :])
+            + spec.scale_var * np.outer(t, t)
+        )
+    return D, S, np.isfinite(table.x_pix).reshape(-1)
+
+
+def _full_cov(D, S, m, sigma_theta, sigma_e, xp=np):
+    """The residuals' covariance; a masked entry is a unit row and column (residual 0)."""
+    C = sigma_e**2 * xp.eye(m.size) + sigma_theta**2 * D + S
+    return xp.where(m[:, None] & m[None, :], C, xp.eye(m.size))
+
+
+def _log_lik_dense(v, data):
+    """log N(residuals; 0, C) over all (r, j, i) at once: the systematic angle errors are
+    shared across rounds (dense Cholesky; the table is tiny)."""
+    r = _resid(v, data).reshape(-1)
+    C = _full_cov(data["D"], data["S"], data["m"], v["sigma_theta_arcsec"], v["sigma_e_mgal"], jnp)
+    L = jnp.linalg.cholesky(C)
+    w = jax.scipy.linalg.solve_triangular(L, r, lower=True)
+    n_obs = jnp.sum(data["m"])
+    return -0.5 * (w @ w + 2.0 * jnp.sum(jnp.log(jnp.diag(L))) + n_obs * math.log(2 * math.pi))
+
+
+def _budget(table, spec, sigma_theta: float, sigma_e: float, space: ParamSpace) -> dict:
+    """Linearised sd of b₁, b₂ (mean over rounds) per source, at fixed σ_θ, σ_e: the exact
+    split of the GLS-with-priors covariance M Xᵀ C⁻¹ (Σ C_g) C⁻¹ X M + M P⁻¹ M."""
+    R, _, n = table.x_pix.shape
+    D, S, m = _cov_parts(table, spec)
+    x = np.nan_to_num(table.x_pix)
+    names = [p.name for p in space.params]
+    X = np.zeros((m.size, len(names)))
+    for r in range(R):
+        for j in range(2):
+            rows = (2 * r + j) * n + np.arange(n)
+            X[rows, names.index(f"b_r{r + 1}_s{j + 1}")] = x[r, j]
+            X[rows, names.index("a")] = x[r, j] ** 2
+    X[~m] = 0.0
+    mm = (m[:, None] & m[None, :]).astype(float)
+    parts = {
+        "noise": sigma_e**2 * np.diag(m.astype(float)),
+        "angle_readout": sigma_theta**2 * D * mm,
+    }
+    if spec is not None:
+        parts["angle_systematic"] = S * mm
+    C = _full_cov(D, S, m, sigma_theta, sigma_e)
+    CiX = np.linalg.solve(C, X)
+    prec = np.array([1.0 / p.scale**2 for p in space.params])
+    M = np.linalg.inv(X.T @ CiX + np.diag(prec))
+    A = M @ CiX.T
+    covs = {g: A @ Cg @ A.T for g, Cg in parts.items()}
+    is_a = np.array([nm == "a" for nm in names])
+    covs["a"] = M @ np.diag(np.where(is_a, prec, 0.0)) @ M
+    covs["other_priors"] = M @ np.diag(np.where(is_a, 0.0, prec)) @ M
+    out = {}
+    for j in range(2):
+        w = np.zeros(len(names))
+        w[[names.index(f"b_r{r + 1}_s{j + 1}") for r in range(R)]] = 1.0 / R
+        var = {g: max(float(w @ V @ w), 0.0) for g, V in covs.items()}
+        e = {g: math.sqrt(v) for g, v in var.items()}
+        e["total_linearised"] = math.sqrt(sum(var.values()))
+        out[f"b{j + 1}"] = e
+    return out
+
+
+def _angle_sensor(spec: AngleSensorSpec | None) -> dict:
+    if spec is None:
+        return {"model": "independent"}
+    return {
+        "model": "systematic",
+        "bound_arcsec": spec.bound_arcsec,
+        "u_per_angle_arcsec": math.sqrt(spec.per_angle_var),
+        "u_scale_arcsec": math.sqrt(spec.scale_var),
+    }
+
+
 def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     t0 = time.perf_counter()
     table = increments_from_protocol(protocol)
@@ -97,10 +214,19 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     theta_space, full_space = _space(R, a0)
     data = _data(table)
     hyp = {"sigma_theta_arcsec": 2.0, "sigma_e_mgal": 0.3}
+    spec = options.angle_spec(protocol.meta, source=protocol.path or "protocol")
+    if spec is not None:
+        D, S, m = _cov_parts(table, spec)
+        data.update(D=jnp.asarray(D), S=jnp.asarray(S), m=jnp.asarray(m))
+        L = np.linalg.cholesky(_full_cov(D, S, m, *hyp.values()))
+        data["Linv"] = jnp.asarray(np.linalg.solve(L, np.eye(m.size)))
 
     def residuals(v, d):
-        """Whitened residuals at fixed hyperparameters: Cholesky of each 2×2 covariance."""
+        """Whitened residuals at fixed hyperparameters: Cholesky of each 2×2 covariance
+        (of the whole covariance with systematic angle errors)."""
         vv = {**v, **d["hyp"]}
+        if "Linv" in d:
+            return d["Linv"] @ _resid(vv, d).reshape(-1)
         r = _resid(vv, d)
         c2 = (d["gs"] * vv["sigma_theta_arcsec"]) ** 2 / 2.0
         s2 = vv["sigma_e_mgal"] ** 2
@@ -129,8 +255,10 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
         "converged": bool(res.converged),
         "map_steps": int(res.num_steps),
         "problems": [],
-        "model": "characteristic per round (eq. 21) with shared angle errors marginalised",
+        "model": "characteristic per round (eq. 21) with shared angle errors marginalised"
+        + ("" if spec is None else "; systematic angle errors shared by all rounds (Type B)"),
     }
+    out["angle_sensor"] = _angle_sensor(spec)
     if options.method == "map":
         sd = res.sd()
         cov_b = res.cov_values([f"b_r{r + 1}_s{j + 1}" for r in range(R) for j in range(2)])
@@ -148,6 +276,8 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
         ]
         _merge_rounds(out, rounds)
         out["parameters"] = params
+        raw = _budget(table, spec, *hyp.values(), theta_space)
+        out["uncertainty_budget"] = budget_entries(raw, params)
         diag["seconds"] = time.perf_counter() - t0
         out["diagnostics"] = diag
         return out
@@ -157,7 +287,7 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
 
     def log_density(z, d):
         v = full_space.to_values(z)
-        lp = full_space.log_prior(z) + _log_lik(v, d)
+        lp = full_space.log_prior(z) + (_log_lik(v, d) if spec is None else _log_lik_dense(v, d))
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
     vals = {**res.values, **hyp}
@@ -196,6 +326,14 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     ]
     _merge_rounds(out, rounds)
     out["parameters"] = params
+    raw = _budget(
+        table,
+        spec,
+        float(params["sigma_theta_arcsec"]["mean"]),
+        float(params["sigma_e_mgal"]["mean"]),
+        theta_space,
+    )
+    out["uncertainty_budget"] = budget_entries(raw, params)
     diag.update(
         converged=bool(ok and res.converged),
         problems=problems,

@@ -29,6 +29,7 @@ from chekan.report.numbers import (
 from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
     BUDGET_ORDER,  # noqa: F401
     PARAM_ORDER,  # noqa: F401
+    angle_bound_text,
     budget_table,
     diagnostics_table,
     param_table,
@@ -107,7 +108,13 @@ def validate(result: Mapping[str, Any], src: str) -> None:
         _need_dict(pp, "posterior_predictive_mgal", src)
         for k in ("delta_g_low", "delta_g_high"):
             _need_dict(pp.get(k), f"posterior_predictive_mgal.{k}", src)
-    for key in ("range_margin_gal", "instability_percent", "diagnostics", "metadata"):
+    for key in (
+        "range_margin_gal",
+        "instability_percent",
+        "diagnostics",
+        "metadata",
+        "angle_sensor",
+    ):
         if result.get(key) is not None:
             _need_dict(result[key], key, src)
 
@@ -210,6 +217,9 @@ def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) ->
         rows.append((t("program"), str(meta["program"]), False))
     method = result["method"]
     rows.append((t("method"), f"{t('method_' + method)} [{method}]", False))
+    sensor = _angle_sensor_text(result, t)
+    if sensor:
+        rows.append((t("angle_sensor"), sensor, False))
     kind = result.get("input_kind")
     rec = str(result["record"])
     rows.append(
@@ -270,8 +280,31 @@ def _statements(result: Mapping[str, Any], t: Translator, lang: str) -> list[Par
                 "strong",
             )
         )
-    out.append(Para(t("statement_budget") if budget_used else t("statement_typeA"), "note"))
+    note = t("statement_budget") if budget_used else t("statement_typeA")
+    bud = result.get("uncertainty_budget") or {}
+    if budget_used and any(
+        is_num((bud.get(n) or {}).get("angle_systematic")) for n in ("b1", "b2")
+    ):
+        note += " " + t("statement_budget_systematic", bound=angle_bound_text(result))
+    out.append(Para(note, "note"))
     return out
+
+
+def _angle_sensor_text(result: Mapping[str, Any], t: Translator) -> str | None:
+    """The platform angle sensor's model from ``result["angle_sensor"]`` (None without it)."""
+    a = result.get("angle_sensor")
+    if not isinstance(a, Mapping):
+        return None
+    if a.get("model") == "independent":
+        return t("angle_sensor_independent")
+    if not is_num(a.get("bound_arcsec")):
+        return None
+    return t(
+        "angle_sensor_systematic",
+        u=plain(a["bound_arcsec"]),
+        ua=fixed(a.get("u_per_angle_arcsec"), 2),
+        us=fixed(a.get("u_scale_arcsec"), 2),
+    )
 
 
 def _verdict(

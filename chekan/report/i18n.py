@@ -196,6 +196,12 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "U = 2u, u — суммарная стандартная неопределённость по бюджету "
         "(раздел «Бюджет неопределённости b»).",
     },
+    "statement_budget_systematic": {
+        "en": "U includes the systematic error of the platform's angle sensor (Type B, "
+        "platform specification{bound}).",
+        "ru": "U включает систематическую погрешность датчика угла платформы (тип В, "
+        "паспорт платформы{bound}).",
+    },
     "sec_e": {
         "en": "e) Deviations of b₁, b₂ from the initial values",
         "ru": "д) Отклонения b₁, b₂ от исходных значений",
@@ -245,9 +251,11 @@ LABELS: dict[str, dict[str, str]] = {
     "sec_budget": {"en": "Uncertainty budget of b", "ru": "Бюджет неопределённости b"},
     "budget_text": {
         "en": "Standard uncertainties of each source, from the posterior; relative values in ppm "
-        "(10⁻⁶).",
+        "(10⁻⁶). Type A: evaluated from the scatter of the data; Type B: from other "
+        "information (the platform's specification, prior knowledge).",
         "ru": "Стандартные неопределённости по источникам, по апостериорному распределению; "
-        "относительные значения в млн⁻¹ (10⁻⁶).",
+        "относительные значения в млн⁻¹ (10⁻⁶). Тип А — оценка по разбросу данных; "
+        "тип В — по иной информации (паспорт платформы, априорные сведения).",
     },
     "cap_budget": {
         "en": "Uncertainty budget of the scale factors, mGal/pix",
@@ -255,7 +263,28 @@ LABELS: dict[str, dict[str, str]] = {
     },
     "source": {"en": "Source", "ru": "Источник"},
     "ppm": {"en": "ppm", "ru": "млн⁻¹"},
-    "src_angle_readout": {"en": "angle readout of the platform", "ru": "отсчёт угла наклона ГП"},
+    "src_type": {"en": "Type", "ru": "Тип"},
+    "type_A": {"en": "A", "ru": "А"},
+    "type_B": {"en": "B", "ru": "В"},
+    "src_angle_readout": {
+        "en": "angle readout, random (Type A)",
+        "ru": "отсчёт угла, случайная (тип А)",
+    },
+    "src_angle_systematic": {  # bound: " ±3″" or "" when the result does not say
+        "en": "angle sensor, systematic (Type B, platform specification{bound})",
+        "ru": "датчик угла, систематическая (тип В, паспорт платформы{bound})",
+    },
+    "angle_sensor": {"en": "Platform angle sensor", "ru": "Датчик угла платформы"},
+    "angle_sensor_systematic": {
+        "en": "bound ±{u}″ (rectangular), per-angle u = {ua}″, scale u = {us}″ at the largest "
+        "angle",
+        "ru": "граница ±{u}″ (равномерное распределение), u по углу = {ua}″, "
+        "u масштаба = {us}″ на наибольшем угле",
+    },
+    "angle_sensor_independent": {
+        "en": "errors independent from hold to hold (no systematic term)",
+        "ru": "погрешности независимы от стоянки к стоянке (без систематической составляющей)",
+    },
     "src_noise": {"en": "reading noise", "ru": "шум отсчёта"},
     "src_drift": {"en": "drift", "ru": "дрейф"},
     "src_a": {"en": "quadratic coefficient a", "ru": "квадратичный коэффициент a"},

@@ -25,7 +25,19 @@ PARAM_ORDER = (
     "sigma_theta_arcsec",
     "sigma_hold_pix",
 )
-BUDGET_ORDER = ("angle_readout", "noise", "drift", "a")
+BUDGET_ORDER = ("angle_systematic", "angle_readout", "noise", "drift", "a")
+# GUM evaluation type of each budget line: A from the scatter of the data, B from other
+# information (the platform's specification, priors)
+BUDGET_TYPE = {
+    "angle_systematic": "B",
+    "angle_readout": "A",
+    "noise": "A",
+    "drift": "A",
+    "hold_offsets": "A",
+    "level_offset": "A",
+    "a": "B",
+    "other_priors": "B",
+}
 
 Translator = Callable[..., str]
 
@@ -107,13 +119,20 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
     order = [k for k in BUDGET_ORDER if k in keys]
     order += [k for k in keys if k not in BUDGET_ORDER and k not in ("total", "expanded_k2")]
     order += [k for k in ("total", "expanded_k2") if k in keys]
-    head = [Cell(t("source"), bold=True)]
+    head = [Cell(t("source"), bold=True), Cell(t("src_type"), bold=True)]
     for s in systems:
         head += [Cell(f"u({param_name(s, lang)})", bold=True), Cell(t("ppm"), bold=True)]
     rows = []
     for k in order:
-        label = t(f"src_{k}") if f"src_{k}" in _known_sources() else k
-        row = [Cell(label, bold=k in ("total", "expanded_k2"))]
+        if k == "angle_systematic":
+            label = t("src_angle_systematic", bound=angle_bound_text(result))
+        else:
+            label = t(f"src_{k}") if f"src_{k}" in _known_sources() else k
+        typ = BUDGET_TYPE.get(k)
+        row = [
+            Cell(label, bold=k in ("total", "expanded_k2")),
+            Cell(t(f"type_{typ}") if typ else ""),
+        ]
         for s in systems:
             v = bud[s].get(k)
             b = result["parameters"].get(s, {}).get("mean")
@@ -127,8 +146,15 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
     rep.add(
         Heading(t("sec_budget")),
         Para(t("budget_text")),
-        Table([head], rows, "l" + "rr" * len(systems), t("cap_budget"), footer_rows=foot),
+        Table([head], rows, "lc" + "rr" * len(systems), t("cap_budget"), footer_rows=foot),
     )
+
+
+def angle_bound_text(result: Mapping[str, Any]) -> str:
+    """ " ±3″" from the result's ``angle_sensor.bound_arcsec``; "" when it has none."""
+    a = result.get("angle_sensor")
+    bound = a.get("bound_arcsec") if isinstance(a, Mapping) else None
+    return f" ±{plain(bound)}″" if is_num(bound) else ""
 
 
 def _known_sources() -> set[str]:
