@@ -32,10 +32,12 @@ def _sd_b(rec, settle_s, spec):
     return md["b1"], md["b2"]
 
 
-def test_spec_reads_the_bound_as_rectangular_and_from_the_header():
-    spec = AngleSensorSpec(3.0)
-    assert spec.u_arcsec == pytest.approx(3.0 / math.sqrt(3.0))
-    assert spec.per_angle_var + spec.scale_var == pytest.approx(3.0)  # u² = U²/3
+def test_spec_reads_the_bound_as_triangular_or_rectangular_and_from_the_header():
+    spec = AngleSensorSpec(3.0)  # triangular: u = U/√6 (GUM 4.3.9)
+    assert spec.u_arcsec == pytest.approx(3.0 / math.sqrt(6.0))
+    assert spec.per_angle_var + spec.scale_var == pytest.approx(1.5)
+    rect = AngleSensorSpec(3.0, distribution="rectangular")  # u = U/√3 (GUM 4.3.7)
+    assert rect.per_angle_var + rect.scale_var == pytest.approx(3.0)
     assert spec_for({}, None) == AngleSensorSpec()
     assert spec_for({"platform_angle_bound_arcsec": "2"}, None).bound_arcsec == 2.0
     assert spec_for({"platform_angle_bound_arcsec": "2"}, 1.0).bound_arcsec == 1.0
@@ -54,7 +56,7 @@ def test_commanded_angles_are_grouped_across_rounds():
     basis, var = systematic_basis(deg, AngleSensorSpec(3.0))
     assert basis.shape == (11, 6)
     np.testing.assert_allclose(basis[:, -1], deg / deg.max())  # the scale column
-    np.testing.assert_allclose(var, [1.5] * 5 + [1.5])
+    np.testing.assert_allclose(var, [0.75] * 5 + [0.75])
 
 
 @pytest.mark.slow
@@ -68,9 +70,10 @@ def test_pure_scale_error_adds_two_u_over_theta_max_in_quadrature(short_program)
     settle = short_program.settle_s
     bound = 3.0
     (_, sd0), _ = _sd_b(rec, settle, None)
-    (_, sd1), _ = _sd_b(rec, settle, AngleSensorSpec(bound, scale_share=1.0))
+    spec = AngleSensorSpec(bound, scale_share=1.0)
+    (_, sd1), _ = _sd_b(rec, settle, spec)
     theta_max = max(abs(s.tilt_y_rad) for s in short_program.steps) * ARCSEC_PER_RAD
-    expected = 2 * truth.b_mgal_per_pix[0] * (bound / math.sqrt(3)) / theta_max
+    expected = 2 * truth.b_mgal_per_pix[0] * spec.u_arcsec / theta_max
     added = math.sqrt(sd1**2 - sd0**2)
     assert added == pytest.approx(expected, rel=0.2), (sd0, sd1, added, expected)
 

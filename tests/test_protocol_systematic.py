@@ -53,7 +53,7 @@ def test_pure_scale_prior_matches_analytic(paper_protocol, monkeypatch):
     _pure_scale(monkeypatch)
     sys_ = _map(paper_protocol)
     theta_max = (5 + 10 / 60) * 3600.0  # the paper's largest angle, 5°10′, in arcsec
-    u = 3.0 / math.sqrt(3.0)
+    u = AngleSensorSpec(3.0).u_arcsec  # all of u² on the scale term
     for k in ("b1", "b2"):
         expected = 2.0 * sys_["parameters"][k]["mean"] * u / theta_max
         s1, s0 = sys_["parameters"][k]["sd"], ind["parameters"][k]["sd"]

@@ -60,7 +60,7 @@ def angle_sensor_entry(spec: AngleSensorSpec | None) -> dict:
     return {
         "model": "systematic",
         "bound_arcsec": spec.bound_arcsec,
-        "distribution": "rectangular",
+        "distribution": spec.distribution,
         "u_per_angle_arcsec": math.sqrt(spec.per_angle_var),
         "u_scale_arcsec": math.sqrt(spec.scale_var),
     }

@@ -302,6 +302,7 @@ def _angle_sensor_text(result: Mapping[str, Any], t: Translator) -> str | None:
     return t(
         "angle_sensor_systematic",
         u=plain(a["bound_arcsec"]),
+        dist=t("dist_" + str(a.get("distribution", "rectangular"))),
         ua=fixed(a.get("u_per_angle_arcsec"), 2),
         us=fixed(a.get("u_scale_arcsec"), 2),
     )

@@ -275,11 +275,11 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "датчик угла, систематическая (тип В, паспорт платформы{bound})",
     },
     "angle_sensor": {"en": "Platform angle sensor", "ru": "Датчик угла платформы"},
+    "dist_triangular": {"en": "triangular", "ru": "треугольное распределение"},
+    "dist_rectangular": {"en": "rectangular", "ru": "равномерное распределение"},
     "angle_sensor_systematic": {
-        "en": "bound ±{u}″ (rectangular), per-angle u = {ua}″, scale u = {us}″ at the largest "
-        "angle",
-        "ru": "граница ±{u}″ (равномерное распределение), u по углу = {ua}″, "
-        "u масштаба = {us}″ на наибольшем угле",
+        "en": "bound ±{u}″ ({dist}), per-angle u = {ua}″, scale u = {us}″ at the largest angle",
+        "ru": "граница ±{u}″ ({dist}), u по углу = {ua}″, u масштаба = {us}″ на наибольшем угле",
     },
     "angle_sensor_independent": {
         "en": "errors independent from hold to hold (no systematic term)",
