@@ -48,7 +48,9 @@ class ProgramSpec:
     order of the holds (:data:`SCHEMES`): "paper" (+θ, −θ pairs ascending), "alternate"
     (+− in odd rounds, −+ in even), "zigzag" (alternate, and ascending/descending by
     round), "descending", "interleaved" (largest, smallest, second largest, … : angle
-    uncorrelated with time). The dwell is not a coordinate: it is the longest (whole
+    uncorrelated with time). ``axis``: "y", "x", or "xy" (rounds alternate Y and X: the
+    two axes are read by different angle sensors, whose systematic errors are independent).
+    The dwell is not a coordinate: it is the longest (whole
     seconds) that fits the budget.
     """
 
@@ -58,11 +60,13 @@ class ProgramSpec:
     scheme: str = "paper"
     rounds: int = 2
     settle_s: float = 300.0
+    axis: str = "y"
 
     def label(self) -> str:
+        axis = "Y and X alternating" if self.axis == "xy" else self.axis.upper()
         return (
             f"{self.n_angles} angles ({self.spacing}, from {format_dms(self.lowest_arcmin / 60)}), "
-            f"{self.scheme}, {self.rounds} round(s), settle {self.settle_s:g} s"
+            f"{self.scheme}, {self.rounds} round(s) about {axis}, settle {self.settle_s:g} s"
         )
 
 
@@ -73,6 +77,7 @@ SEARCH_SPACE: dict[str, tuple] = {
     "scheme": tuple(SCHEMES),
     "rounds": (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 24),
     "settle_s": (60.0, 90.0, 120.0, 180.0, 240.0, 300.0),
+    "axis": ("y", "x", "xy"),
 }
 
 
@@ -136,12 +141,13 @@ def spec_program(
     spec: ProgramSpec,
     budget_s: float,
     *,
-    axis: str = "y",
+    axis: str | None = None,
     values: DesignValues | None = None,
     min_dwell_s: float = MIN_DWELL_S,
 ) -> TiltProgram | None:
-    """The program of a spec (:func:`program_within_budget`); None when rounding to whole
-    arcminutes merged two angles or the dwell does not fit."""
+    """The program of a spec (:func:`program_within_budget`) about ``axis`` (default: the
+    spec's); None when rounding to whole arcminutes merged two angles or the dwell does
+    not fit."""
     angles = spec_angles_arcmin(spec)
     if len(angles) < spec.n_angles:
         return None
@@ -155,7 +161,7 @@ def spec_program(
         rounds=spec.rounds,
         order=order,
         sequence=sequence,
-        axis=axis,
+        axis=axis or spec.axis,
         values=values,
         min_dwell_s=min_dwell_s,
     )
@@ -249,9 +255,7 @@ def search_programs(
     def evaluate(spec: ProgramSpec) -> Candidate | None:
         key = _spec_key(spec)
         if key not in seen:
-            prog = spec_program(
-                spec, budget, axis=program.axis, values=values, min_dwell_s=min_dwell_s
-            )
+            prog = spec_program(spec, budget, values=values, min_dwell_s=min_dwell_s)
             if prog is None:
                 seen[key] = None
             else:
@@ -259,7 +263,7 @@ def search_programs(
                 seen[key] = Candidate(spec, prec, prec.objective(objective))
         return seen[key]
 
-    base = ProgramSpec(settle_s=space["settle_s"][-1])
+    base = ProgramSpec(settle_s=space["settle_s"][-1], axis=program.axis)
     grid = [
         replace(base, n_angles=n, rounds=r, settle_s=st)
         for n in space["n_angles"]
