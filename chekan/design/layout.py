@@ -65,7 +65,8 @@ class Layout:
     """A program laid out at the sample rate the way a record of it is binned.
 
     Holds k = 0…H−1 with their signed tilt about their own axis and that axis
-    (``hold_axis``: "x" or "y", the angle sensor that reads it); slews (H, M) padded, ``slew_lag_s`` = t_last − t of each slew sample
+    (``hold_axis``: "x" or "y", the angle sensor that reads it); slews (H, M) padded,
+    ``slew_lag_s`` = t_last − t of each slew sample
     (t_last: the last sample before the hold); bins (N,) with their hold, the time from
     t_last to their first sample ``bin_d0_s`` (10⁹ for hold 0: settled from the start),
     sample count and mid time.
