@@ -65,6 +65,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 from scipy.interpolate import CubicSpline
 
 import chekan.jaxconfig  # noqa: F401  (float64 before any array)
@@ -327,7 +328,8 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     ng = n_old + B.shape[1]
     nb = 3 * H
     Mgg = np.zeros((ng, ng))
-    gb_pos, gb_w, bb_pos, bb_w = [], [], [], []
+    Mgb = np.zeros((ng, nb))
+    bb_pos, bb_w = [], []
     k_own, k_prev = layout.bin_hold, np.maximum(layout.bin_hold - 1, 0)
     for j in range(2):
         X = _global_columns(values, layout, lag.f[..., 1:], df_dlogtau, j)
@@ -339,16 +341,14 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
         Wj = W[:, j]
         Mgg += X.T @ (X * Wj[:, None])
         wv = val * Wj[:, None]  # (N, 4)
-        gb_pos.append((np.arange(ng)[None, None, :] * nb + idx[:, :, None]).ravel())
-        gb_w.append((wv[:, :, None] * X[:, None, :]).ravel())
+        rows = np.repeat(np.arange(idx.shape[0]), 4)
+        L = scipy.sparse.csr_matrix((wv.ravel(), (rows, idx.ravel())), shape=(idx.shape[0], nb))
+        Mgb += np.asarray((L.T @ X).T)  # Xᵀ Wⱼ L, duplicates summed
         r, c = idx[:, :, None], idx[:, None, :]
         upper = np.broadcast_to(r <= c, (idx.shape[0], 4, 4))
         pos = (_BAND + r - c) * nb + c
         bb_pos.append(pos[upper])
         bb_w.append((wv[:, :, None] * val[:, None, :])[upper])
-    Mgb = np.bincount(np.concatenate(gb_pos), np.concatenate(gb_w), minlength=ng * nb).reshape(
-        ng, nb
-    )
     ab = np.bincount(
         np.concatenate(bb_pos), np.concatenate(bb_w), minlength=(_BAND + 1) * nb
     ).reshape(_BAND + 1, nb)

@@ -226,8 +226,8 @@ def search_programs(
     """Search for a program with a smaller expected sd within a clock-time budget.
 
     1. the given program (always a candidate: the result is never worse);
-    2. a grid over (``n_angles``, ``rounds``, ``settle_s``) with the other coordinates at
-       the paper's choices (Δg spacing from 1°50′, paper order);
+    2. a grid over (``n_angles``, ``rounds``, ``settle_s``, ``axis``) with the other
+       coordinates at the paper's choices (Δg spacing from 1°50′, paper order);
     3. coordinate search from the ``start_points`` best grid points: each coordinate of
        ``space`` in turn is set to every one of its values, the best is kept, until a
        sweep improves nothing (at most ``max_sweeps``).
@@ -265,10 +265,11 @@ def search_programs(
 
     base = ProgramSpec(settle_s=space["settle_s"][-1], axis=program.axis)
     grid = [
-        replace(base, n_angles=n, rounds=r, settle_s=st)
+        replace(base, n_angles=n, rounds=r, settle_s=st, axis=ax)
         for n in space["n_angles"]
         for r in space["rounds"]
         for st in space["settle_s"]
+        for ax in space.get("axis", (program.axis,))
     ]
     scored = sorted((c for c in map(evaluate, grid) if c is not None), key=lambda c: c.objective)
     for current in scored[:start_points]:
