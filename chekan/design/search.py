@@ -8,6 +8,33 @@ settle time) inside the paper's range ±1°50′…±5°10′, each given the lo
 over all its values, best first, until no coordinate improves) from the three best grid
 points. The given program is always a candidate, so the result is never worse than it.
 
+**Systematic angle errors** (:mod:`chekan.joint.angles`; ``DesignValues.angle_bound_arcsec``,
+default 3″): one ζ per commanded signed angle and a scale ξ per axis sensor, shared by
+all rounds. They do not average over rounds, so the hold count alone no longer decides:
+distinct angles (each brings its own ζ), ± pairs (two ζ at each |θ|), large angles (the
+same ″ is a smaller part of θ; the scale term sets δb/b = 2ξ/θ_max) and tilts about X,
+read by the other sensor, whose errors are independent, help. The numbers for the
+paper's clock (``chekan design --search``, 9.16 h with slews; sd of b₁, ppm, at the
+design values; bound 3″ / 0):
+
+=========================================================  ===========  ==========
+program                                                    3″           0
+=========================================================  ===========  ==========
+the paper's (8 angles, 2 rounds about Y, 900 s)            337.8        279.9
+best at 3″, about Y only: 6 angles θ-spaced 1°50′…5°10′,   185.6        117.7
+zigzag, 12 rounds, dwell 181 s, settle 120 s
+best at 0 about Y only: 3 angles 3°10′…5°10′, 20 rounds    198.1        104.9
+best at 3″: 3 angles 4°30′, 4°50′, 5°10′, alternate,       77.7         35.5
+20 rounds alternating Y and X, dwell 188 s, settle 120 s
+=========================================================  ===========  ==========
+
+About Y only, the systematic errors call for more distinct angles (6 rather than 3).
+With X tilts the model's gain is large (b₂ alike), because under tilts about X the two
+systems respond differently (ε, Δγ), which separates the scale errors from b — this rests
+on the forward model's response to tilts about X at the design ε and Δγ, which no
+measurement has checked yet, and the simulator and the estimator take one axis per
+record so far: treat "xy" programs as a design result to verify.
+
 """
 
 from __future__ import annotations
