@@ -31,6 +31,14 @@ systems** (prior σ_θ² = (2″)²) entering through s_j = −∂E_j/∂θ / 20
 bin's sample count, σ_j the 1 Hz noise (0.15 pix), κ the slew error (0.003) times the
 transient still present in the bin. W_j = diag(1/var e_{·j}); Λ the prior covariance.
 
+**Systematic angle errors** (:mod:`chekan.joint.angles`): the angle error of hold k is
+δₖ + (Bζ)ₖ, B the estimator's basis built per axis sensor (:func:`systematic_basis`):
+an indicator per distinct commanded signed angle (level included) and the scale θₖ/θ_max,
+for the Y sensor's holds and, separately, the X sensor's (a program with ``axis="xy"``
+alternates rounds about Y and X). ζ enters like δ, through G·diag(s_j)·B, as global
+columns with the specification's Type B prior (u²/2 each for the 3″ default);
+``angle_bound_arcsec=0`` leaves them out (the previous model exactly).
+
 The Jacobian ∂f/∂θ is exact for the instrument parameters (f is linear in E, so
 ∂f/∂u = f evaluated on ∂E/∂u, from JAX forward-mode on a fixed grid of attitudes and a
 cubic spline, error < 1e-10 pix) and a central difference in log τ. The hold-local
@@ -39,7 +47,7 @@ previous one), so they are eliminated by a Schur complement with a banded Choles
 
 .. math::
 
-    Σ_{gg} = (M_{gg} − M_{gb} M_{bb}^{-1} M_{bg})^{-1},\qquad g = (θ, c, d),\ b = (o, δ).
+    Σ_{gg} = (M_{gg} − M_{gb} M_{bb}^{-1} M_{bg})^{-1},\qquad g = (θ, c, d, ζ),\ b = (o, δ).
 
 Derived quantities by the delta method, as the estimator reports them:
 a = mean_j a_j(m_h + c) (eq. 10) and b_{j,0} = b_j + 2a(m₀ − m_h) (eq. 24, the scale
