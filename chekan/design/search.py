@@ -24,8 +24,9 @@ the paper's (8 angles, 2 rounds about Y, 900 s)            337.8        279.9
 best at 3″, about Y only: 6 angles θ-spaced 1°50′…5°10′,   185.6        117.7
 zigzag, 12 rounds, dwell 181 s, settle 120 s
 best at 0 about Y only: 3 angles 3°10′…5°10′, 20 rounds    198.1        104.9
-best at 3″: 3 angles 4°30′, 4°50′, 5°10′, alternate,       77.7         35.5
+best at 3″: 3 angles 4°30′, 4°51′, 5°10′, alternate,       77.7         35.5
 20 rounds alternating Y and X, dwell 188 s, settle 120 s
+(b₂ 79.4 / 35.6; the paper's b₂ 346.6 / 287.2)
 =========================================================  ===========  ==========
 
 About Y only, the systematic errors call for more distinct angles (6 rather than 3).
