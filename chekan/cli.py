@@ -44,12 +44,18 @@ short options (the same in every command that has the option):
 def _cmd_simulate(args) -> int:
     import numpy as np
 
+    from chekan.errors import ProgramError
     from chekan.program import default_program, load_program
     from chekan.records import write_record
     from chekan.simulate import Truth, random_truth, simulate_session, write_truth
 
     check_outputs([args.program], [args.out, args.truth])
     program = load_program(args.program) if args.program else default_program()
+    if program.axis == "xy":
+        raise ProgramError(
+            f"{args.program}: axis 'xy' (rounds alternating Y and X) is a design option so far: "
+            "the simulator and the estimator handle one tilt axis per record"
+        )
     truth = (
         random_truth(np.random.default_rng(args.seed + 10_000), serial=args.serial)
         if args.random_truth
@@ -221,6 +227,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--min-dwell-s", type=float, default=180.0, help="shortest dwell (180 s)")
     p.add_argument("--min-settle-s", type=float, default=120.0, help="shortest settle (120 s)")
     p.add_argument("--top", type=int, default=15, help="rows of the ranked table (15)")
+    p.add_argument(
+        "--angle-bound-arcsec",
+        type=float,
+        help="bound U of the platform angle sensors' systematic error (default 3; 0: none)",
+    )
     p.add_argument("-o", "--out", help="write the best program here (TOML; implies --search)")
     p.add_argument("--json", help="write the expected sds and the ranked table here")
     p.set_defaults(func=_cmd_design)

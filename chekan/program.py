@@ -10,7 +10,8 @@ A program file is TOML::
 
     name = "paper"
     angles = ["1°50'", "2°30'", "3°10'"]   # magnitudes, DMS text or decimal degrees
-    axis = "y"            # platform axis of the tilt: "y" (calibration) or "x"
+    axis = "y"            # platform axis of the tilt: "y" (calibration), "x", or "xy"
+                          # ("xy": rounds alternate, odd rounds about Y, even about X)
     order = "+-"          # per angle: "+-", "-+", or "alternate" (+- in odd rounds, -+ in even)
     sequence = "ascending" # "ascending", "descending", "as-given", "zigzag" (asc, then desc)
     dwell_s = 900
@@ -30,6 +31,7 @@ from chekan.errors import ProgramError
 from chekan.units import ARCSEC_PER_RAD, format_dms, parse_angle_deg
 
 MAX_ANGLE_DEG = 6.0
+AXES = ("y", "x", "xy")  # "xy": rounds alternate between Y (odd) and X (even)
 PAPER_ANGLES = ("1°50'", "2°30'", "3°10'", "3°40'", "4°10'", "4°30'", "4°50'", "5°10'")
 
 
@@ -46,6 +48,7 @@ class Step:
     tilt_y_rad: float
     dwell_s: float
     settle_s: float
+    axis: str = "y"  # the axis (and angle sensor) of the step; level: its round's axis
 
     @property
     def tilt_x_arcsec(self) -> float:
@@ -92,9 +95,21 @@ class TiltProgram:
         angs = ", ".join(format_dms(np.rad2deg(a), sign="pm") for a in self.angles_rad)
         return (
             f"{self.name}: {self.rounds} round(s) × {len(self.angles_rad)} angles ({angs}) about "
-            f"{self.axis.upper()}, order {self.order}, dwell {self.dwell_s:g} s "
+            f"{_axis_text(self.axis)}, order {self.order}, dwell {self.dwell_s:g} s "
             f"(settle {self.settle_s:g} s), {self.n_steps} steps, {self.duration_s / 3600:.2f} h"
         )
+
+
+def round_axis(axis: str, rnd: int) -> str:
+    """The tilt axis of round ``rnd`` (1-based): ``axis`` itself, or for "xy" Y in odd
+    rounds and X in even ones."""
+    if axis == "xy":
+        return "y" if rnd % 2 else "x"
+    return axis
+
+
+def _axis_text(axis: str) -> str:
+    return "Y and X (alternate rounds)" if axis == "xy" else axis.upper()
 
 
 def build_program(
@@ -120,8 +135,8 @@ def build_program(
             raise ProgramError(
                 f"{source}: angle {format_dms(a)} ({a:.4f}°) is beyond the {MAX_ANGLE_DEG:g}° limit"
             )
-    if axis not in ("x", "y"):
-        raise ProgramError(f"{source}: axis must be 'x' or 'y', not {axis!r}")
+    if axis not in AXES:
+        raise ProgramError(f"{source}: axis must be 'x', 'y' or 'xy', not {axis!r}")
     if order not in ("+-", "-+", "alternate"):
         raise ProgramError(f"{source}: order must be '+-', '-+' or 'alternate', not {order!r}")
     if sequence not in ("ascending", "descending", "as-given", "zigzag"):
@@ -149,8 +164,11 @@ def build_program(
 
     def add(rnd: int, kind: str, ai: int, sign: int) -> None:
         th = sign * np.deg2rad(angles[ai]) if kind == "tilt" else 0.0
-        tx, ty = (0.0, th) if axis == "y" else (th, 0.0)
-        steps.append(Step(len(steps), rnd, kind, ai, sign, tx, ty, float(dwell_s), float(settle_s)))
+        ax = round_axis(axis, rnd)
+        tx, ty = (0.0, th) if ax == "y" else (th, 0.0)
+        steps.append(
+            Step(len(steps), rnd, kind, ai, sign, tx, ty, float(dwell_s), float(settle_s), ax)
+        )
 
     for rnd in range(1, int(rounds) + 1):
         seq = idx

@@ -17,7 +17,8 @@ PAPER_DEG = [parse_angle_deg(a) for a in PAPER_ANGLES]
 
 
 def white_noise_only(**truth) -> d.DesignValues:
-    """No random effects, no drift, τ known and tiny (every bin settled), flat priors."""
+    """No random effects, no systematic angle errors, no drift, τ known and tiny (every bin
+    settled), flat priors."""
     return d.DesignValues(
         truth=Truth(tau_s=1e-3, **truth),
         hold_offsets=False,
@@ -26,6 +27,7 @@ def white_noise_only(**truth) -> d.DesignValues:
         estimate_tau=False,
         priors=False,
         slew_error=0.0,
+        angle_bound_arcsec=0.0,
     )
 
 
@@ -80,7 +82,8 @@ def test_doubling_rounds_shrinks_sd_by_sqrt2():
     round boundary, < 0.5 %); from 1 to 2 rounds much better (one ascending sweep
     confounds angle with drift)."""
     ratios = {}
-    for label, vals in (("white", white_noise_only()), ("full", d.DesignValues())):
+    random_only = d.DesignValues(angle_bound_arcsec=0.0)  # systematic: see further down
+    for label, vals in (("white", white_noise_only()), ("full", random_only)):
         for r in (1, 2):
             one = d.expected_precision(
                 build_program(PAPER_DEG, dwell_s=300, settle_s=200, rounds=r), vals
@@ -269,3 +272,152 @@ def test_cli_design_search_round_trip_and_errors(tmp_path, capsys):
     assert main(["design", str(garbage), "--search"]) == 2
     err = capsys.readouterr().err
     assert str(garbage) in err and "not valid TOML" in err and "line 2" in err
+
+
+# ----------------------------------------------------------------------------- systematic errors
+
+# expected sds before the systematic angle-error terms existed (commit 7ac275a): bound 0
+# must reproduce them
+OLD_SD = {
+    "paper": {"b1": 0.0019535777621676152, "b2": 0.0019765540941881427, "a": 3.71096769573623e-06},
+    "alt3": {"b1": 0.0021909441616675446, "b2": 0.002219735044661729, "a": 4.665929250440646e-06},
+    "x": {"b1": 0.002087663858378801, "b2": 0.0020578191636689176, "a": 4.6822186034409725e-07},
+}
+
+
+def _old_programs():
+    from chekan.program import default_program
+
+    return {
+        "paper": default_program(),
+        "alt3": build_program(
+            PAPER_DEG[::2], dwell_s=300, settle_s=200, rounds=3, order="alternate"
+        ),
+        "x": build_program(PAPER_DEG[:3], axis="x", dwell_s=400, settle_s=150, rounds=2),
+    }
+
+
+def test_bound_zero_reproduces_the_old_information():
+    """(a) ``angle_bound_arcsec=0``: no systematic columns, the old sds to 1e-9."""
+    vals = d.DesignValues(angle_bound_arcsec=0.0)
+    for name, prog in _old_programs().items():
+        Mgg, *_ = d.information_blocks(prog, vals)
+        assert Mgg.shape == (15, 15)
+        prec = d.expected_precision(prog, vals)
+        for k, old in OLD_SD[name].items():
+            assert prec.sd[k] == pytest.approx(old, rel=1e-9), (name, k)
+    # the default carries the paper's 3″: one ζ per signed commanded angle (level included)
+    # and a scale ξ for the one sensor of a Y program
+    Mgg, *_ = d.information_blocks(_old_programs()["paper"], d.DesignValues())
+    assert Mgg.shape == (15 + 17 + 1, 15 + 17 + 1)
+
+
+def test_systematic_errors_do_not_average_over_rounds():
+    """(b) With the 3″ bound sd(b) of the paper's program grows; the same 4 angles in 8
+    rounds instead of 2 (dwell ÷ 4, same clock) shrink the random part by ~2 but not the
+    systematic part, which stays above the floor the per-angle and scale priors set."""
+    from chekan.program import default_program
+
+    paper = default_program()
+    with_sys = d.expected_precision(paper)
+    without = d.expected_precision(paper, d.DesignValues(angle_bound_arcsec=0.0))
+    assert with_sys.sd["b1"] > 1.1 * without.sd["b1"]
+    assert with_sys.sd["b2"] > 1.1 * without.sd["b2"]
+
+    angles = PAPER_DEG[::2]
+    two = build_program(angles, dwell_s=1200, settle_s=300, rounds=2)
+    eight = build_program(angles, dwell_s=300, settle_s=150, rounds=8)
+    sd = {
+        (r, b): d.expected_precision(p, d.DesignValues(angle_bound_arcsec=b)).sd["b1"]
+        for r, p in ((2, two), (8, eight))
+        for b in (0.0, 3.0)
+    }
+    # the floor: the scale error ξ ~ N(0, u_s²) at θ_max moves b₁ and b₂ alike, as
+    # δb/b = −2ξ/θ_max, which no number of rounds or samples separates; the per-angle ζ
+    # add to it (partly resolved by the two systems' different sensitivities)
+    from chekan.units import ARCSEC_PER_RAD
+
+    u_s = math.sqrt(d.DesignValues().angle_spec.scale_var)
+    floor = 2 * u_s / (max(eight.angles_rad) * ARCSEC_PER_RAD) * Truth().b_mgal_per_pix[0]
+    sys2 = math.sqrt(sd[2, 3.0] ** 2 - sd[2, 0.0] ** 2)
+    sys8 = math.sqrt(sd[8, 3.0] ** 2 - sd[8, 0.0] ** 2)
+    assert sd[2, 0.0] / sd[8, 0.0] > 1.5  # the random part: about 1/√rounds
+    assert sys2 / sys8 < 1.25  # the systematic part: not 1/√rounds (that would be 2)
+    assert sys8 > floor
+    assert sd[8, 3.0] > math.hypot(sd[8, 0.0], floor)
+
+
+def test_pure_scale_prior_adds_two_u_over_theta_max():
+    """(c) Per-angle share 0: a scale error ξ ~ N(0, u²) at θ_max acts on b as
+    δb/b = −2ξ/θ_max, so sd(b)/b grows by 2u/θ_max in quadrature (here 186 ppm)."""
+    from chekan.program import default_program
+    from chekan.units import ARCSEC_PER_RAD
+
+    paper = default_program()
+    base = d.expected_precision(paper, d.DesignValues(angle_bound_arcsec=0.0))
+    vals = d.DesignValues(angle_bound_arcsec=3.0, angle_scale_share=1.0)
+    scale = d.expected_precision(paper, vals)
+    u = vals.angle_spec.u_arcsec
+    expected = 2 * u / (max(paper.angles_rad) * ARCSEC_PER_RAD)
+    for k in ("b1", "b2"):
+        added = math.sqrt(scale.sd[k] ** 2 - base.sd[k] ** 2) / scale.value[k]
+        assert added == pytest.approx(expected, rel=0.2), k
+
+
+def test_tilts_about_x_use_the_other_sensor():
+    """Alternating rounds about Y and X: two sensors, each with its own ζ per angle and ξ;
+    the systematic part of sd(b) is smaller than with the Y sensor alone."""
+    from chekan.program import default_program
+
+    y, xy = default_program(), default_program(axis="xy")
+    assert [s.axis for s in xy.steps if s.round == 2] == ["x"] * 18
+    Mgg, *_ = d.information_blocks(xy, d.DesignValues())
+    assert Mgg.shape == (15 + 2 * 18, 15 + 2 * 18)
+    sys = {}
+    for name, prog in (("y", y), ("xy", xy)):
+        full = d.expected_precision(prog).sd["b1"]
+        rnd = d.expected_precision(prog, d.DesignValues(angle_bound_arcsec=0.0)).sd["b1"]
+        sys[name] = math.sqrt(full**2 - rnd**2)
+    assert sys["xy"] < sys["y"]
+
+
+def test_search_under_systematic_errors_uses_more_distinct_angles():
+    """(d) Without systematic errors the hold count is all that matters and a few angles in
+    many rounds win; with them every distinct angle brings its own ζ to average."""
+    from chekan.program import default_program
+
+    space = {
+        "n_angles": (2, 3, 4, 6, 8, 12),
+        "spacing": ("dg",),
+        "lowest_arcmin": (110, 190),
+        "scheme": ("paper",),
+        "rounds": (2, 4, 8, 12, 20),
+        "settle_s": (120.0,),
+        "axis": ("y",),
+    }
+    best = {}
+    for b in (0.0, 3.0):
+        res = d.search_programs(
+            default_program(), values=d.DesignValues(angle_bound_arcsec=b), space=space
+        )
+        best[b] = res.best.program
+    assert len(best[3.0].angles_rad) > len(best[0.0].angles_rad)
+
+
+def test_xy_program_file_round_trip_and_cli_bound(tmp_path, capsys):
+    """axis = "xy" reads and writes back; ``--angle-bound-arcsec 0`` gives the old sds."""
+    from chekan.cli import main
+
+    prog = build_program(PAPER_DEG[::2], axis="xy", dwell_s=400, settle_s=150, rounds=4)
+    back = load_program(d.write_program_toml(tmp_path / "xy.toml", prog))
+    assert back.axis == "xy"
+    assert [(s.axis, s.tilt_x_rad, s.tilt_y_rad) for s in back.steps] == [
+        (s.axis, s.tilt_x_rad, s.tilt_y_rad) for s in prog.steps
+    ]
+    assert main(["design", "--angle-bound-arcsec", "0"]) == 0
+    text = capsys.readouterr().out
+    assert f"{1e6 * OLD_SD['paper']['b1'] / 6.98:.1f} ppm" in text
+    assert "systematic" not in text.split("expected posterior")[1]
+    assert main(["design"]) == 0
+    assert "ppm systematic" in capsys.readouterr().out
+    assert main(["design", "--angle-bound-arcsec", "-1"]) == 2

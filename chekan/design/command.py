@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -15,8 +16,10 @@ from chekan.program import TiltProgram
 from chekan.units import format_dms
 
 
-def format_precision(prec: ExpectedPrecision) -> str:
-    """The expected sds of b₁, b₂ (at the level reading and at the CCD centre) and a."""
+def format_precision(prec: ExpectedPrecision, random_only: ExpectedPrecision | None = None) -> str:
+    """The expected sds of b₁, b₂ (at the level reading and at the CCD centre) and a; with
+    ``random_only`` (the same program without systematic angle errors) also the share of
+    the sensors' systematic error, in quadrature."""
     p = prec.program
     lines = [
         f"{p.describe()}",
@@ -38,6 +41,15 @@ def format_precision(prec: ExpectedPrecision) -> str:
         f"  {'a':<22} {prec.sd['a']:.3e} mGal/pix^2 ({prec.sd_ppm('a'):6.0f} ppm of "
         f"{prec.value['a']:.4e})"
     )
+    if random_only is not None:
+        parts = []
+        for name in ("b1", "b2"):
+            sys2 = max(prec.sd[name] ** 2 - random_only.sd[name] ** 2, 0.0)
+            parts.append(
+                f"{name} {random_only.sd_ppm(name):.1f} ppm random + "
+                f"{1e6 * math.sqrt(sys2) / abs(prec.value[name]):.1f} ppm systematic"
+            )
+        lines.append("  of which (in quadrature): " + "; ".join(parts))
     lines.append(
         f"  also: tau {prec.sd['tau_s']:.2g} s, eps1 {prec.sd['eps1_arcmin']:.2g}', "
         f"eps2 {prec.sd['eps2_arcmin']:.2g}', dgamma {prec.sd['dgamma_arcmin']:.2g}'"
@@ -53,6 +65,7 @@ def candidate_row(c: Candidate) -> dict:
         "given": c.spec is None,
         "angles": [format_dms(math.degrees(a)) for a in p.angles_rad],
         "n_angles": len(p.angles_rad),
+        "axis": p.axis,
         "order": p.order,
         "sequence": p.sequence,
         "rounds": p.rounds,
@@ -75,6 +88,7 @@ def format_table(result: SearchResult, top: int = 15) -> str:
         ("#", 3),
         ("angles", -18),
         ("spacing", -7),
+        ("axis", -4),
         ("order", -9),
         ("sequence", -10),
         ("rounds", 6),
@@ -102,6 +116,7 @@ def format_table(result: SearchResult, top: int = 15) -> str:
             i + 1,
             f"{r['n_angles']} {lo}..{hi}",
             spacing,
+            r["axis"],
             r["order"],
             r["sequence"],
             r["rounds"],
@@ -182,6 +197,8 @@ def design_json(prec: ExpectedPrecision, result: SearchResult | None, values: De
             "slew_error": values.slew_error,
             "drift_degree": values.drift_degree,
             "slew_deg_per_s": t.slew_deg_per_s,
+            "angle_bound_arcsec": values.angle_bound_arcsec,
+            "angle_scale_share": values.angle_scale_share,
         },
         "given": precision_json(prec),
     }
@@ -203,11 +220,20 @@ def run_design_command(args) -> int:
     from chekan.program import default_program, load_program
 
     program = load_program(args.program) if args.program else default_program()
-    values = DesignValues()
+    bound = getattr(args, "angle_bound_arcsec", None)
+    values = DesignValues() if bound is None else DesignValues(angle_bound_arcsec=float(bound))
+    _ = values.angle_spec  # a bad bound is an error before any work
+    no_sys = dataclasses.replace(values, angle_bound_arcsec=0.0)
     t0 = time.perf_counter()
     prec = expected_precision(program, values)
     print(f"given program ({args.program or 'the paper’s default'}):")
-    print(format_precision(prec))
+    if values.angle_bound_arcsec:
+        print(
+            f"(angle sensors: systematic error bound {values.angle_bound_arcsec:g}″ per axis, "
+            "per commanded angle and scale; --angle-bound-arcsec 0 leaves it out)"
+        )
+    rnd = expected_precision(program, no_sys) if values.angle_bound_arcsec else None
+    print(format_precision(prec, rnd))
     print(
         f"(design model evaluated in {1e3 * (time.perf_counter() - t0):.0f} ms, first call "
         "includes the one-off JAX grid)"
@@ -235,7 +261,8 @@ def run_design_command(args) -> int:
         else:
             gain = result.given.objective / best.objective
             print(f"\nbest: {best.spec.label()}, dwell {best.program.dwell_s:g} s")
-            print(format_precision(best.precision))
+            rnd = expected_precision(best.program, no_sys) if values.angle_bound_arcsec else None
+            print(format_precision(best.precision, rnd))
             print(f"objective {result.objective}: {gain:.2f}× smaller sd than the given program")
         if args.out:
             written = write_program_toml(args.out, best.program)

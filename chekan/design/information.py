@@ -31,6 +31,14 @@ systems** (prior σ_θ² = (2″)²) entering through s_j = −∂E_j/∂θ / 20
 bin's sample count, σ_j the 1 Hz noise (0.15 pix), κ the slew error (0.003) times the
 transient still present in the bin. W_j = diag(1/var e_{·j}); Λ the prior covariance.
 
+**Systematic angle errors** (:mod:`chekan.joint.angles`): the angle error of hold k is
+δₖ + (Bζ)ₖ, B the estimator's basis built per axis sensor (:func:`systematic_basis`):
+an indicator per distinct commanded signed angle (level included) and the scale θₖ/θ_max,
+for the Y sensor's holds and, separately, the X sensor's (a program with ``axis="xy"``
+alternates rounds about Y and X). ζ enters like δ, through G·diag(s_j)·B, as global
+columns with the specification's Type B prior (u²/2 each for the 3″ default);
+``angle_bound_arcsec=0`` leaves them out (the previous model exactly).
+
 The Jacobian ∂f/∂θ is exact for the instrument parameters (f is linear in E, so
 ∂f/∂u = f evaluated on ∂E/∂u, from JAX forward-mode on a fixed grid of attitudes and a
 cubic spline, error < 1e-10 pix) and a central difference in log τ. The hold-local
@@ -39,7 +47,7 @@ previous one), so they are eliminated by a Schur complement with a banded Choles
 
 .. math::
 
-    Σ_{gg} = (M_{gg} − M_{gb} M_{bb}^{-1} M_{bg})^{-1},\qquad g = (θ, c, d),\ b = (o, δ).
+    Σ_{gg} = (M_{gg} − M_{gb} M_{bb}^{-1} M_{bg})^{-1},\qquad g = (θ, c, d, ζ),\ b = (o, δ).
 
 Derived quantities by the delta method, as the estimator reports them:
 a = mean_j a_j(m_h + c) (eq. 10) and b_{j,0} = b_j + 2a(m₀ − m_h) (eq. 24, the scale
@@ -65,11 +73,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
+import scipy.sparse
 from scipy.interpolate import CubicSpline
 
 import chekan.jaxconfig  # noqa: F401  (float64 before any array)
 from chekan import model as fm
 from chekan.design.layout import DesignValues, Lagged, Layout, lagged_means, program_layout
+from chekan.joint.angles import systematic_basis as angle_systematic_basis
 from chekan.joint.derived import at_level
 from chekan.joint.problem import nonlinear_params
 from chekan.program import TiltProgram
@@ -253,20 +263,62 @@ def _local_columns(values: DesignValues, layout: Layout, lag: Lagged, s_ang, j: 
 _BAND = 5  # the unknowns of hold k touch those of hold k − 1 only: |row − column| ≤ 5
 
 
+def systematic_basis(layout: Layout, values: DesignValues) -> tuple[np.ndarray, np.ndarray]:
+    """The systematic angle-error basis B (H, Q) in arcsec per unit and its prior variances
+    (Q,): for each axis sensor the program uses, an indicator column per distinct commanded
+    signed angle (level included) and the scale column θₖ/θ_max of that sensor's holds
+    (:func:`chekan.joint.angles.systematic_basis`, the estimator's basis, per sensor: a
+    tilt about X is read by the other sensor, whose errors are independent). Empty when
+    ``angle_bound_arcsec`` is 0."""
+    H = layout.theta_hold_rad.size
+    if values.angle_bound_arcsec == 0.0:
+        return np.zeros((H, 0)), np.zeros(0)
+    spec = values.angle_spec
+    blocks, variances = [], []
+    for axis in ("y", "x"):
+        on = layout.hold_axis == axis
+        if not on.any():
+            continue
+        basis, var = angle_systematic_basis(layout.theta_hold_rad[on], spec)
+        full = np.zeros((H, basis.shape[1]))
+        full[on] = basis
+        blocks.append(full)
+        variances.append(var)
+    return np.concatenate(blocks, axis=1), np.concatenate(variances)
+
+
+def _hold_sensitivities(layout: Layout, truth: Truth):
+    """E, ∂E/∂u and S at the holds and along the slews into them, each from the grid of
+    the hold's own axis (a slew is on the axis of the hold it leads to)."""
+    axes = sorted(set(layout.hold_axis.tolist()))
+    first = sensitivities(truth, layout.hold_axis[0])
+    at_h, at_s = first.at(layout.theta_hold_rad), first.at(layout.slew_theta_rad)
+    if len(axes) == 1:
+        return first, at_h, at_s
+    at_h, at_s = [np.array(x) for x in at_h], [np.array(x) for x in at_s]
+    for a in axes:
+        on = layout.hold_axis == a
+        sens = sensitivities(truth, a)
+        for out, new in zip(at_h, sens.at(layout.theta_hold_rad[on]), strict=True):
+            out[on] = new
+        for out, new in zip(at_s, sens.at(layout.slew_theta_rad[on]), strict=True):
+            out[on] = new
+    return first, tuple(at_h), tuple(at_s)
+
+
 def information_blocks(program: TiltProgram, values: DesignValues | None = None):
-    """Prior-augmented expected information in blocks: M_gg (g = θ, c, d), M_gb and M_bb
-    in upper banded storage (b = o₁, o₂, δ per hold), plus the layout and sensitivities.
+    """Prior-augmented expected information in blocks: M_gg (g = θ, c, d, ζ, ξ), M_gb and
+    M_bb in upper banded storage (b = o₁, o₂, δ per hold), plus the layout and
+    sensitivities.
 
     M = Σⱼ Xⱼᵀ Wⱼ Xⱼ + Λ⁻¹ with the columns and weights of the module docstring.
     """
     values = values or DesignValues()
     truth = values.truth
-    sens = sensitivities(truth, program.axis)
     layout = program_layout(program, values)
     H = layout.theta_hold_rad.size
     tau = float(truth.tau_s)
-    E_h, dE_h, S_h = sens.at(layout.theta_hold_rad)
-    E_s, dE_s, _ = sens.at(layout.slew_theta_rad)
+    sens, (E_h, dE_h, S_h), (E_s, dE_s, _) = _hold_sensitivities(layout, truth)
     cols_h = np.concatenate([E_h[..., None], dE_h], axis=-1)  # (H, 2, 1 + 6)
     cols_s = np.concatenate([E_s[..., None], dE_s], axis=-1)  # (H, M, 2, 1 + 6)
     lag = lagged_means(layout, tau, cols_h, cols_s)
@@ -279,26 +331,32 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     W = 1.0 / var
     s_ang = -S_h / ARCSEC_PER_RAD  # (H, 2) pix per arcsec of readout error
 
-    ng = 9 + 2 * (values.drift_degree if values.drift else 0)
+    B, B_var = systematic_basis(layout, values)
+    n_old = 9 + 2 * (values.drift_degree if values.drift else 0)
+    ng = n_old + B.shape[1]
     nb = 3 * H
     Mgg = np.zeros((ng, ng))
-    gb_pos, gb_w, bb_pos, bb_w = [], [], [], []
+    Mgb = np.zeros((ng, nb))
+    bb_pos, bb_w = [], []
+    k_own, k_prev = layout.bin_hold, np.maximum(layout.bin_hold - 1, 0)
     for j in range(2):
         X = _global_columns(values, layout, lag.f[..., 1:], df_dlogtau, j)
+        if B.shape[1]:  # ζ, ξ enter like δ: G·diag(sⱼ)·B
+            X_sys = (lag.g_own * s_ang[k_own, j])[:, None] * B[k_own]
+            X_sys += (lag.g_prev * s_ang[k_prev, j])[:, None] * B[k_prev]
+            X = np.concatenate([X, X_sys], axis=1)
         idx, val = _local_columns(values, layout, lag, s_ang, j)
         Wj = W[:, j]
         Mgg += X.T @ (X * Wj[:, None])
         wv = val * Wj[:, None]  # (N, 4)
-        gb_pos.append((np.arange(ng)[None, None, :] * nb + idx[:, :, None]).ravel())
-        gb_w.append((wv[:, :, None] * X[:, None, :]).ravel())
+        rows = np.repeat(np.arange(idx.shape[0]), 4)
+        L = scipy.sparse.csr_matrix((wv.ravel(), (rows, idx.ravel())), shape=(idx.shape[0], nb))
+        Mgb += np.asarray((L.T @ X).T)  # Xᵀ Wⱼ L, duplicates summed
         r, c = idx[:, :, None], idx[:, None, :]
         upper = np.broadcast_to(r <= c, (idx.shape[0], 4, 4))
         pos = (_BAND + r - c) * nb + c
         bb_pos.append(pos[upper])
         bb_w.append((wv[:, :, None] * val[:, None, :])[upper])
-    Mgb = np.bincount(np.concatenate(gb_pos), np.concatenate(gb_w), minlength=ng * nb).reshape(
-        ng, nb
-    )
     ab = np.bincount(
         np.concatenate(bb_pos), np.concatenate(bb_w), minlength=(_BAND + 1) * nb
     ).reshape(_BAND + 1, nb)
@@ -307,7 +365,8 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     if values.priors:
         prec_g[:7] = [1.0 / p.scale**2 for p in nonlinear_params()]
         prec_g[7:9] = 1.0 / C_PRIOR_VAR_PIX2
-        prec_g[9:] = 1.0 / DRIFT_PRIOR_VAR_PIX2
+        prec_g[9:n_old] = 1.0 / DRIFT_PRIOR_VAR_PIX2
+    prec_g[n_old:] = 1.0 / B_var  # Type B: the specification's prior, with or without priors
     if not values.estimate_tau:
         prec_g[6] = 1.0
     Mgg += np.diag(prec_g)

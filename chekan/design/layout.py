@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, AngleSensorSpec
 from chekan.joint.binning import BIN_EDGES_S
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
@@ -30,6 +31,12 @@ class DesignValues:
     (``tau_s``), slew speed and platform settling. The switches turn nuisances off (for
     analytic checks): ``hold_offsets``, ``angle_errors``, ``drift``, ``estimate_tau``;
     ``priors=False`` drops the priors of θ, c and d (flat).
+
+    ``angle_bound_arcsec``: the platform angle sensors' specification bound U (the paper:
+    3″, :data:`chekan.joint.angles.DEFAULT_BOUND_ARCSEC`), read as the systematic error
+    per commanded angle and the scale error of each axis's sensor
+    (:class:`chekan.joint.angles.AngleSensorSpec`, ``angle_scale_share`` of u² = U²/3 to
+    the scale); 0: no systematic error (the random δ only, as before).
     """
 
     truth: Truth = field(default_factory=Truth)
@@ -41,6 +48,13 @@ class DesignValues:
     drift: bool = True
     estimate_tau: bool = True
     priors: bool = True
+    angle_bound_arcsec: float = DEFAULT_BOUND_ARCSEC
+    angle_scale_share: float = 0.5
+
+    @property
+    def angle_spec(self) -> AngleSensorSpec:
+        """The angle sensors' specification these values assume (both axes alike)."""
+        return AngleSensorSpec(self.angle_bound_arcsec, self.angle_scale_share)
 
 
 # ----------------------------------------------------------------------------- layout
@@ -50,13 +64,16 @@ class DesignValues:
 class Layout:
     """A program laid out at the sample rate the way a record of it is binned.
 
-    Holds k = 0…H−1; slews (H, M) padded, ``slew_lag_s`` = t_last − t of each slew sample
+    Holds k = 0…H−1 with their signed tilt about their own axis and that axis
+    (``hold_axis``: "x" or "y", the angle sensor that reads it); slews (H, M) padded,
+    ``slew_lag_s`` = t_last − t of each slew sample
     (t_last: the last sample before the hold); bins (N,) with their hold, the time from
     t_last to their first sample ``bin_d0_s`` (10⁹ for hold 0: settled from the start),
     sample count and mid time.
     """
 
     theta_hold_rad: np.ndarray
+    hold_axis: np.ndarray
     n_hold: np.ndarray
     slew_theta_rad: np.ndarray
     slew_lag_s: np.ndarray
@@ -95,6 +112,10 @@ def program_layout(program: TiltProgram, values: DesignValues | None = None) -> 
     steps = program.steps
     H = len(steps)
     theta = np.array([s.theta_rad for s in steps])
+    axes = np.array([s.axis for s in steps])
+    for k in range(1, H):  # a move between axes would be a two-axis slew: level to level only
+        if axes[k] != axes[k - 1] and (theta[k] != 0.0 or theta[k - 1] != 0.0):
+            raise ValueError(f"step {k}: the axis changes away from level")
     n_hold = np.array([round(s.dwell_s / dt) for s in steps], dtype=int)
     slews = [np.zeros(0)] + [_slew_samples(theta[k - 1], theta[k], truth) for k in range(1, H)]
     M = max(1, max(s.size for s in slews))
@@ -125,6 +146,7 @@ def program_layout(program: TiltProgram, values: DesignValues | None = None) -> 
         t_next += n * dt
     return Layout(
         theta_hold_rad=theta,
+        hold_axis=axes,
         n_hold=n_hold,
         slew_theta_rad=sl_th,
         slew_lag_s=sl_lag,

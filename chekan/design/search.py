@@ -8,6 +8,34 @@ settle time) inside the paper's range ±1°50′…±5°10′, each given the lo
 over all its values, best first, until no coordinate improves) from the three best grid
 points. The given program is always a candidate, so the result is never worse than it.
 
+**Systematic angle errors** (:mod:`chekan.joint.angles`; ``DesignValues.angle_bound_arcsec``,
+default 3″): one ζ per commanded signed angle and a scale ξ per axis sensor, shared by
+all rounds. They do not average over rounds, so the hold count alone no longer decides:
+distinct angles (each brings its own ζ), ± pairs (two ζ at each |θ|), large angles (the
+same ″ is a smaller part of θ; the scale term sets δb/b = 2ξ/θ_max) and tilts about X,
+read by the other sensor, whose errors are independent, help. The numbers for the
+paper's clock (``chekan design --search``, 9.16 h with slews; sd of b₁, ppm, at the
+design values; bound 3″ / 0):
+
+=========================================================  ===========  ==========
+program                                                    3″           0
+=========================================================  ===========  ==========
+the paper's (8 angles, 2 rounds about Y, 900 s)            337.8        279.9
+best at 3″, about Y only: 6 angles θ-spaced 1°50′…5°10′,   185.6        117.7
+zigzag, 12 rounds, dwell 181 s, settle 120 s
+best at 0 about Y only: 3 angles 3°10′…5°10′, 20 rounds    198.1        104.9
+best at 3″: 3 angles 4°30′, 4°51′, 5°10′, alternate,       77.7         35.5
+20 rounds alternating Y and X, dwell 188 s, settle 120 s
+(b₂ 79.4 / 35.6; the paper's b₂ 346.6 / 287.2)
+=========================================================  ===========  ==========
+
+About Y only, the systematic errors call for more distinct angles (6 rather than 3).
+With X tilts the model's gain is large (b₂ alike), because under tilts about X the two
+systems respond differently (ε, Δγ), which separates the scale errors from b — this rests
+on the forward model's response to tilts about X at the design ε and Δγ, which no
+measurement has checked yet, and the simulator and the estimator take one axis per
+record so far: treat "xy" programs as a design result to verify.
+
 """
 
 from __future__ import annotations
@@ -48,7 +76,9 @@ class ProgramSpec:
     order of the holds (:data:`SCHEMES`): "paper" (+θ, −θ pairs ascending), "alternate"
     (+− in odd rounds, −+ in even), "zigzag" (alternate, and ascending/descending by
     round), "descending", "interleaved" (largest, smallest, second largest, … : angle
-    uncorrelated with time). The dwell is not a coordinate: it is the longest (whole
+    uncorrelated with time). ``axis``: "y", "x", or "xy" (rounds alternate Y and X: the
+    two axes are read by different angle sensors, whose systematic errors are independent).
+    The dwell is not a coordinate: it is the longest (whole
     seconds) that fits the budget.
     """
 
@@ -58,11 +88,13 @@ class ProgramSpec:
     scheme: str = "paper"
     rounds: int = 2
     settle_s: float = 300.0
+    axis: str = "y"
 
     def label(self) -> str:
+        axis = "Y and X alternating" if self.axis == "xy" else self.axis.upper()
         return (
             f"{self.n_angles} angles ({self.spacing}, from {format_dms(self.lowest_arcmin / 60)}), "
-            f"{self.scheme}, {self.rounds} round(s), settle {self.settle_s:g} s"
+            f"{self.scheme}, {self.rounds} round(s) about {axis}, settle {self.settle_s:g} s"
         )
 
 
@@ -73,6 +105,7 @@ SEARCH_SPACE: dict[str, tuple] = {
     "scheme": tuple(SCHEMES),
     "rounds": (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 24),
     "settle_s": (60.0, 90.0, 120.0, 180.0, 240.0, 300.0),
+    "axis": ("y", "x", "xy"),
 }
 
 
@@ -136,12 +169,13 @@ def spec_program(
     spec: ProgramSpec,
     budget_s: float,
     *,
-    axis: str = "y",
+    axis: str | None = None,
     values: DesignValues | None = None,
     min_dwell_s: float = MIN_DWELL_S,
 ) -> TiltProgram | None:
-    """The program of a spec (:func:`program_within_budget`); None when rounding to whole
-    arcminutes merged two angles or the dwell does not fit."""
+    """The program of a spec (:func:`program_within_budget`) about ``axis`` (default: the
+    spec's); None when rounding to whole arcminutes merged two angles or the dwell does
+    not fit."""
     angles = spec_angles_arcmin(spec)
     if len(angles) < spec.n_angles:
         return None
@@ -155,7 +189,7 @@ def spec_program(
         rounds=spec.rounds,
         order=order,
         sequence=sequence,
-        axis=axis,
+        axis=axis or spec.axis,
         values=values,
         min_dwell_s=min_dwell_s,
     )
@@ -220,8 +254,8 @@ def search_programs(
     """Search for a program with a smaller expected sd within a clock-time budget.
 
     1. the given program (always a candidate: the result is never worse);
-    2. a grid over (``n_angles``, ``rounds``, ``settle_s``) with the other coordinates at
-       the paper's choices (Δg spacing from 1°50′, paper order);
+    2. a grid over (``n_angles``, ``rounds``, ``settle_s``, ``axis``) with the other
+       coordinates at the paper's choices (Δg spacing from 1°50′, paper order);
     3. coordinate search from the ``start_points`` best grid points: each coordinate of
        ``space`` in turn is set to every one of its values, the best is kept, until a
        sweep improves nothing (at most ``max_sweeps``).
@@ -249,9 +283,7 @@ def search_programs(
     def evaluate(spec: ProgramSpec) -> Candidate | None:
         key = _spec_key(spec)
         if key not in seen:
-            prog = spec_program(
-                spec, budget, axis=program.axis, values=values, min_dwell_s=min_dwell_s
-            )
+            prog = spec_program(spec, budget, values=values, min_dwell_s=min_dwell_s)
             if prog is None:
                 seen[key] = None
             else:
@@ -259,12 +291,13 @@ def search_programs(
                 seen[key] = Candidate(spec, prec, prec.objective(objective))
         return seen[key]
 
-    base = ProgramSpec(settle_s=space["settle_s"][-1])
+    base = ProgramSpec(settle_s=space["settle_s"][-1], axis=program.axis)
     grid = [
-        replace(base, n_angles=n, rounds=r, settle_s=st)
+        replace(base, n_angles=n, rounds=r, settle_s=st, axis=ax)
         for n in space["n_angles"]
         for r in space["rounds"]
         for st in space["settle_s"]
+        for ax in space.get("axis", (program.axis,))
     ]
     scored = sorted((c for c in map(evaluate, grid) if c is not None), key=lambda c: c.objective)
     for current in scored[:start_points]:
