@@ -193,7 +193,7 @@ def agreement(a, b) -> tuple[float, float]:
 def run(
     seed: int = 0,
     quick: bool = False,
-    chains: int = 4,
+    chains: int = 1,
     warmup: int | None = None,
     draws: int | None = None,
     n_eval: int = 2000,
@@ -306,7 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="3 h record, fewer NUTS draws")
-    ap.add_argument("--chains", type=int, default=4, help="NUTS chains (vmapped)")
+    ap.add_argument("--chains", type=int, default=1, help="NUTS chains (vmapped; 4 ran > 5 min)")
     ap.add_argument("--warmup", type=int, help="NUTS adaptation steps (default 300; quick 200)")
     ap.add_argument("--draws", type=int, help="NUTS draws per chain (default 1000; quick 300)")
     args = ap.parse_args(argv)
