@@ -10,7 +10,7 @@ $(BIN)/chekan: pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) (set PY=python3)"; exit 1; }
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[dev,report,dask]"
+	$(BIN)/pip install -q -e ".[dev,report,dask,bench]"
 	@touch $@
 
 venv: $(BIN)/chekan browser

@@ -1,15 +1,32 @@
 """``python -m bench``: every benchmark in one run, one table, ``bench_results.json``.
 
-    python -m bench [--quick] [--skip-bayes] [--archive-n N] [--archive-map-n M]
-                    [--jobs J] [--seed S] [--json PATH]
+    python -m bench [--quick] [--skip-bayes] [--fresh-cache] [--archive-n N]
+                    [--archive-map-n M] [--jobs J] [--seed S] [--json PATH]
 
-Runs ``bench/calibration_bench.py`` (classical fit against a plain-NumPy fit, MAP and
-one LM pass against scipy ``least_squares``, the posterior and its ESS) and
-``bench/archive_bench.py`` (re-analysis sessions/s, classical and MAP, against a plain
-``calibrate_file`` loop) in this process, prints one table and writes every figure with
-its raw numbers and the machine's description to ``--json``. ``--quick`` (about a minute
-with a warm JAX cache): the 3 h record, no posterior, 40 archive sessions, classical only
-(``--archive-map-n 2`` adds MAP: its workers compile for minutes on a cold cache).
+Each figure is printed beside its reference measured in the same run (or the issue's goal
+where there is no reference tool):
+
+- ``bench/cli_bench.py``: ``chekan calibrate rec.csv --method map`` on a 9 h record as a NEW
+  process (subprocess of the CLI), first and second run, goal ≤ 3 s; the same for
+  ``--method bayes``, goal ≤ 15 s (skipped by ``--skip-bayes`` and ``--quick``); each row says
+  whether the persistent JAX cache (``CHEKAN_JAX_CACHE``) was warm and how many entries the
+  run added (``--fresh-cache``: an empty cache, a truly cold first run);
+- ``bench/calibration_bench.py``: the classical fit against a plain-NumPy fit, MAP first and
+  warm, one LM pass (optimistix) against ``scipy.optimize.least_squares`` on the same jitted
+  residuals;
+- ``bench/nuts_bench.py``: the marginal log-density (12 dimensions, jitted), median of many
+  warm calls, beside the 0.5 ms goal; ``bayes`` in one warm process (MAP + emcee + derived
+  draws: seconds, min bulk ESS, converged?) beside NUTS (blackjax) on the SAME log-density:
+  ESS/s of both and the agreement of the posterior means (within 0.1 sd) and sds (10 %)
+  (skipped by ``--skip-bayes``; ``--quick`` runs it on the 3 h record with fewer draws);
+- ``bench/archive_bench.py``: re-analysis sessions/s, classical and MAP, against a plain
+  ``calibrate_file`` loop.
+
+All figures, with their raw numbers and the machine's description (the load average
+matters on a shared machine), go to ``--json``. About 10 minutes on 2 cores with a warm JAX
+cache; ``--quick`` (about 3 minutes): the 3 h record, the CLI's map rows only, the posterior
+bench on the 3 h record, 40 archive sessions, classical only (``--archive-map-n 2`` adds MAP:
+its workers compile for minutes on a cold cache).
 """
 
 from __future__ import annotations
@@ -22,7 +39,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import archive_bench, calibration_bench
+from bench import archive_bench, calibration_bench, cli_bench, nuts_bench
 from bench.table import Row, environment, environment_line, format_table, write_json
 
 
@@ -38,7 +55,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--quick", action="store_true", help="small sizes, no posterior, no MAP re-analysis"
     )
-    ap.add_argument("--skip-bayes", action="store_true", help="no posterior (saves ~1 min)")
+    ap.add_argument(
+        "--skip-bayes", action="store_true", help="no posterior, no bayes CLI runs (saves minutes)"
+    )
+    ap.add_argument(
+        "--fresh-cache", action="store_true", help="CLI runs start from an empty JAX cache"
+    )
     ap.add_argument("--archive-n", type=int, help="archive sessions (default 200; quick 40)")
     ap.add_argument(
         "--archive-map-n", type=int, help="of which by MAP (default 4; quick 0: skipped)"
@@ -55,10 +77,15 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[Row] = []
     sections = (
         (
-            "calibration",
-            lambda: calibration_bench.run(
-                args.seed, skip_bayes=args.skip_bayes or args.quick, quick=args.quick
+            "CLI",
+            lambda: cli_bench.run(
+                args.seed, skip_bayes=args.skip_bayes or args.quick, fresh_cache=args.fresh_cache
             ),
+        ),
+        ("calibration", lambda: calibration_bench.run(args.seed, quick=args.quick)),
+        (
+            "posterior",
+            lambda: [] if args.skip_bayes else nuts_bench.run(args.seed, quick=args.quick),
         ),
         (
             "archive",
@@ -80,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     print(environment_line(env))
     settings = {
         "quick": args.quick,
-        "skip_bayes": args.skip_bayes or args.quick,
+        "skip_bayes": args.skip_bayes,
+        "fresh_cache": args.fresh_cache,
         "archive_n": archive_n,
         "archive_map_n": map_n,
         "jobs": args.jobs,

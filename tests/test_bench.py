@@ -4,6 +4,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -29,3 +30,72 @@ def test_table_is_aligned():
     assert lines[0] == "title"
     assert len({line.index("  ", len("classical fit")) for line in lines[3:]}) == 1
     assert lines[4].split()[-1] == "—"
+
+
+def test_main_prints_every_section(monkeypatch, tmp_path, capsys):
+    """``python -m bench`` runs the CLI, calibration, posterior and archive benches into one
+    table (each stubbed here; the slow tests below run the real ones)."""
+    import bench.__main__ as bm
+
+    def stub(name):
+        return lambda *a, **k: [Row(f"{name} row", "1 s", "2 s ref.")]
+
+    for mod in ("cli_bench", "calibration_bench", "nuts_bench", "archive_bench"):
+        monkeypatch.setattr(getattr(bm, mod), "run", stub(mod))
+    assert bm.main(["--quick", "--json", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    for mod in ("cli_bench", "calibration_bench", "nuts_bench", "archive_bench"):
+        assert f"{mod} row" in out
+    assert bm.main(["--skip-bayes", "--json", str(tmp_path / "r.json")]) == 0
+    assert "nuts_bench row" not in capsys.readouterr().out
+
+
+def test_cli_cache_dir_follows_jaxconfig(tmp_path):
+    from bench.cli_bench import cache_dir
+
+    assert cache_dir({"CHEKAN_JAX_CACHE": "0"}) is None
+    assert cache_dir({"CHEKAN_JAX_CACHE": str(tmp_path)}) == tmp_path
+    assert cache_dir({"XDG_CACHE_HOME": str(tmp_path)}) == tmp_path / "chekan" / "jax"
+
+
+def test_posterior_agreement_measure():
+    from bench.nuts_bench import agreement
+
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((2, 4000, 3))
+    dm, ds = agreement(a, a + 0.5)
+    assert abs(dm - 0.5) < 0.05 and ds < 1e-12
+    dm, ds = agreement(a, 2 * a)
+    assert ds > 0.9
+
+
+@pytest.mark.slow
+def test_cli_bench_prints_new_process_rows(tmp_path):
+    """Two new ``chekan calibrate --method map`` processes; the figures are printed (their
+    speed is not asserted)."""
+    from bench.cli_bench import run
+
+    rows = run(seed=0, skip_bayes=True, fresh_cache=False)
+    labels = [r.label for r in rows]
+    assert any("--method map` new process, first" in lab for lab in labels)
+    assert any("--method map` new process, second" in lab for lab in labels)
+    for r in rows[1:]:
+        assert r.figure.endswith(" s") and r.reference == "goal ≤ 3 s"
+        assert "JAX cache" in r.note
+
+
+@pytest.mark.slow
+def test_nuts_bench_smallest_settings_prints_its_rows():
+    """The posterior bench at its smallest settings (3 h record, 2 short NUTS chains): the
+    rows exist and carry numbers; speed and agreement are not asserted (too few draws)."""
+    pytest.importorskip("blackjax")
+    from bench.nuts_bench import run
+
+    rows = run(seed=0, quick=True, chains=2, warmup=40, draws=40, n_eval=20)
+    labels = [r.label for r in rows]
+    assert labels[0].startswith("marginal log-density") and rows[0].reference == "goal 0.5 ms"
+    assert labels[1].startswith("`bayes` in one warm process")
+    assert "NUTS" in rows[1].reference and "ESS" in rows[1].figure
+    assert "ESS/s" in labels[2] and rows[2].figure.endswith("/s emcee")
+    assert rows[3].note in ("AGREE", "DISAGREE (beyond the tolerances)")
+    assert np.isfinite(rows[3].values["max_abs_dmean_over_sd"])
