@@ -85,6 +85,10 @@ def test_cli_bench_prints_new_process_rows(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(
+    not __import__("os").environ.get("CHEKAN_TEST_NUTS"),
+    reason="NUTS on this posterior takes minutes on 2 cores (set CHEKAN_TEST_NUTS=1)",
+)
 def test_nuts_bench_smallest_settings_prints_its_rows():
     """The posterior bench at its smallest settings (3 h record, 2 short NUTS chains): the
     rows exist and carry numbers; speed and agreement are not asserted (too few draws)."""

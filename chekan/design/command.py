@@ -12,6 +12,7 @@ from pathlib import Path
 from chekan.design.information import ExpectedPrecision, expected_precision
 from chekan.design.layout import DesignValues, program_clock_s
 from chekan.design.search import Candidate, SearchResult, search_programs
+from chekan.durable import atomic_output
 from chekan.program import TiltProgram
 from chekan.units import format_dms
 
@@ -169,7 +170,8 @@ def program_toml(program: TiltProgram) -> str:
 def write_program_toml(path: str | Path, program: TiltProgram) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(program_toml(program), encoding="utf-8")
+    with atomic_output(path) as f:
+        f.write(program_toml(program))
     return path
 
 
@@ -270,9 +272,8 @@ def run_design_command(args) -> int:
     if args.json:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(
-            json.dumps(design_json(prec, result, values), indent=2, ensure_ascii=False) + "\n",
-            encoding="utf-8",
-        )
+        with atomic_output(path) as f:
+            f.write(json.dumps(design_json(prec, result, values), indent=2, ensure_ascii=False))
+            f.write("\n")
         print(f"wrote {path}")
     return 0
