@@ -159,8 +159,8 @@ def posterior_arrays(
     idata: az.InferenceData, var_names: Sequence[str] | None = None
 ) -> dict[str, np.ndarray]:
     """The posterior group as (chain, draw, ...) NumPy arrays."""
-    post = idata.posterior
-    names = list(post.data_vars) if var_names is None else list(var_names)
+    post = idata["posterior"]
+    names = [str(n) for n in post.data_vars] if var_names is None else list(var_names)
     missing = [n for n in names if n not in post.data_vars]
     if missing:
         raise KeyError(f"posterior has no variable(s) {missing}; has {list(post.data_vars)}")

@@ -300,7 +300,10 @@ class IndependenceMove(emcee.moves.MHMove):
 
 def _moves(kind: str, proposal: tuple[np.ndarray, np.ndarray] | None = None, df: float = 5.0):
     if kind == "de-independence":
-        return [(IndependenceMove(*proposal, df=df), 0.7), (emcee.moves.DEMove(), 0.3)]
+        if proposal is None:
+            raise ValueError("the independence move needs a proposal (mean, covariance)")
+        mean, cov = proposal
+        return [(IndependenceMove(mean, cov, df=df), 0.7), (emcee.moves.DEMove(), 0.3)]
     if kind == "stretch":
         return emcee.moves.StretchMove()
     if kind == "de-snooker":

@@ -14,6 +14,8 @@ seeds fails only for a genuine miscalibration.
 
 from __future__ import annotations
 
+from typing import Any
+
 from . import _jax  # noqa: F401  (float64 before any array exists)
 
 # isort: split
@@ -118,13 +120,14 @@ def coverage_table(
         n = t.size
         row: dict[str, dict[str, float]] = {}
         for q in levels:
+            post: Any = posterior
             if gaussian:
-                means, sds = posterior
+                means, sds = post
                 lo_i, hi_i = gaussian_interval(
                     np.reshape(means[name], -1), np.reshape(sds[name], -1), q
                 )
             else:
-                d = np.asarray(posterior[name], dtype=float)
+                d = np.asarray(post[name], dtype=float)
                 lo_i, hi_i = central_interval(d.reshape(n, -1), q, axis=-1)
             cov = coverage(t, lo_i, hi_i)
             blo, bhi = binomial_bounds(n, q, alpha)
@@ -135,7 +138,8 @@ def coverage_table(
                 "ok": float(blo <= cov <= bhi),
             }
         if gaussian:
-            z = zscores(t, np.reshape(posterior[0][name], -1), np.reshape(posterior[1][name], -1))
+            pz: Any = posterior
+            z = zscores(t, np.reshape(pz[0][name], -1), np.reshape(pz[1][name], -1))
             row["z"] = {"mean": float(np.mean(z)), "sd": float(np.std(z, ddof=1))}
         out[name] = row
     return out

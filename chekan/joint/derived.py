@@ -11,6 +11,7 @@ them for every posterior draw, with β drawn given θ.
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -111,7 +112,7 @@ def map_derived(fit: MapFit) -> dict:
     sd = np.sqrt(np.maximum(var, 0.0))
     if not finite.all():
         sd = np.where(np.abs(Jz[:, ~finite]).sum(axis=1) > 0, np.inf, sd)
-    out = {n: (float(val[i]), float(sd[i])) for i, n in enumerate(PHYSICAL)}
+    out: dict[str, Any] = {n: (float(val[i]), float(sd[i])) for i, n in enumerate(PHYSICAL)}
     s = np.asarray(h["noise_scale"]) * np.asarray(data.sigma_base)
     out["sigma1_pix"] = (float(s[0]), None)
     out["sigma2_pix"] = (float(s[1]), None)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -78,7 +79,7 @@ def fit_map_em_many(
     models = list(models)
     B = len(models)
     hs = [default_hyper() for _ in range(B)]
-    zs = [space.to_z(i) for i in inits]
+    zs: list[Any] = [space.to_z(i) for i in inits]
     histories: list[list[dict]] = [[] for _ in range(B)]
     results: list[MapResult] = []
     for it in range(MAP_PASSES):

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -51,6 +52,7 @@ import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
 from chekan.classical import increments_from_protocol
+from chekan.errors import ChekanError
 from chekan.joint.angles import AngleSensorSpec, commanded_groups
 from chekan.joint.budget import budget_entries
 from chekan.result import param_entry, posterior_entry
@@ -210,6 +212,8 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     t0 = time.perf_counter()
     table = increments_from_protocol(protocol)
     R = len(table.rounds)
+    if table.a_fixed is None:
+        raise ChekanError(f"{protocol.path}: the protocol gives no a (its prior centre)")
     a0 = float(table.a_fixed)
     theta_space, full_space = _space(R, a0)
     data = _data(table)
@@ -276,7 +280,7 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
         ]
         _merge_rounds(out, rounds)
         out["parameters"] = params
-        raw = _budget(table, spec, *hyp.values(), theta_space)
+        raw = _budget(table, spec, hyp["sigma_theta_arcsec"], hyp["sigma_e_mgal"], theta_space)
         out["uncertainty_budget"] = budget_entries(raw, params)
         diag["seconds"] = time.perf_counter() - t0
         out["diagnostics"] = diag
@@ -290,7 +294,7 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
         lp = full_space.log_prior(z) + (_log_lik(v, d) if spec is None else _log_lik_dense(v, d))
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
-    vals = {**res.values, **hyp}
+    vals: dict[str, Any] = {**res.values, **hyp}
     z0 = np.asarray(full_space.to_z(vals))
     n = theta_space.size
     cov = np.eye(full_space.size) * 0.25

@@ -10,6 +10,8 @@ autocorrelation time. The draws of θ and h are returned; derived quantities fol
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from chekan.joint.map import MapFit
@@ -29,7 +31,7 @@ def sampler_config(options: CalibrationOptions, **overrides):
     """
     from inference.sampling import SamplerConfig
 
-    kw = {
+    kw: dict[str, Any] = {
         "n_chains": 4,
         "moves": "de-independence",
         "min_steps": 200,
