@@ -24,15 +24,45 @@ from . import _jax  # noqa: F401  (first: float64 before any array exists)
 
 # isort: split
 
-from . import arviz_io, diagnostics, linear, sbc
-from .arviz_io import load_netcdf, save_netcdf, to_inference_data
-from .diagnostics import convergence_report, ess_bulk, rhat, summarize_draws
-from .laplace import LaplaceCovariance, laplace_covariance
-from .linear import conditional_beta, draw_beta, marginal_loglik
-from .map import MapBatchResult, MapResult, fit_map, fit_map_batch
-from .params import Param, ParamSpace
-from .problem import LeastSquaresProblem
-from .sampling import SamplerConfig, SamplingResult, sample
+import importlib
+from typing import Any
+
+# Names are imported on first use (PEP 562): a MAP does not pay for emcee, scipy.stats and
+# ArviZ (≈ 1.5 s of imports in every new process), a sampler does not pay for optimistix.
+_WHERE = {
+    "LaplaceCovariance": "laplace",
+    "laplace_covariance": "laplace",
+    "LeastSquaresProblem": "problem",
+    "MapBatchResult": "map",
+    "MapResult": "map",
+    "fit_map": "map",
+    "fit_map_batch": "map",
+    "Param": "params",
+    "ParamSpace": "params",
+    "SamplerConfig": "sampling",
+    "SamplingResult": "sampling",
+    "sample": "sampling",
+    "conditional_beta": "linear",
+    "draw_beta": "linear",
+    "marginal_loglik": "linear",
+    "convergence_report": "diagnostics",
+    "ess_bulk": "diagnostics",
+    "rhat": "diagnostics",
+    "summarize_draws": "diagnostics",
+    "load_netcdf": "arviz_io",
+    "save_netcdf": "arviz_io",
+    "to_inference_data": "arviz_io",
+}
+_MODULES = ("arviz_io", "diagnostics", "linear", "sbc")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _MODULES:
+        return importlib.import_module(f".{name}", __name__)
+    if name in _WHERE:
+        return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "LaplaceCovariance",
