@@ -75,6 +75,9 @@ def write_session(path: str | Path, spec: InstrumentSpec, date: str, seed: int, 
         noise_pix=(0.10, 0.10),
         hold_offset_sd_pix=0.03,
         angle_error_sd_arcsec=0.5,
+        # a quiet platform: these archives test the history's statistics, not the angle
+        # model (a systematic error redrawn per session would be a different platform)
+        angle_systematic_arcsec=0.0,
     )
     rec, truth = simulate_session(
         program or short_program(), truth, seed=seed, started=f"{date}T06:00:00Z"
