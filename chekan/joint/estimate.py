@@ -7,7 +7,6 @@ the fit to :func:`map_result` or :func:`posterior_result`; batch re-analysis cal
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
 
@@ -15,7 +14,7 @@ import jax
 import numpy as np
 
 from chekan.holds import HoldTable
-from chekan.joint.angles import AngleSensorSpec
+from chekan.joint.angles import angle_sensor_entry
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
 from chekan.joint.derived import map_derived, posterior_draws
@@ -51,19 +50,6 @@ def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpti
     if options.method == "map":
         return map_result(fit, base, options, t_start)
     return posterior_result(fit, holds, record, base, options, t_start)
-
-
-def angle_sensor_entry(spec: AngleSensorSpec | None) -> dict:
-    """The result's ``angle_sensor``: how the platform's angle errors were modelled."""
-    if spec is None:
-        return {"model": "independent"}
-    return {
-        "model": "systematic",
-        "bound_arcsec": spec.bound_arcsec,
-        "distribution": spec.distribution,
-        "u_per_angle_arcsec": math.sqrt(spec.per_angle_var),
-        "u_scale_arcsec": math.sqrt(spec.scale_var),
-    }
 
 
 def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict, dict]:

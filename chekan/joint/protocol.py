@@ -53,7 +53,7 @@ import numpy as np
 import chekan.jaxconfig  # noqa: F401
 from chekan.classical import increments_from_protocol
 from chekan.errors import ChekanError
-from chekan.joint.angles import AngleSensorSpec, commanded_groups
+from chekan.joint.angles import AngleSensorSpec, angle_sensor_entry, commanded_groups
 from chekan.joint.budget import budget_entries
 from chekan.result import param_entry, posterior_entry
 from chekan.units import ARCSEC_PER_RAD
@@ -197,17 +197,6 @@ def _budget(table, spec, sigma_theta: float, sigma_e: float, space: ParamSpace) 
     return out
 
 
-def _angle_sensor(spec: AngleSensorSpec | None) -> dict:
-    if spec is None:
-        return {"model": "independent"}
-    return {
-        "model": "systematic",
-        "bound_arcsec": spec.bound_arcsec,
-        "u_per_angle_arcsec": math.sqrt(spec.per_angle_var),
-        "u_scale_arcsec": math.sqrt(spec.scale_var),
-    }
-
-
 def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     t0 = time.perf_counter()
     table = increments_from_protocol(protocol)
@@ -262,7 +251,7 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
         "model": "characteristic per round (eq. 21) with shared angle errors marginalised"
         + ("" if spec is None else "; systematic angle errors shared by all rounds (Type B)"),
     }
-    out["angle_sensor"] = _angle_sensor(spec)
+    out["angle_sensor"] = angle_sensor_entry(spec)
     if options.method == "map":
         sd = res.sd()
         cov_b = res.cov_values([f"b_r{r + 1}_s{j + 1}" for r in range(R) for j in range(2)])
