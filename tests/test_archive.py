@@ -249,7 +249,7 @@ def test_dask_executor(tree, run1, tmp_path):
 
 @pytest.mark.slow
 def test_map_reanalysis(tree, run1, tmp_path):
-    pytest.importorskip("chekan.bayes", reason="chekan.bayes (map/bayes methods) not available")
+    pytest.importorskip("chekan.joint", reason="chekan.joint (map/bayes methods) not available")
     sub = tmp_path / "one"
     sub.mkdir()
     shutil.copy(tree["good"][0], sub / "rec.csv")
