@@ -100,8 +100,8 @@ def test_posterior_netcdf_is_copied_beside_the_archive(tmp_path, result46):
         want = db.parent / "posteriors" / f"{result46['record_sha256']}_bayes.nc"
         assert Path(s["netcdf_path"]) == want and want.read_bytes() == nc.read_bytes()
         assert s["result_path"] == str(rp.resolve())
-        sid2 = a.add_result(variant(r, version="0.2.0"), rp)  # never overwrites another's file
-        assert Path(a.get_session(sid2)["netcdf_path"]).name.endswith("_0.2.0.nc")
+        sid2 = a.add_result(variant(r, version="0.9.0"), rp)  # never overwrites another's file
+        assert Path(a.get_session(sid2)["netcdf_path"]).name.endswith("_0.9.0.nc")
         missing = variant(r, version="0.3.0")
         missing["posterior_netcdf"] = str(tmp_path / "nope.nc")
         with pytest.raises(ChekanError, match="not found"):
