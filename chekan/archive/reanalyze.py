@@ -160,7 +160,7 @@ def solve_many_map(
     """MAP calibration of many inputs → one result dict (or the exception raised) per path.
 
     ``batched`` (default: on an accelerator, not on CPU): records are solved together
-    (:func:`chekan.map_batch.estimate_map_many`: padded to one shape, one vmapped LM per
+    (:func:`chekan.joint.batch.estimate_map_many`: padded to one shape, one vmapped LM per
     EM pass). On CPU a vmapped solve costs the sum of its lanes plus the padding, so one
     record at a time is faster there (measured: 3.2 s against 1.3 s per short record).
     Legacy protocols go one by one. A bad input fails on its own.

@@ -188,7 +188,7 @@ def prepare_record(
         angle_prior_var=jnp.asarray(prior_var),
         mv_angle_basis=jnp.asarray(mv_basis),
         sigma_base=jnp.asarray(_robust_sigma(record, holds)),
-        hold_mask=jnp.ones(H, dtype=bool),  # False for padding (see pad_model)
+        hold_mask=jnp.ones(H, dtype=bool),  # False for padding (see RecordData.pad)
     )
     structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L, S)
     return RecordModel(structure, data, holds.step, t_mid, (t0, t1), angle_spec)
