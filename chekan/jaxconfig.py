@@ -1,21 +1,31 @@
-"""JAX set-up shared by every module that computes: float64 and the persistent cache.
+"""JAX set-up shared by every module that computes: float64, the persistent cache and the
+store of compiled executables.
 
 Import this module before creating any JAX array (``import chekan.jaxconfig``).
 1″ is 4.8e-6 rad and 1 − cos θ at small angles is below float32 resolution,
 so estimation is float64 throughout.
+
+``CHEKAN_JAX_CACHE``: unset, empty or ``1`` — the default folder
+(``$XDG_CACHE_HOME/chekan/jax``, else ``~/.cache/chekan/jax``); ``0`` — no persistent
+cache and no stored executables; anything else — that folder. Compiled executables
+(:mod:`inference.aot`) are kept in its ``executables`` sub-folder.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
 import jax
 
 
-def _cache_dir() -> Path:
-    env = os.environ.get("CHEKAN_JAX_CACHE")
-    if env:
+def cache_dir() -> Path | None:
+    """The persistent cache folder (None: disabled by ``CHEKAN_JAX_CACHE=0``)."""
+    env = os.environ.get("CHEKAN_JAX_CACHE", "")
+    if env == "0":
+        return None
+    if env and env != "1":
         return Path(env)
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "chekan" / "jax"
@@ -23,11 +33,27 @@ def _cache_dir() -> Path:
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_platforms", os.environ.get("JAX_PLATFORMS", "cpu") or "cpu")
-if os.environ.get("CHEKAN_JAX_CACHE", "1") != "0":
+_CACHE = cache_dir()
+if _CACHE is not None:
     try:
-        _dir = _cache_dir()
-        _dir.mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", str(_dir))
+        _CACHE.mkdir(parents=True, exist_ok=True)
+        jax.config.update("jax_compilation_cache_dir", str(_CACHE))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     except OSError:  # read-only home: run without the persistent cache
-        pass
+        _CACHE = None
+
+
+@functools.cache
+def executable_store():
+    """The store of compiled executables of the estimation code (:mod:`inference.aot`),
+    fingerprinted by the source of ``chekan`` and ``inference`` and the versions of the
+    libraries they trace through; in memory only when the cache is off."""
+    from importlib.metadata import version
+
+    from inference.aot import ExecutableStore, source_fingerprint
+
+    root = Path(__file__).resolve().parents[1]
+    libs = tuple(f"{n}=={version(n)}" for n in ("equinox", "optimistix", "lineax"))
+    fingerprint = source_fingerprint(root / "chekan", root / "inference", extra=libs)
+    folder = None if _CACHE is None else _CACHE / "executables"
+    return ExecutableStore(folder, fingerprint)

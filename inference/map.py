@@ -35,6 +35,7 @@ from .problem import LeastSquaresProblem
 __all__ = ["MapBatchResult", "MapResult", "fit_map", "fit_map_batch", "trace_count"]
 
 SolverName = Literal["lm", "gn"]
+_SUCCESS = int(optx.RESULTS.successful._value)  # optimistix's code of a successful solve
 
 
 # --------------------------------------------------------------------------- results
@@ -177,7 +178,9 @@ def _core(problem: LeastSquaresProblem, solver, max_steps: int) -> Callable:
         if jac.shape[0] < p:  # under-determined: pad so the thin SVD has p values
             jac = jnp.concatenate([jac, jnp.zeros((p - jac.shape[0], p))])
         _, s, vt = jnp.linalg.svd(jac, full_matrices=False)
-        return z, sol.result, sol.stats["num_steps"], r, s, vt
+        # the result's integer code, not optimistix's RESULTS object: a plain array output
+        # (stored executables keep only arrays and built-in containers)
+        return z, sol.result._value, sol.stats["num_steps"], r, s, vt
 
     return run
 
@@ -191,7 +194,12 @@ def _compiled(problem, solver, rtol, atol, max_steps, batched: bool, data_axes=0
         run = _core(problem, _make_solver(solver, rtol, atol), int(max_steps))
         if batched:
             run = jax.vmap(run, in_axes=(0, data_axes))
-        per_problem[key] = eqx.filter_jit(run)
+        store = problem.executables
+        if store is None:
+            per_problem[key] = eqx.filter_jit(run)
+        else:  # kept across processes: no tracing in a new process
+            name = f"map_{solver}_{rtol:g}_{atol:g}_{max_steps}_{'batch' if batched else 'one'}"
+            per_problem[key] = store.jit(name, run)
     return per_problem[key]
 
 
@@ -241,7 +249,7 @@ def _messages(result) -> list[str]:
     ``optx.RESULTS[batched_result]`` returns the ``str`` of an array, so the integer codes are
     mapped through the enumeration's message table (equinox internals, with a fallback).
     """
-    codes = np.atleast_1d(np.asarray(result._value)).reshape(-1)
+    codes = np.atleast_1d(np.asarray(result)).reshape(-1)
     table = getattr(optx.RESULTS, "_index_to_message", None)
     out = []
     for c in codes.tolist():
@@ -291,7 +299,7 @@ def fit_map(
     return MapResult(
         z=z,
         values={k: np.asarray(v) for k, v in space.to_values(z).items()},
-        converged=bool(result == optx.RESULTS.successful),
+        converged=bool(result == _SUCCESS),
         num_steps=int(steps),
         message=_messages(result)[0],
         cost=float(0.5 * np.sum(r**2)),
@@ -373,7 +381,7 @@ def fit_map_batch(
     return MapBatchResult(
         z=z,
         values={k: np.asarray(v) for k, v in space.to_values(z).items()},
-        converged=np.asarray(result == optx.RESULTS.successful),
+        converged=np.asarray(result == _SUCCESS),
         num_steps=np.asarray(steps),
         messages=_messages(result),
         cost=0.5 * np.sum(r**2, axis=1),

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 from jax import Array
 from jax.typing import ArrayLike
 
+from .aot import ExecutableStore
 from .params import ParamSpace
 
 __all__ = ["LeastSquaresProblem"]
@@ -41,6 +42,9 @@ class LeastSquaresProblem:
 
     space: ParamSpace
     residuals: Callable[[dict[str, Array], Any], Array]
+    executables: ExecutableStore | None = None
+    """Where the compiled solvers are kept across processes (:mod:`inference.aot`; its
+    fingerprint must cover the code of ``residuals``); None: compiled in every process."""
     _compiled: dict = field(default_factory=dict, init=False, repr=False)
     """Compiled solvers of :mod:`inference.map`, keyed by solver settings (lives and dies with
     the problem)."""

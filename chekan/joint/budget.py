@@ -17,14 +17,15 @@ import numpy as np
 
 from chekan.joint.layout import ModelStructure
 from chekan.joint.map import MapFit
-from chekan.joint.problem import problem_for
+from chekan.joint.problem import executables, problem_for
 
 PRIOR_SD = {"eps1_arcmin": 10.0, "eps2_arcmin": 10.0, "dgamma_arcmin": 10.0}
 
 
 @functools.cache
 def _jacobian_jit(structure: ModelStructure):
-    return jax.jit(jax.jacfwd(problem_for(structure).lsq.stacked_residuals))
+    fn = jax.jacfwd(problem_for(structure).lsq.stacked_residuals)
+    return executables(structure).jit("budget_jacobian", fn)
 
 
 def uncertainty_budget(fit: MapFit) -> dict:

@@ -28,7 +28,7 @@ from chekan.joint.likelihood import (
     solve_beta,
 )
 from chekan.joint.map import MapFit
-from chekan.joint.problem import problem_for
+from chekan.joint.problem import executables, problem_for
 from chekan.parameters import PARAMETER_UNITS
 from inference.normal_eq import draw_beta_normal
 
@@ -88,7 +88,7 @@ def _map_derived_jit(structure: ModelStructure):
         Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
         return g(z, beta), Jz, Jb, Linv.T @ Linv, beta
 
-    return jax.jit(core)
+    return executables(structure).jit("map_derived", core)
 
 
 def map_derived(fit: MapFit) -> dict:
@@ -162,7 +162,7 @@ def _draws_jit(structure: ModelStructure, dur_h: float):
         # pathologically slowly (batch 8: 9 ms; batch 16: minutes); a loop is fast and predictable
         return jax.lax.map(lambda zk: one(zk[0], zk[1], data), (zs, keys))
 
-    return jax.jit(many)
+    return executables(structure).jit(f"draws_{dur_h!r}", many)
 
 
 def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict:

@@ -15,7 +15,7 @@ import numpy as np
 import chekan.jaxconfig  # noqa: F401
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import dense_design, noise_var, solve_beta
-from chekan.joint.problem import Hyper, default_hyper, problem_for
+from chekan.joint.problem import Hyper, default_hyper, executables, problem_for
 
 HYPER_TOL = 1e-4  # EM at fixed θ stops when no log-hyperparameter moves more than this
 HYPER_MAX_UPDATES = 200  # ~8 ms each on a 9 h record
@@ -130,7 +130,7 @@ def _beta_at_jit(structure: ModelStructure):
         lev = jnp.sum(X**2, axis=-1)
         return rw, beta, jnp.sum(Linv**2, axis=0), noise_var(h, data), trans, lev
 
-    return jax.jit(fn)
+    return executables(structure).jit("beta_at", fn)
 
 
 def beta_at(structure: ModelStructure, z, h: Hyper, data: RecordData):

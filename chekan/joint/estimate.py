@@ -46,7 +46,7 @@ def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpti
             f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
             f"{model.n_beta} marginalised linear parameters"
         )
-    fit = fit_map_em(model, init, progress=options.progress)
+    fit = fit_map_em(model, init, progress=options.progress, solver=options.map_solver)
     if options.method == "map":
         return map_result(fit, base, options, t_start)
     return posterior_result(fit, holds, record, base, options, t_start)

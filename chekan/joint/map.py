@@ -1,7 +1,7 @@
 """MAP of the joint model with EM of the hyperparameters, for one record or a batch.
 
-``MAP_PASSES`` LM solves over θ (β projected out). Between two solves the level
-reference moves to its estimate and the hyperparameters are converged at fixed θ
+``MAP_PASSES`` Gauss–Newton solves over θ (β projected out; LM where GN fails). Between
+two solves the level reference moves to its estimate and the hyperparameters are converged at fixed θ
 (:func:`chekan.joint.em.between_passes`). A fixed small number of EM updates is not
 enough: σ_o creeps up from its start by ~15 % per update, and stopping early understates
 the sd of b by 5–10 % (z² ≈ 1.2–1.6 in the validation study).
@@ -26,7 +26,12 @@ from chekan.joint.layout import RecordModel
 from chekan.joint.problem import K_DESIGN, Hyper, default_hyper, problem_for
 from inference.map import MapResult, fit_map, fit_map_batch
 
-MAP_PASSES = 3  # LM solves; between them the hyperparameters are converged at fixed θ
+MAP_PASSES = 3  # solves; between them the hyperparameters are converged at fixed θ
+# Gauss–Newton: θ has 7 dimensions, the start (the classical fit, then the previous pass)
+# is close and the projected problem is well conditioned, so undamped steps converge in
+# 5–7 steps where LM's trust region took 10–30 (measured on the paper's 9 h program);
+# a pass that does not converge is redone by LM from the same start (_solve_pass)
+SOLVER = "gn"
 # vmapped lanes per solve: the XLA CPU runtime (jax 0.10) deadlocks on this model's
 # vmapped LM at 4 lanes and more (measured; see inference.map.fit_map_batch); on CPU a
 # vmapped solve costs about the sum of its lanes anyway, so pairs lose nothing
@@ -61,13 +66,19 @@ def initial_values(classical, g: float) -> dict[str, float]:
     }
 
 
-def fit_map_em(model: RecordModel, init: dict, *, progress: bool = False) -> MapFit:
+def fit_map_em(
+    model: RecordModel, init: dict, *, progress: bool = False, solver: str = SOLVER
+) -> MapFit:
     """MAP with EM updates of the hyperparameters for one record (module docstring)."""
-    return fit_map_em_many([model], [init], progress=progress)[0]
+    return fit_map_em_many([model], [init], progress=progress, solver=solver)[0]
 
 
 def fit_map_em_many(
-    models: Sequence[RecordModel], inits: Sequence[dict], *, progress: bool = False
+    models: Sequence[RecordModel],
+    inits: Sequence[dict],
+    *,
+    progress: bool = False,
+    solver: str = SOLVER,
 ) -> list[MapFit]:
     """:func:`fit_map_em` for records of one structure; more than one are solved as a
     batch of vmapped lanes in every pass (pad them first: :meth:`RecordModel.pad`)."""
@@ -83,14 +94,8 @@ def fit_map_em_many(
     histories: list[list[dict]] = [[] for _ in range(B)]
     results: list[MapResult] = []
     for it in range(MAP_PASSES):
-        if B == 1:
-            results = [fit_map(prob.lsq, (models[0].data, hs[0]), zs[0])]
-        else:
-            args = jax.tree_util.tree_map(
-                lambda *xs: jnp.stack(xs), *[(m.data, h) for m, h in zip(models, hs, strict=True)]
-            )
-            batch = fit_map_batch(prob.lsq, args, np.stack(zs), max_lanes=MAX_LANES)
-            results = [batch.item(i) for i in range(B)]
+        args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
+        results = _solve_pass(prob.lsq, args, zs, solver)
         zs = [r.z for r in results]
         for i, res in enumerate(results):
             updates = 0
@@ -100,6 +105,28 @@ def fit_map_em_many(
                 pass_entry(it, res.converged, res.num_steps, res.cost, progress and B == 1, updates)
             )
     return [MapFit(results[i], hs[i], tuple(histories[i]), models[i]) for i in range(B)]
+
+
+def _solve_pass(lsq, args: list, zs: list, solver: str) -> list[MapResult]:
+    """One pass for every record with ``solver`` ("gn" or "lm"), and Levenberg–Marquardt
+    from the same start for the records where Gauss–Newton did not converge."""
+    if solver not in ("gn", "lm"):
+        raise ValueError(f"MAP solver must be 'gn' or 'lm', got {solver!r}")
+    results = _solve(lsq, args, zs, solver)
+    retry = [i for i, r in enumerate(results) if not r.converged and solver != "lm"]
+    if retry:
+        again = _solve(lsq, [args[i] for i in retry], [zs[i] for i in retry], "lm")
+        for i, r in zip(retry, again, strict=True):
+            results[i] = r
+    return results
+
+
+def _solve(lsq, args: list, zs: list, solver: str) -> list[MapResult]:
+    if len(args) == 1:
+        return [fit_map(lsq, args[0], zs[0], solver=solver)]
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *args)
+    batch = fit_map_batch(lsq, stacked, np.stack(zs), max_lanes=MAX_LANES, solver=solver)
+    return [batch.item(i) for i in range(len(args))]
 
 
 def pass_entry(it: int, converged, steps, cost, progress: bool, hyper_updates: int) -> dict:

@@ -35,10 +35,11 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-import chekan.jaxconfig  # noqa: F401
+from chekan.jaxconfig import executable_store
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import beta_prior_var, normal_equations, solve_beta
 from chekan.parameters import unit_of
+from inference.aot import ExecutableStore
 from inference.normal_eq import marginal_loglik_normal
 from inference.params import Param, ParamSpace
 from inference.problem import LeastSquaresProblem
@@ -113,6 +114,11 @@ class CalibrationProblem:
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
 
+def executables(structure: ModelStructure) -> ExecutableStore:
+    """The store of compiled functions of this structure (kept across processes)."""
+    return executable_store().scoped(repr(structure))
+
+
 @functools.cache
 def problem_for(structure: ModelStructure) -> CalibrationProblem:
     """Both views of the model for one structure, built once (compiled solvers live in the
@@ -133,5 +139,5 @@ def problem_for(structure: ModelStructure) -> CalibrationProblem:
         rw, beta, _ = solve_beta(v, h, structure, data)
         return jnp.concatenate([rw, beta / jnp.sqrt(beta_prior_var(h, structure, data))])
 
-    lsq = LeastSquaresProblem(theta_space, residuals)
+    lsq = LeastSquaresProblem(theta_space, residuals, executables=executables(structure))
     return CalibrationProblem(structure, theta_space, bayes_space, lsq)

@@ -1,0 +1,257 @@
+r"""Compiled functions kept across processes: trace and compile once, load ever after.
+
+JAX's persistent compilation cache keeps XLA's output, but every new process still traces
+and lowers the Python function to compute the cache key: for an optimistix solve over a
+large model that is seconds of work before a millisecond-scale call. An
+:class:`ExecutableStore` keeps the *loaded-ready executable* instead (ahead-of-time
+``jit(f).lower(*args).compile()``, serialised by ``jax.experimental.serialize_executable``),
+so a new process that calls the same function on arguments of the same shapes reads a file
+and runs.
+
+The key of an executable is everything that decides what it computes:
+
+    key = sha256(name, fingerprint, argument tree and static leaves, shapes and dtypes,
+                 jax/jaxlib versions, backend, CPU features)
+
+``fingerprint`` is the caller's statement of *which code* the function runs (a hash of the
+model's source files, say): the store cannot see inside a closure, so a wrong fingerprint
+would load a stale executable. Files are written atomically; a file that cannot be loaded
+is deleted and the function recompiled (never a wrong answer, at worst a compile).
+
+Serialised executables are machine code: load only files this program wrote (the store's
+folder is the user's cache, like JAX's own).
+"""
+
+from __future__ import annotations
+
+from . import _jax  # noqa: F401  (float64 before any array exists)
+
+# isort: split
+
+import contextlib
+import hashlib
+import os
+import pickle
+import platform
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+__all__ = ["ExecutableStore", "source_fingerprint"]
+
+_SUFFIX = ".jaxexe"
+_FORMAT = "chekan-aot/2"  # part of every key: a new format never reads an old file
+
+
+def _is_array(x: Any) -> bool:
+    """Traced leaves: arrays and Python numbers (as ``jax.jit`` treats them)."""
+    return isinstance(x, (jax.Array, np.ndarray, np.generic, int, float, complex))
+
+
+def _aval(x: Any) -> tuple:
+    """Shape, dtype and weak type of a traced leaf (what the compiled code depends on)."""
+    if isinstance(x, (int, float, complex)):
+        return ((), type(x).__name__, True)
+    return (tuple(np.shape(x)), np.dtype(x.dtype).str, bool(getattr(x, "weak_type", False)))
+
+
+def source_fingerprint(*folders: str | Path, extra: tuple[str, ...] = ()) -> str:
+    """sha256 of every ``*.py`` file under ``folders`` (path and content) and ``extra``:
+    what a caller passes as the store's ``fingerprint`` for code it owns."""
+    h = hashlib.sha256()
+    for folder in folders:
+        root = Path(folder)
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root.parent)).encode())
+            h.update(path.read_bytes())
+    for item in extra:
+        h.update(item.encode())
+    return h.hexdigest()
+
+
+def _machine() -> str:
+    """What makes machine code unsafe to share: versions, backend, CPU model and flags."""
+    import jaxlib
+
+    parts = [jax.__version__, jaxlib.__version__, jax.default_backend(), platform.machine()]
+    try:
+        dev = jax.devices()[0]
+        parts.append(str(dev.client.platform_version))
+    except Exception:  # pragma: no cover - no device to ask
+        pass
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            for line in f:
+                if line.startswith(("flags", "model name", "Features")):
+                    parts.append(line.strip())
+                if line.strip() == "":
+                    break  # the first processor is enough
+    except OSError:
+        parts.append(platform.processor())
+    return "\n".join(parts)
+
+
+def _initialise_lapack() -> None:
+    """Bind jaxlib's LAPACK kernels (cholesky, svd, …) to their implementations.
+
+    JAX does this when it *lowers* a linear-algebra operation; an executable loaded from a
+    file skips lowering, and calling its LAPACK kernels unbound crashes the process
+    (segmentation fault, measured on jax 0.10.2). Idempotent.
+    """
+    from jax._src.lib import lapack
+
+    lapack._lapack.initialize()
+
+
+@contextlib.contextmanager
+def _compilation_cache_off():
+    """A context without JAX's persistent compilation cache.
+
+    An executable that ``compile()`` takes from that cache serialises incompletely: loaded
+    in a new process it fails with "NOT_FOUND: Function <fusion> not found" (measured on
+    jax 0.10.2, CPU). What the store keeps is therefore compiled afresh. JAX decides once
+    per process whether the cache is used, so the decision is reset on entry (with the
+    cache disabled) and on exit (with it as configured).
+    """
+    from jax._src import compilation_cache, config
+
+    compilation_cache.reset_cache()
+    try:
+        with config.enable_compilation_cache(False):
+            yield
+    finally:
+        compilation_cache.reset_cache()
+
+
+@dataclass(frozen=True, eq=False)
+class ExecutableStore:
+    """Compiled executables by key, in ``folder`` (None: in memory only, this process).
+
+    ``fingerprint``: the code the stored functions run (see the module docstring).
+    Executables loaded or compiled in this process are kept in ``loaded`` (the store is
+    the state: hold it as long as its functions are used).
+    """
+
+    folder: Path | None
+    fingerprint: str
+    loaded: dict[str, Any] = field(default_factory=dict, repr=False)
+    events: list[tuple[str, str]] = field(default_factory=list, repr=False)
+    """``(name, "loaded" | "compiled" | "discarded")`` per executable, oldest first."""
+    unproven: set[str] = field(default_factory=set, repr=False)
+    """Keys loaded from a file that have not run yet (a failure there recompiles)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_machine", _machine())
+
+    def scoped(self, label: str) -> ExecutableStore:
+        """The same store for code that also depends on ``label`` (a model structure, say,
+        that changes what a closure computes without changing argument shapes)."""
+        fp = hashlib.sha256(f"{self.fingerprint}\0{label}".encode()).hexdigest()
+        return ExecutableStore(self.folder, fp, self.loaded, self.events, self.unproven)
+
+    def jit(self, name: str, fn: Callable) -> Callable:
+        """``fn`` compiled per argument signature, ahead of time and kept in the store.
+
+        Array and number leaves of the arguments are traced (as ``jax.jit`` does); any other
+        leaf is static (part of the key and closed over, as ``equinox.filter_jit`` does).
+        Returns a function of the same arguments.
+        """
+
+        def call(*args):
+            leaves, treedef = jax.tree_util.tree_flatten(args)
+            dyn = [i for i, x in enumerate(leaves) if _is_array(x)]
+            static = tuple((i, leaves[i]) for i in range(len(leaves)) if i not in set(dyn))
+            sig = [_aval(leaves[i]) for i in dyn]
+            key = self._key(name, treedef, static, sig)
+            exe = self.loaded.get(key)
+            if exe is None:
+                exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn)
+                self.loaded[key] = exe
+            compiled, out_tree = exe
+            try:
+                outs = compiled(*[leaves[i] for i in dyn])
+                if key in self.unproven:  # its first run: let a failure surface here
+                    jax.block_until_ready(outs)
+            except jax.errors.JaxRuntimeError:
+                if key not in self.unproven or (path := self._path(key)) is None:
+                    raise
+                # a stored executable that loads but cannot run: compile afresh
+                path.unlink(missing_ok=True)
+                self.events.append((name, "discarded"))
+                exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn)
+                self.loaded[key] = exe
+                compiled, out_tree = exe
+                outs = compiled(*[leaves[i] for i in dyn])
+            self.unproven.discard(key)
+            return jax.tree_util.tree_unflatten(out_tree, outs)
+
+        call.__name__ = f"aot_{name}"
+        call.__doc__ = fn.__doc__
+        return call
+
+    # ----------------------------------------------------------------- internals
+    def _key(self, name, treedef, static, sig) -> str:
+        h = hashlib.sha256()
+        for part in (_FORMAT, name, self.fingerprint, str(treedef), repr(static), repr(sig)):
+            h.update(part.encode())
+            h.update(b"\0")
+        h.update(self._machine.encode())  # type: ignore[attr-defined]
+        return h.hexdigest()[:40]
+
+    def _path(self, key: str) -> Path | None:
+        return None if self.folder is None else self.folder / f"{key}{_SUFFIX}"
+
+    def _load_or_compile(self, key, name, fn, leaves, treedef, dyn):
+        from jax.experimental import serialize_executable as se
+
+        path = self._path(key)
+        if path is not None and path.is_file():
+            _initialise_lapack()
+            try:
+                payload, in_tree, out_tree = pickle.loads(path.read_bytes())
+                compiled = se.deserialize_and_load(payload, in_tree, out_tree[0])
+                self.events.append((name, "loaded"))
+                self.unproven.add(key)
+                return compiled, out_tree[1]
+            except Exception:  # unreadable or from another build: recompile, never guess
+                path.unlink(missing_ok=True)
+                self.events.append((name, "discarded"))
+
+        out_box: list[Any] = []
+
+        def flat_fn(*dyn_leaves):
+            full = list(leaves)
+            for i, x in zip(dyn, dyn_leaves, strict=True):
+                full[i] = x
+            out = fn(*jax.tree_util.tree_unflatten(treedef, full))
+            flat, tree = jax.tree_util.tree_flatten(out)
+            out_box.append(tree)
+            return tuple(flat)
+
+        lowered = jax.jit(flat_fn).lower(*[leaves[i] for i in dyn])
+        with _compilation_cache_off():
+            compiled = lowered.compile()
+        out_tree = out_box[-1]
+        self.events.append((name, "compiled"))
+        if path is not None:
+            self._save(path, compiled, out_tree)
+        return compiled, out_tree
+
+    def _save(self, path: Path, compiled, out_tree) -> None:
+        from jax.experimental import serialize_executable as se
+
+        try:
+            payload, in_tree, flat_out_tree = se.serialize(compiled)
+            blob = pickle.dumps((payload, in_tree, (flat_out_tree, out_tree)))
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=_SUFFIX)
+            with os.fdopen(fd, "wb") as f:
+                f.write(blob)
+            os.replace(tmp, path)
+        except Exception:
+            pass  # a read-only cache or an executable that cannot be serialised: memory only
