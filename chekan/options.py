@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 METHODS = ("classical", "map", "bayes")
 ANGLE_ERRORS = ("systematic", "independent")
@@ -30,7 +31,7 @@ class CalibrationOptions:
     # map/bayes on records: the solver of every MAP pass. "gn": Gauss–Newton, with
     # Levenberg–Marquardt where it fails (fast); "lm": LM only (before 0.3; the MAP moves
     # by < 0.01 sd between the two: the regression snapshot keeps "lm")
-    map_solver: str = "gn"
+    map_solver: Literal["gn", "lm"] = "gn"
 
     def angle_spec(self, meta: dict, source: str = "record"):
         """The angle-sensor specification for a record with header ``meta`` (None for

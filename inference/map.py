@@ -35,7 +35,7 @@ from .problem import LeastSquaresProblem
 __all__ = ["MapBatchResult", "MapResult", "fit_map", "fit_map_batch", "trace_count"]
 
 SolverName = Literal["lm", "gn"]
-_SUCCESS = int(optx.RESULTS.successful._value)  # optimistix's code of a successful solve
+_SUCCESS = int(optx.RESULTS.successful._value)  # type: ignore[attr-defined]  # optimistix's code of a successful solve
 
 
 # --------------------------------------------------------------------------- results
@@ -73,6 +73,8 @@ class MapResult:
     degenerate_directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     residuals: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     space: ParamSpace | None = field(default=None, repr=False)
+    jacobian: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    """J = ∂R/∂z at ẑ (rows as ``residuals``), for budgets by row (empty if not kept)."""
 
     def sd(self) -> dict[str, np.ndarray]:
         """Laplace sd per parameter in VALUE space (delta method: ``sd_v = |dv/dz|·sd_z``)."""
@@ -124,6 +126,7 @@ class MapBatchResult:
     degenerate: list[list[str]]
     residuals: np.ndarray  # (B, n) stacked whitened residuals at the MAP
     space: ParamSpace = field(repr=False)
+    jacobian: np.ndarray = field(default_factory=lambda: np.zeros((0, 0, 0)), repr=False)
     _laplace: list[LaplaceCovariance] = field(default_factory=list, repr=False)
 
     def __len__(self) -> int:
@@ -144,6 +147,7 @@ class MapBatchResult:
             degenerate_directions=self._laplace[i].degenerate_directions,
             residuals=self.residuals[i],
             space=self.space,
+            jacobian=self.jacobian[i] if len(self.jacobian) else np.zeros((0, 0)),
         )
 
 
@@ -164,7 +168,8 @@ def _make_solver(solver: SolverName, rtol: float, atol: float):
 
 
 def _core(problem: LeastSquaresProblem, solver, max_steps: int) -> Callable:
-    """``(z0, data) -> (z, result, num_steps, residuals, s, vt)`` for one problem (not jitted)."""
+    """``(z0, data) -> (z, result, num_steps, residuals, s, vt, J)`` for one problem (not
+    jitted)."""
     p = problem.space.size
 
     def run(z0, data):
@@ -175,12 +180,13 @@ def _core(problem: LeastSquaresProblem, solver, max_steps: int) -> Callable:
         z = sol.value
         r = fn(z, data)
         jac = jax.jacfwd(fn)(z, data)
+        padded = jac
         if jac.shape[0] < p:  # under-determined: pad so the thin SVD has p values
-            jac = jnp.concatenate([jac, jnp.zeros((p - jac.shape[0], p))])
-        _, s, vt = jnp.linalg.svd(jac, full_matrices=False)
+            padded = jnp.concatenate([jac, jnp.zeros((p - jac.shape[0], p))])
+        _, s, vt = jnp.linalg.svd(padded, full_matrices=False)
         # the result's integer code, not optimistix's RESULTS object: a plain array output
         # (stored executables keep only arrays and built-in containers)
-        return z, sol.result._value, sol.stats["num_steps"], r, s, vt
+        return z, sol.result._value, sol.stats["num_steps"], r, s, vt, jac
 
     return run
 
@@ -292,7 +298,7 @@ def fit_map(
     """
     space = problem.space
     run = _compiled(problem, solver, rtol, atol, max_steps, batched=False)
-    z, result, steps, r, s, vt = run(_z0(space, z0), data)
+    z, result, steps, r, s, vt, jac = run(_z0(space, z0), data)
     z = np.asarray(z)
     r = np.asarray(r)
     lap = _laplace(np.asarray(s), np.asarray(vt), r, rcond)
@@ -309,6 +315,7 @@ def fit_map(
         degenerate_directions=lap.degenerate_directions,
         residuals=r,
         space=space,
+        jacobian=np.asarray(jac),
     )
 
 
@@ -368,9 +375,10 @@ def fit_map_batch(
     run = _compiled(problem, solver, rtol, atol, max_steps, batched=True, data_axes=data_axes)
     z0 = _z0(space, z0_batch, batch)
     if max_lanes is None or max_lanes >= batch:
-        z, result, steps, r, s, vt = run(z0, data_batch)
+        z, result, steps, r, s, vt, jac = run(z0, data_batch)
     else:
-        z, result, steps, r, s, vt = _in_groups(run, z0, data_batch, data_axes, batch, max_lanes)
+        out = _in_groups(run, z0, data_batch, data_axes, batch, max_lanes)
+        z, result, steps, r, s, vt, jac = out
     z = np.asarray(z)
     r = np.asarray(r)
     s = np.asarray(s)
@@ -391,5 +399,6 @@ def fit_map_batch(
         degenerate=[_laplace_names(space, lap) for lap in laps],
         residuals=r,
         space=space,
+        jacobian=np.asarray(jac),
         _laplace=laps,
     )

@@ -33,7 +33,9 @@ def uncertainty_budget(fit: MapFit) -> dict:
     model, res = fit.model, fit.result
     structure = model.structure
     space = problem_for(structure).map_space
-    J = np.asarray(_jacobian_jit(structure)(jnp.asarray(res.z), (model.data, fit.hyper)))
+    J = np.asarray(res.jacobian)  # the solve's Jacobian at θ̂ (same model, hyper and level)
+    if J.shape != (res.residuals.size, space.size):
+        J = np.asarray(_jacobian_jit(structure)(jnp.asarray(res.z), (model.data, fit.hyper)))
     n_data = int(np.asarray(model.data.mask).size)
     nb = structure.n_beta
     blocks = structure.beta_blocks

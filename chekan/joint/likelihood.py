@@ -90,7 +90,9 @@ def linear_terms(v: dict, data: RecordData):
     E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
     jump = jnp.abs(wprev[:, None] * E_prev + Mv + R - E)  # (H, 2) transient amplitude
     trans = w[:, None] * (data.own @ jump)  # (N, 2) transient left in each bin
-    return f, G, -S / ARCSEC_PER_RAD, trans
+    # computed once: left to itself XLA re-derives the tangent of the equilibrium solve
+    # inside every consumer fusion (≈ 270 lines of code each)
+    return jax.lax.optimization_barrier((f, G, -S / ARCSEC_PER_RAD, trans))
 
 
 def slew_angle_columns(v: dict, data: RecordData) -> jax.Array:

@@ -1,10 +1,10 @@
 """MAP of the joint model with EM of the hyperparameters, for one record or a batch.
 
 ``MAP_PASSES`` Gauss–Newton solves over θ (β projected out; LM where GN fails). Between
-two solves the level reference moves to its estimate and the hyperparameters are converged at fixed θ
-(:func:`chekan.joint.em.between_passes`). A fixed small number of EM updates is not
-enough: σ_o creeps up from its start by ~15 % per update, and stopping early understates
-the sd of b by 5–10 % (z² ≈ 1.2–1.6 in the validation study).
+two solves the level reference moves to its estimate and the hyperparameters are
+converged at fixed θ (:func:`chekan.joint.em.between_passes`). A fixed small number of EM
+updates is not enough: σ_o creeps up from its start by ~15 % per update, and stopping
+early understates the sd of b by 5–10 % (z² ≈ 1.2–1.6 in the validation study).
 
 One loop serves a single record (:func:`inference.map.fit_map`) and a batch of records
 padded to one structure (:func:`inference.map.fit_map_batch`, vmapped lanes). The solver
@@ -24,14 +24,14 @@ import numpy as np
 from chekan.joint.em import between_passes
 from chekan.joint.layout import RecordModel
 from chekan.joint.problem import K_DESIGN, Hyper, default_hyper, problem_for
-from inference.map import MapResult, fit_map, fit_map_batch
+from inference.map import MapResult, SolverName, fit_map, fit_map_batch
 
 MAP_PASSES = 3  # solves; between them the hyperparameters are converged at fixed θ
 # Gauss–Newton: θ has 7 dimensions, the start (the classical fit, then the previous pass)
 # is close and the projected problem is well conditioned, so undamped steps converge in
 # 5–7 steps where LM's trust region took 10–30 (measured on the paper's 9 h program);
 # a pass that does not converge is redone by LM from the same start (_solve_pass)
-SOLVER = "gn"
+SOLVER: SolverName = "gn"
 # vmapped lanes per solve: the XLA CPU runtime (jax 0.10) deadlocks on this model's
 # vmapped LM at 4 lanes and more (measured; see inference.map.fit_map_batch); on CPU a
 # vmapped solve costs about the sum of its lanes anyway, so pairs lose nothing
@@ -67,7 +67,7 @@ def initial_values(classical, g: float) -> dict[str, float]:
 
 
 def fit_map_em(
-    model: RecordModel, init: dict, *, progress: bool = False, solver: str = SOLVER
+    model: RecordModel, init: dict, *, progress: bool = False, solver: SolverName = SOLVER
 ) -> MapFit:
     """MAP with EM updates of the hyperparameters for one record (module docstring)."""
     return fit_map_em_many([model], [init], progress=progress, solver=solver)[0]
@@ -78,7 +78,7 @@ def fit_map_em_many(
     inits: Sequence[dict],
     *,
     progress: bool = False,
-    solver: str = SOLVER,
+    solver: SolverName = SOLVER,
 ) -> list[MapFit]:
     """:func:`fit_map_em` for records of one structure; more than one are solved as a
     batch of vmapped lanes in every pass (pad them first: :meth:`RecordModel.pad`)."""
@@ -107,7 +107,7 @@ def fit_map_em_many(
     return [MapFit(results[i], hs[i], tuple(histories[i]), models[i]) for i in range(B)]
 
 
-def _solve_pass(lsq, args: list, zs: list, solver: str) -> list[MapResult]:
+def _solve_pass(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
     """One pass for every record with ``solver`` ("gn" or "lm"), and Levenberg–Marquardt
     from the same start for the records where Gauss–Newton did not converge."""
     if solver not in ("gn", "lm"):
@@ -121,7 +121,7 @@ def _solve_pass(lsq, args: list, zs: list, solver: str) -> list[MapResult]:
     return results
 
 
-def _solve(lsq, args: list, zs: list, solver: str) -> list[MapResult]:
+def _solve(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
     if len(args) == 1:
         return [fit_map(lsq, args[0], zs[0], solver=solver)]
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *args)

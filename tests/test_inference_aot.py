@@ -1,0 +1,115 @@
+"""inference.aot: executables compiled once and loaded by later processes, never stale."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from inference.aot import ExecutableStore, source_fingerprint
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# a function with a LAPACK kernel inside (Cholesky): a loaded executable that calls one
+# crashed the process before the store initialised jaxlib's LAPACK bindings
+PROGRAM = textwrap.dedent(
+    """
+    import sys
+    from pathlib import Path
+    import numpy as np
+    import jax, jax.numpy as jnp
+    jax.config.update("jax_enable_x64", True)
+    from inference.aot import ExecutableStore
+
+    def fn(x, data):
+        m = x @ x.T + data["shift"] * jnp.eye(x.shape[0])
+        return {"chol": jnp.linalg.cholesky(m), "trace": jnp.trace(m) * data["scale"]}
+
+    store = ExecutableStore(Path(sys.argv[1]), sys.argv[2])
+    f = store.jit("toy", fn)
+    x = np.arange(12.0).reshape(3, 4) / 10
+    out = f(x, {"shift": np.float64(2.0), "scale": 3.0})
+    print(store.events[-1][1], repr(float(out["trace"])), repr(float(out["chol"][2, 1])))
+    """
+)
+
+
+def _run(folder: Path, fingerprint: str) -> list[str]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
+    proc = subprocess.run(
+        [sys.executable, "-c", PROGRAM, str(folder), fingerprint],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout.split()
+
+
+def _expected() -> tuple[float, float]:
+    x = np.arange(12.0).reshape(3, 4) / 10
+    m = x @ x.T + 2.0 * np.eye(3)
+    return float(np.trace(m) * 3.0), float(np.linalg.cholesky(m)[2, 1])
+
+
+def test_a_new_process_loads_what_the_first_compiled_with_the_same_numbers(tmp_path):
+    first = _run(tmp_path, "code-v1")
+    second = _run(tmp_path, "code-v1")
+    assert first[0] == "compiled" and second[0] == "loaded"
+    assert first[1:] == second[1:]  # bit for bit
+    trace, chol = _expected()
+    assert float(second[1]) == pytest.approx(trace, rel=1e-14)
+    assert float(second[2]) == pytest.approx(chol, rel=1e-14)
+    assert len(list(tmp_path.glob("*.jaxexe"))) == 1
+
+
+def test_other_code_never_loads_a_stored_executable(tmp_path):
+    _run(tmp_path, "code-v1")
+    assert _run(tmp_path, "code-v2")[0] == "compiled"  # a new fingerprint: a new key
+    assert len(list(tmp_path.glob("*.jaxexe"))) == 2
+
+
+def test_an_unreadable_file_is_discarded_and_compiled_afresh(tmp_path):
+    _run(tmp_path, "code-v1")
+    (path,) = tmp_path.glob("*.jaxexe")
+    path.write_bytes(b"not an executable")
+    out = _run(tmp_path, "code-v1")
+    assert out[0] == "compiled"
+    assert float(out[1]) == pytest.approx(_expected()[0], rel=1e-14)
+    assert path.stat().st_size > 1000  # written again
+
+
+def test_shapes_and_static_leaves_key_the_executables():
+    store = ExecutableStore(None, "memory only")
+    f = store.jit("scaled", lambda x, how: x * 2 if how == "double" else x * 3)
+    assert float(f(jnp.ones(2), "double")[0]) == 2.0
+    assert float(f(jnp.ones(2), "triple")[0]) == 3.0  # a static leaf: its own executable
+    assert f(jnp.ones(3), "double").shape == (3,)  # a new shape: its own executable
+    assert float(f(np.full(2, 5.0), "double")[1]) == 10.0  # same key (NumPy or JAX): reused
+    assert [e for _, e in store.events] == ["compiled"] * 3
+    assert float(f(7.0, "double")) == 14.0  # Python numbers are traced, as jax.jit does
+
+
+def test_scoped_stores_never_share_an_executable():
+    store = ExecutableStore(None, "code")
+    a = store.scoped("structure A").jit("f", lambda x: x + 1)
+    b = store.scoped("structure B").jit("f", lambda x: x + 2)
+    assert float(a(jnp.zeros(()))) == 1.0 and float(b(jnp.zeros(()))) == 2.0
+
+
+def test_source_fingerprint_follows_the_code(tmp_path):
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "m.py").write_text("x = 1\n")
+    before = source_fingerprint(pkg)
+    assert source_fingerprint(pkg) == before
+    (pkg / "m.py").write_text("x = 2\n")
+    assert source_fingerprint(pkg) != before
+    assert source_fingerprint(pkg, extra=("jax==0",)) != source_fingerprint(pkg)
