@@ -37,10 +37,10 @@ GOALS_S = {"map": 3.0, "bayes": 15.0}
 def cache_dir(env: dict[str, str]) -> Path | None:
     """The persistent cache folder a ``chekan`` process started with ``env`` uses (``None``:
     disabled). Same rule as ``chekan/jaxconfig.py``, read without importing JAX."""
-    value = env.get("CHEKAN_JAX_CACHE")
+    value = env.get("CHEKAN_JAX_CACHE", "")
     if value == "0":
         return None
-    if value:
+    if value and value != "1":
         return Path(value)
     base = env.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
     return Path(base) / "chekan" / "jax"
@@ -49,7 +49,7 @@ def cache_dir(env: dict[str, str]) -> Path | None:
 def _entries(d: Path | None) -> int:
     if d is None or not d.is_dir():
         return 0
-    return sum(1 for _ in d.iterdir())
+    return sum(1 for p in d.rglob("*") if p.is_file())  # XLA's entries and stored executables
 
 
 def _env(extra: dict[str, str] | None = None) -> dict[str, str]:

@@ -15,8 +15,11 @@ The key of an executable is everything that decides what it computes:
 
 ``fingerprint`` is the caller's statement of *which code* the function runs (a hash of the
 model's source files, say): the store cannot see inside a closure, so a wrong fingerprint
-would load a stale executable. Files are written atomically; a file that cannot be loaded
-is deleted and the function recompiled (never a wrong answer, at worst a compile).
+would load a stale executable. On a miss the function is traced and lowered, and the
+executable is also filed under the hash of its lowered program (``program/``): after an
+edit that does not change what a function computes, a new fingerprint costs a trace, not
+a compile. Files are written atomically; a file that cannot be loaded is deleted and the
+function recompiled (never a wrong answer, at worst a compile).
 
 Serialised executables are machine code: load only files this program wrote (the store's
 folder is the user's cache, like JAX's own).
@@ -207,20 +210,11 @@ class ExecutableStore:
         return None if self.folder is None else self.folder / f"{key}{_SUFFIX}"
 
     def _load_or_compile(self, key, name, fn, leaves, treedef, dyn):
-        from jax.experimental import serialize_executable as se
-
         path = self._path(key)
         if path is not None and path.is_file():
-            _initialise_lapack()
-            try:
-                payload, in_tree, out_tree = pickle.loads(path.read_bytes())
-                compiled = se.deserialize_and_load(payload, in_tree, out_tree[0])
-                self.events.append((name, "loaded"))
-                self.unproven.add(key)
-                return compiled, out_tree[1]
-            except Exception:  # unreadable or from another build: recompile, never guess
-                path.unlink(missing_ok=True)
-                self.events.append((name, "discarded"))
+            loaded = self._load(path, name, key)
+            if loaded is not None:
+                return loaded
 
         out_box: list[Any] = []
 
@@ -234,24 +228,52 @@ class ExecutableStore:
             return tuple(flat)
 
         lowered = jax.jit(flat_fn).lower(*[leaves[i] for i in dyn])
+        out_tree = out_box[-1]
+        # the same program under another fingerprint (code edited elsewhere): reuse it
+        program = hashlib.sha256(lowered.as_text().encode() + self._machine.encode())  # type: ignore[attr-defined]
+        by_program = self._path(f"program/{_FORMAT.replace('/', '-')}-{program.hexdigest()[:40]}")
+        if by_program is not None and by_program.is_file():
+            loaded = self._load(by_program, name, key)
+            if loaded is not None:
+                if path is not None:
+                    _write_atomic(path, by_program.read_bytes())
+                return loaded
         with _compilation_cache_off():
             compiled = lowered.compile()
-        out_tree = out_box[-1]
         self.events.append((name, "compiled"))
-        if path is not None:
-            self._save(path, compiled, out_tree)
+        for target in (path, by_program):
+            if target is not None:
+                self._save(target, compiled, out_tree)
         return compiled, out_tree
+
+    def _load(self, path: Path, name: str, key: str):
+        from jax.experimental import serialize_executable as se
+
+        _initialise_lapack()
+        try:
+            payload, in_tree, out_tree = pickle.loads(path.read_bytes())
+            compiled = se.deserialize_and_load(payload, in_tree, out_tree[0])
+        except Exception:  # unreadable or from another build: recompile, never guess
+            path.unlink(missing_ok=True)
+            self.events.append((name, "discarded"))
+            return None
+        self.events.append((name, "loaded"))
+        self.unproven.add(key)
+        return compiled, out_tree[1]
 
     def _save(self, path: Path, compiled, out_tree) -> None:
         from jax.experimental import serialize_executable as se
 
         try:
             payload, in_tree, flat_out_tree = se.serialize(compiled)
-            blob = pickle.dumps((payload, in_tree, (flat_out_tree, out_tree)))
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=_SUFFIX)
-            with os.fdopen(fd, "wb") as f:
-                f.write(blob)
-            os.replace(tmp, path)
+            _write_atomic(path, pickle.dumps((payload, in_tree, (flat_out_tree, out_tree))))
         except Exception:
             pass  # a read-only cache or an executable that cannot be serialised: memory only
+
+
+def _write_atomic(path: Path, blob: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=_SUFFIX)
+    with os.fdopen(fd, "wb") as f:
+        f.write(blob)
+    os.replace(tmp, path)

@@ -56,6 +56,21 @@ def test_cli_cache_dir_follows_jaxconfig(tmp_path):
     assert cache_dir({"CHEKAN_JAX_CACHE": "0"}) is None
     assert cache_dir({"CHEKAN_JAX_CACHE": str(tmp_path)}) == tmp_path
     assert cache_dir({"XDG_CACHE_HOME": str(tmp_path)}) == tmp_path / "chekan" / "jax"
+    # "1" (and empty) mean the default folder, as in chekan/jaxconfig.py, never a folder "1"
+    default = cache_dir({"XDG_CACHE_HOME": str(tmp_path), "CHEKAN_JAX_CACHE": "1"})
+    assert default == tmp_path / "chekan" / "jax"
+
+
+def test_jaxconfig_cache_dir_reads_1_as_the_default(tmp_path, monkeypatch):
+    from chekan.jaxconfig import cache_dir
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.setenv("CHEKAN_JAX_CACHE", "1")
+    assert cache_dir() == tmp_path / "chekan" / "jax"
+    monkeypatch.setenv("CHEKAN_JAX_CACHE", "0")
+    assert cache_dir() is None
+    monkeypatch.setenv("CHEKAN_JAX_CACHE", str(tmp_path / "x"))
+    assert cache_dir() == tmp_path / "x"
 
 
 def test_posterior_agreement_measure():

@@ -28,7 +28,7 @@ PROGRAM = textwrap.dedent(
     from inference.aot import ExecutableStore
 
     def fn(x, data):
-        m = x @ x.T + data["shift"] * jnp.eye(x.shape[0])
+        m = x @ x.T + data["shift"] * jnp.eye(x.shape[0]) * float(sys.argv[3])
         return {"chol": jnp.linalg.cholesky(m), "trace": jnp.trace(m) * data["scale"]}
 
     store = ExecutableStore(Path(sys.argv[1]), sys.argv[2])
@@ -40,10 +40,11 @@ PROGRAM = textwrap.dedent(
 )
 
 
-def _run(folder: Path, fingerprint: str) -> list[str]:
+def _run(folder: Path, fingerprint: str, code: str = "1") -> list[str]:
+    """The program in a new process; ``code`` changes what it computes (× the shift)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
     proc = subprocess.run(
-        [sys.executable, "-c", PROGRAM, str(folder), fingerprint],
+        [sys.executable, "-c", PROGRAM, str(folder), fingerprint, code],
         env=env,
         capture_output=True,
         text=True,
@@ -72,14 +73,26 @@ def test_a_new_process_loads_what_the_first_compiled_with_the_same_numbers(tmp_p
 
 def test_other_code_never_loads_a_stored_executable(tmp_path):
     _run(tmp_path, "code-v1")
-    assert _run(tmp_path, "code-v2")[0] == "compiled"  # a new fingerprint: a new key
+    out = _run(tmp_path, "code-v2", code="2")  # other code, a new fingerprint: compiled
+    assert out[0] == "compiled"
+    x = np.arange(12.0).reshape(3, 4) / 10
+    assert float(out[1]) == pytest.approx(float(np.trace(x @ x.T + 4.0 * np.eye(3)) * 3))
     assert len(list(tmp_path.glob("*.jaxexe"))) == 2
+
+
+def test_a_new_fingerprint_of_the_same_program_reuses_its_executable(tmp_path):
+    first = _run(tmp_path, "code-v1")
+    again = _run(tmp_path, "code-v1-edited-elsewhere")  # traced, then found by its program
+    assert again[0] == "loaded" and again[1:] == first[1:]
+    assert len(list(tmp_path.glob("*.jaxexe"))) == 2  # filed under the new key too
+    assert _run(tmp_path, "code-v1-edited-elsewhere")[0] == "loaded"
 
 
 def test_an_unreadable_file_is_discarded_and_compiled_afresh(tmp_path):
     _run(tmp_path, "code-v1")
     (path,) = tmp_path.glob("*.jaxexe")
-    path.write_bytes(b"not an executable")
+    for p in tmp_path.rglob("*.jaxexe"):  # the keyed file and the one filed by program
+        p.write_bytes(b"not an executable")
     out = _run(tmp_path, "code-v1")
     assert out[0] == "compiled"
     assert float(out[1]) == pytest.approx(_expected()[0], rel=1e-14)
