@@ -147,6 +147,8 @@ class ExecutableStore:
     """``(name, "loaded" | "compiled" | "discarded")`` per executable, oldest first."""
     unproven: set[str] = field(default_factory=set, repr=False)
     """Keys loaded from a file that have not run yet (a failure there recompiles)."""
+    pending: dict[str, Any] = field(default_factory=dict, repr=False)
+    """Loads started by :meth:`prefetch` (futures), by key."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_machine", _machine())
@@ -155,7 +157,9 @@ class ExecutableStore:
         """The same store for code that also depends on ``label`` (a model structure, say,
         that changes what a closure computes without changing argument shapes)."""
         fp = hashlib.sha256(f"{self.fingerprint}\0{label}".encode()).hexdigest()
-        return ExecutableStore(self.folder, fp, self.loaded, self.events, self.unproven)
+        return ExecutableStore(
+            self.folder, fp, self.loaded, self.events, self.unproven, self.pending
+        )
 
     def jit(self, name: str, fn: Callable) -> Callable:
         """``fn`` compiled per argument signature, ahead of time and kept in the store.
@@ -166,11 +170,11 @@ class ExecutableStore:
         """
 
         def call(*args):
-            leaves, treedef = jax.tree_util.tree_flatten(args)
-            dyn = [i for i, x in enumerate(leaves) if _is_array(x)]
-            static = tuple((i, leaves[i]) for i in range(len(leaves)) if i not in set(dyn))
-            sig = [_aval(leaves[i]) for i in dyn]
-            key = self._key(name, treedef, static, sig)
+            key, leaves, treedef, dyn = self._signature(name, args)
+            if key in self.pending:  # a load started by prefetch: wait for it
+                loaded = self.pending.pop(key).result()
+                if loaded is not None:
+                    self.loaded[key] = loaded
             exe = self.loaded.get(key)
             if exe is None:
                 exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn)
@@ -197,7 +201,29 @@ class ExecutableStore:
         call.__doc__ = fn.__doc__
         return call
 
+    def prefetch(self, name: str, *args) -> None:
+        """Start loading the stored executable of ``name`` for ``args`` in a background
+        thread (loading releases the GIL: a new process overlaps it with other work); the
+        first call with the same signature waits for it. Nothing happens if it is already
+        loaded, not stored, or the store is in memory only."""
+        key, *_ = self._signature(name, args)
+        path = self._path(key)
+        if key in self.loaded or key in self.pending or path is None or not path.is_file():
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"aot-{name}")
+        self.pending[key] = pool.submit(self._load, path, name, key)
+        pool.shutdown(wait=False)
+
     # ----------------------------------------------------------------- internals
+    def _signature(self, name: str, args: tuple):
+        leaves, treedef = jax.tree_util.tree_flatten(args)
+        dyn = [i for i, x in enumerate(leaves) if _is_array(x)]
+        static = tuple((i, leaves[i]) for i in range(len(leaves)) if i not in set(dyn))
+        sig = [_aval(leaves[i]) for i in dyn]
+        return self._key(name, treedef, static, sig), leaves, treedef, dyn
+
     def _key(self, name, treedef, static, sig) -> str:
         h = hashlib.sha256()
         for part in (_FORMAT, name, self.fingerprint, str(treedef), repr(static), repr(sig)):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
+from chekan.jaxconfig import single_threaded_blas
 from chekan.joint.binning import prepare
 from chekan.joint.estimate import map_result
 from chekan.joint.layout import padded_shape
@@ -27,7 +28,15 @@ def estimate_map_many(
     items: Sequence[tuple], options: CalibrationOptions
 ) -> list[dict | Exception]:
     """``map`` results for ``items`` = [(record, classical fit, base result)], one per item
-    (or the exception that item raised)."""
+    (or the exception that item raised); BLAS on one thread
+    (:func:`chekan.jaxconfig.single_threaded_blas`)."""
+    with single_threaded_blas():
+        return _estimate_map_many(items, options)
+
+
+def _estimate_map_many(
+    items: Sequence[tuple], options: CalibrationOptions
+) -> list[dict | Exception]:
     t_start = time.perf_counter()
     out: list[dict | Exception | None] = [None] * len(items)
     ready = []  # (index, model, init)

@@ -19,7 +19,7 @@ import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
 from chekan import model as fm
-from chekan.joint.layout import ModelStructure, RecordData
+from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import (
     apply_A,
     beta_prior_var,
@@ -28,10 +28,11 @@ from chekan.joint.likelihood import (
     solve_beta,
 )
 from chekan.joint.map import MapFit
-from chekan.joint.problem import executables, problem_for
+from chekan.joint.problem import default_hyper, executables, problem_for
 from chekan.parameters import PARAMETER_UNITS
 from inference.normal_eq import draw_beta_normal
 
+MAP_DERIVED = "map_derived"  # the stored executable's name (see prefetch)
 PHYSICAL = tuple(PARAMETER_UNITS)[:11]
 """Reported quantities that are functions of (θ, β): b1 … drift2_pix_per_h."""
 
@@ -88,7 +89,15 @@ def _map_derived_jit(structure: ModelStructure):
         Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
         return g(z, beta), Jz, Jb, Linv.T @ Linv, beta
 
-    return executables(structure).jit("map_derived", core)
+    return executables(structure).jit(MAP_DERIVED, core)
+
+
+def prefetch(model: RecordModel) -> None:
+    """Start loading the stored executable of :func:`map_derived` for this model's
+    structure in the background (:meth:`inference.aot.ExecutableStore.prefetch`)."""
+    z = jnp.zeros(problem_for(model.structure).map_space.size)
+    args = (z, default_hyper(), model.data, model.duration_h)
+    executables(model.structure).prefetch(MAP_DERIVED, *args)
 
 
 def map_derived(fit: MapFit) -> dict:

@@ -17,6 +17,7 @@ from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import dense_design, noise_var, solve_beta
 from chekan.joint.problem import Hyper, default_hyper, executables, problem_for
 
+BETA_AT = "beta_at"  # the stored executable's name (see prefetch)
 HYPER_TOL = 1e-4  # EM at fixed θ stops when no log-hyperparameter moves more than this
 HYPER_MAX_UPDATES = 200  # ~8 ms each on a 9 h record
 
@@ -130,7 +131,14 @@ def _beta_at_jit(structure: ModelStructure):
         lev = jnp.sum(X**2, axis=-1)
         return rw, beta, jnp.sum(Linv**2, axis=0), noise_var(h, data), trans, lev
 
-    return executables(structure).jit("beta_at", fn)
+    return executables(structure).jit(BETA_AT, fn)
+
+
+def prefetch(model: RecordModel) -> None:
+    """Start loading the stored β̂ executable of this model's structure in the background
+    (:meth:`inference.aot.ExecutableStore.prefetch`)."""
+    z = jnp.zeros(problem_for(model.structure).map_space.size)
+    executables(model.structure).prefetch(BETA_AT, z, default_hyper(), model.data)
 
 
 def beta_at(structure: ModelStructure, z, h: Hyper, data: RecordData):

@@ -14,10 +14,13 @@ import jax
 import numpy as np
 
 from chekan.holds import HoldTable
+from chekan.jaxconfig import single_threaded_blas
 from chekan.joint.angles import angle_sensor_entry
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
 from chekan.joint.derived import map_derived, posterior_draws
+from chekan.joint.derived import prefetch as prefetch_map_derived
+from chekan.joint.em import prefetch as prefetch_beta_at
 from chekan.joint.map import MapFit, fit_map_em, initial_values
 from chekan.joint.outputs import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.sampling import sample_posterior
@@ -27,7 +30,13 @@ from chekan.result import param_entry, posterior_entry
 
 
 def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOptions) -> dict:
-    """Run ``map`` or ``bayes`` on a record or protocol; return the result dict."""
+    """Run ``map`` or ``bayes`` on a record or protocol; return the result dict (BLAS on
+    one thread: :func:`chekan.jaxconfig.single_threaded_blas`)."""
+    with single_threaded_blas():
+        return _estimate(data, kind=kind, classical=classical, base=base, options=options)
+
+
+def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOptions) -> dict:
     if kind == "protocol":
         from chekan.joint.protocol import estimate_protocol
 
@@ -46,6 +55,10 @@ def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpti
             f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
             f"{model.n_beta} marginalised linear parameters"
         )
+    # a new process loads the stored executables it will need next while the MAP runs
+    prefetch_beta_at(model)
+    if options.method == "map":
+        prefetch_map_derived(model)
     fit = fit_map_em(model, init, progress=options.progress, solver=options.map_solver)
     if options.method == "map":
         return map_result(fit, base, options, t_start)

@@ -29,6 +29,9 @@ in closed form through the normal equations (:mod:`inference.normal_eq`).
 
 from __future__ import annotations
 
+import functools
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -116,7 +119,8 @@ def slew_angle_columns(v: dict, data: RecordData) -> jax.Array:
     wm = jnp.where(data.mv_mask, -jnp.expm1(-data.dt / tau) * jnp.exp(-data.mv_lag / tau), 0.0)
     dMv = jnp.einsum("hm,hmj,hmq->hqj", wm, -dEm / ARCSEC_PER_RAD, data.mv_angle_basis)
     w = lag_weights(tau, data)
-    return w[:, None, None] * jnp.einsum("nh,hqj->nqj", data.own, dMv)
+    own = jnp.argmax(data.own, axis=1)  # the bin's hold (a row of zeros: padding)
+    return (w * jnp.sum(data.own, axis=1))[:, None, None] * dMv[own]
 
 
 def _unsettled_carry(E, Mv, wprev, rho):
@@ -144,13 +148,23 @@ def _local_columns(G, s_j, Q, enc, P_j=None):
 
 
 def apply_A(beta, G, s, structure: ModelStructure, data: RecordData, P=None):
-    """A·β as (N, 2), without forming A (``P``: :func:`slew_angle_columns` or None)."""
+    """A·β as (N, 2), without forming A (``P``: :func:`slew_angle_columns` or None):
+    system j's share is Q qⱼ + G (oⱼ + sⱼ∘(δ + E ζ)) + Pⱼ ζ (:func:`_local_columns`)."""
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
+    sp = _hold_sparse(G, data)
+    b = structure.beta_blocks
+    nq, H = Q.shape[1], G.shape[1]
+    shared = np.concatenate([b["encoder"], b["angle_systematic"]])
+    zeta = beta[shared]
+    angle = beta[b["angle_error"]] + data.angle_basis @ zeta  # (H,) arcsec
     out = []
     for j in range(2):
-        bj = beta[structure.beta_index(j)]
-        Pj = None if P is None else P[..., j]
-        out.append(_local_columns(G, s[:, j], Q, data.angle_basis, Pj) @ bj)
+        q = beta[j * nq : (j + 1) * nq]
+        o = beta[b["hold_offset"][j * H : (j + 1) * H]]
+        y = Q @ q + sp.times(o + s[:, j] * angle)
+        if P is not None:
+            y = y + P[..., j] @ zeta
+        out.append(y)
     return jnp.stack(out, axis=1)
 
 
@@ -160,6 +174,9 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     β = (q₁, q₂, o₁, o₂, δ, e) with qⱼ = (cⱼ, dⱼ); with Qⱼ-weighted products
     QQ = QᵀWⱼQ, QG = QᵀWⱼG, GG = GᵀWⱼG and s = sⱼ the blocks are QQ, QG, QG·diag(s), GG,
     GG·diag(s), diag(s)·GG·diag(s) (summed over systems for δ) and their products with E.
+    Row i of G has two entries, aᵢ at its own hold and bᵢ at the hold before
+    (:func:`_hold_sparse`): the products with G are sums over bins by hold, O(N), not
+    dense O(N·H²) products (most of the work of an evaluation before).
     """
     f, G, s, trans = linear_terms(v, data)
     mask = data.mask
@@ -169,18 +186,19 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
     E = data.angle_basis
     nq, H, L = Q.shape[1], G.shape[1], E.shape[1]
+    sp = _hold_sparse(G, data)
     QQ, QG, QGs, GG, GGs, sGGs, bq, bo, bd = [], [], [], [], [], [], [], [], []
     for j in range(2):
         Wj, sj = W[:, j], s[:, j]
-        WQ, WG = Q * Wj[:, None], G * Wj[:, None]
+        WQ = Q * Wj[:, None]
         QQ.append(Q.T @ WQ)
-        QG.append(Q.T @ WG)
+        QG.append(sp.t_times(WQ).T)
         QGs.append(QG[j] * sj[None, :])
-        GG.append(G.T @ WG)
+        GG.append(sp.gram(Wj))
         GGs.append(GG[j] * sj[None, :])
         sGGs.append(sj[:, None] * GGs[j])
         bq.append(WQ.T @ r[:, j])
-        bo.append(WG.T @ r[:, j])
+        bo.append(sp.t_times(Wj * r[:, j]))
         bd.append(sj * bo[j])
     Zqq, Zqh, Zhh = jnp.zeros((nq, nq)), jnp.zeros((nq, H)), jnp.zeros((H, H))
     Sd = sGGs[0] + sGGs[1]
@@ -203,10 +221,11 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     if P is not None:  # the slews' share of the systematic columns (see slew_angle_columns)
         for j in range(2):
             WP = P[..., j] * W[:, j][:, None]  # (N, Q)
-            GsE = (G * s[:, j][None, :]) @ E
+            GsE = sp.times(s[:, j][:, None] * E)
+            GtWP = sp.t_times(WP)
             rows[j][5] = rows[j][5] + Q.T @ WP
-            rows[2 + j][5] = rows[2 + j][5] + G.T @ WP
-            rows[4][5] = rows[4][5] + s[:, j][:, None] * (G.T @ WP)
+            rows[2 + j][5] = rows[2 + j][5] + GtWP
+            rows[4][5] = rows[4][5] + s[:, j][:, None] * GtWP
             rows[5][5] = rows[5][5] + GsE.T @ WP + WP.T @ GsE + P[..., j].T @ WP
             gx = gx + WP.T @ r[:, j]
         for i in range(5):
@@ -217,6 +236,47 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     logdet_n = jnp.sum(jnp.where(mask, jnp.log(nv), 0.0))
     pieces = (f, G, s, r, W, nv, trans, P)
     return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), pieces
+
+
+class _HoldSparse(NamedTuple):
+    """G (N, H) by its two entries per row: aᵢ at hold kᵢ (own) and bᵢ at pᵢ (the hold
+    before; bᵢ = 0 for the first hold's bins and for padding)."""
+
+    a: jax.Array
+    b: jax.Array
+    own: jax.Array  # (N,) int
+    prev: jax.Array  # (N,) int
+    n_holds: int
+
+    def times(self, X):
+        """G·X for X (H, …): rows gathered, aᵢ X[kᵢ] + bᵢ X[pᵢ]."""
+        shape = (-1,) + (1,) * (X.ndim - 1)
+        return self.a.reshape(shape) * X[self.own] + self.b.reshape(shape) * X[self.prev]
+
+    def t_times(self, Y):
+        """Gᵀ·Y for Y (N, …): sums over bins by hold."""
+        shape = (-1,) + (1,) * (Y.ndim - 1)
+        seg = functools.partial(jax.ops.segment_sum, num_segments=self.n_holds)
+        return seg(self.a.reshape(shape) * Y, self.own) + seg(self.b.reshape(shape) * Y, self.prev)
+
+    def gram(self, w):
+        """Gᵀ diag(w) G: the diagonal from a² and b², the hold-to-previous entries from ab."""
+        H = self.n_holds
+        seg = functools.partial(jax.ops.segment_sum, num_segments=H)
+        diag = seg(w * self.a**2, self.own) + seg(w * self.b**2, self.prev)
+        cross = jnp.zeros((H, H)).at[self.own, self.prev].add(w * self.a * self.b)
+        return jnp.diag(diag) + cross + cross.T
+
+
+def _hold_sparse(G, data: RecordData) -> _HoldSparse:
+    """G's two entries per row, read at the holds of ``data.own`` and ``data.prev``."""
+    own = jnp.argmax(data.own, axis=1)
+    prev = jnp.argmax(data.prev, axis=1)
+    has_own = jnp.sum(data.own, axis=1)
+    has_prev = jnp.sum(data.prev, axis=1)
+    a = jnp.take_along_axis(G, own[:, None], axis=1)[:, 0] * has_own
+    b = jnp.take_along_axis(G, prev[:, None], axis=1)[:, 0] * has_prev
+    return _HoldSparse(a, b, own, prev, G.shape[1])
 
 
 def predict(v: dict, structure: ModelStructure, data: RecordData):
@@ -273,7 +333,9 @@ def solve_beta(v: dict, h: dict, structure: ModelStructure, data: RecordData, ex
     """
     ne, pieces = normal_equations(v, h, structure, data)
     _, G, s, r, _, nv, _, P = pieces
-    beta, L = posterior_beta_normal(ne, beta_prior_var(h, structure, data))
+    beta, L = jax.lax.optimization_barrier(
+        posterior_beta_normal(ne, beta_prior_var(h, structure, data))
+    )
     # not sqrt(W): its derivative is infinite where W = 0 (masked bins), giving 0·∞ = NaN
     sqrt_w = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
     rw = sqrt_w * (r - apply_A(beta, G, s, structure, data, P))

@@ -1,5 +1,5 @@
 """Write ``snapshot.json``: classical and MAP results on 10 fixed simulated records and the
-paper's protocol, the reference that a behaviour-unchanged refactor must reproduce to 1e-9
+paper's protocol, the reference that a behaviour-unchanged refactor must reproduce (1e-6)
 (``tests/test_regression_snapshot.py``).
 
     python tests/data/regression/make_snapshot.py   # only when a change is *meant* to move them
