@@ -5,8 +5,10 @@ r"""Maximum a posteriori estimate by nonlinear least squares, with a Laplace cov
            \Sigma_z \approx (J^\top J)^{-1},\; J = \partial R/\partial z\,|_{\hat z}.
 
 The solve (optimistix Levenberg–Marquardt or Gauss–Newton), the Jacobian at the solution
-(``jax.jacfwd``, recomputed: optimistix does not return it) and its thin SVD run in one compiled
-function, cached per problem object: repeated fits with the same data shapes do not retrace.
+(``jax.jacfwd``, recomputed: optimistix does not return it; kept in the result for budgets by
+row) and its thin SVD run in one compiled function, cached per problem object: repeated fits
+with the same data shapes do not retrace; with ``problem.executables`` (:mod:`inference.aot`)
+a new process loads it instead of tracing and compiling.
 :func:`fit_map_batch` vmaps the same function over a leading batch axis of the data (lanes run
 in lock step: a batch costs its slowest member; failures are reported per lane, never raised).
 """

@@ -102,7 +102,7 @@ def test_posterior_netcdf_is_copied_beside_the_archive(tmp_path, result46):
         assert s["result_path"] == str(rp.resolve())
         sid2 = a.add_result(variant(r, version="0.9.0"), rp)  # never overwrites another's file
         assert Path(a.get_session(sid2)["netcdf_path"]).name.endswith("_0.9.0.nc")
-        missing = variant(r, version="0.3.0")
+        missing = variant(r, version="0.8.0")  # any version but the current one
         missing["posterior_netcdf"] = str(tmp_path / "nope.nc")
         with pytest.raises(ChekanError, match="not found"):
             a.add_result(missing, rp)
