@@ -203,6 +203,13 @@ def run(
     n_eval: int = 2000,
 ) -> list[Row]:
     """Measure the figures (see the module docstring); returns the rows."""
+    from chekan.jaxconfig import single_threaded_blas
+
+    with single_threaded_blas():  # as chekan's estimation runs (NUTS too)
+        return _run(seed, quick, chains, warmup, draws, n_eval)
+
+
+def _run(seed, quick, chains, warmup, draws, n_eval) -> list[Row]:
     import numpy as np
 
     from chekan.options import CalibrationOptions
