@@ -21,6 +21,7 @@ from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertaint
 from chekan.joint.derived import map_derived, posterior_draws
 from chekan.joint.derived import prefetch as prefetch_map_derived
 from chekan.joint.em import prefetch as prefetch_beta_at
+from chekan.joint.layout import padded_shape
 from chekan.joint.map import MapFit, fit_map_em, initial_values
 from chekan.joint.outputs import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.sampling import sample_posterior
@@ -55,6 +56,11 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
             f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
             f"{model.n_beta} marginalised linear parameters"
         )
+    if options.method == "map":
+        # padded to a shape bucket (exact: padding carries zero weight), so that records of
+        # similar size share one compiled solver; bayes keeps the record's own shape (its
+        # per-hold outputs would carry the padding)
+        model = model.pad(*padded_shape([model]))
     # a new process loads the stored executables it will need next while the MAP runs
     prefetch_beta_at(model)
     if options.method == "map":
