@@ -32,6 +32,7 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 # isort: split
 
 import contextlib
+import functools
 import hashlib
 import os
 import pickle
@@ -77,6 +78,7 @@ def source_fingerprint(*folders: str | Path, extra: tuple[str, ...] = ()) -> str
     return h.hexdigest()
 
 
+@functools.cache
 def _machine() -> str:
     """What makes machine code unsafe to share: versions, backend, CPU model and flags."""
     import jaxlib
@@ -185,12 +187,12 @@ class ExecutableStore:
                 if key in self.unproven:  # its first run: let a failure surface here
                     jax.block_until_ready(outs)
             except jax.errors.JaxRuntimeError:
-                if key not in self.unproven or (path := self._path(key)) is None:
+                if key not in self.unproven:  # not a freshly loaded file: a real error
                     raise
-                # a stored executable that loads but cannot run: compile afresh
-                path.unlink(missing_ok=True)
+                # a stored executable that loads but cannot run: compile afresh (and
+                # overwrite it, under its key and under its program)
                 self.events.append((name, "discarded"))
-                exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn)
+                exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn, reuse=False)
                 self.loaded[key] = exe
                 compiled, out_tree = exe
                 outs = compiled(*[leaves[i] for i in dyn])
@@ -235,9 +237,10 @@ class ExecutableStore:
     def _path(self, key: str) -> Path | None:
         return None if self.folder is None else self.folder / f"{key}{_SUFFIX}"
 
-    def _load_or_compile(self, key, name, fn, leaves, treedef, dyn):
+    def _load_or_compile(self, key, name, fn, leaves, treedef, dyn, reuse: bool = True):
+        """The executable from its file (``reuse``), else compiled and saved."""
         path = self._path(key)
-        if path is not None and path.is_file():
+        if reuse and path is not None and path.is_file():
             loaded = self._load(path, name, key)
             if loaded is not None:
                 return loaded
@@ -258,7 +261,7 @@ class ExecutableStore:
         # the same program under another fingerprint (code edited elsewhere): reuse it
         program = hashlib.sha256(lowered.as_text().encode() + self._machine.encode())  # type: ignore[attr-defined]
         by_program = self._path(f"program/{_FORMAT.replace('/', '-')}-{program.hexdigest()[:40]}")
-        if by_program is not None and by_program.is_file():
+        if reuse and by_program is not None and by_program.is_file():
             loaded = self._load(by_program, name, key)
             if loaded is not None:
                 if path is not None:
@@ -298,8 +301,13 @@ class ExecutableStore:
 
 
 def _write_atomic(path: Path, blob: bytes) -> None:
+    """``blob`` at ``path`` whole or not at all (no temporary file left behind)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=_SUFFIX)
-    with os.fdopen(fd, "wb") as f:
-        f.write(blob)
-    os.replace(tmp, path)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(blob)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -9,23 +9,12 @@ the platform's specification), a (the prior of K), other priors; scaled to the r
 
 from __future__ import annotations
 
-import functools
-
-import jax
-import jax.numpy as jnp
 import numpy as np
 
-from chekan.joint.layout import ModelStructure
 from chekan.joint.map import MapFit
-from chekan.joint.problem import executables, problem_for
+from chekan.joint.problem import problem_for
 
 PRIOR_SD = {"eps1_arcmin": 10.0, "eps2_arcmin": 10.0, "dgamma_arcmin": 10.0}
-
-
-@functools.cache
-def _jacobian_jit(structure: ModelStructure):
-    fn = jax.jacfwd(problem_for(structure).lsq.stacked_residuals)
-    return executables(structure).jit("budget_jacobian", fn)
 
 
 def uncertainty_budget(fit: MapFit) -> dict:
@@ -35,7 +24,10 @@ def uncertainty_budget(fit: MapFit) -> dict:
     space = problem_for(structure).map_space
     J = np.asarray(res.jacobian)  # the solve's Jacobian at θ̂ (same model, hyper and level)
     if J.shape != (res.residuals.size, space.size):
-        J = np.asarray(_jacobian_jit(structure)(jnp.asarray(res.z), (model.data, fit.hyper)))
+        raise ValueError(
+            f"the MAP result carries no Jacobian of shape {(res.residuals.size, space.size)} "
+            f"(got {J.shape}): build fits with chekan.joint.fit_map_em"
+        )
     n_data = int(np.asarray(model.data.mask).size)
     nb = structure.n_beta
     blocks = structure.beta_blocks

@@ -110,8 +110,6 @@ def fit_map_em_many(
 def _solve_pass(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
     """One pass for every record with ``solver`` ("gn" or "lm"), and Levenberg–Marquardt
     from the same start for the records where Gauss–Newton did not converge."""
-    if solver not in ("gn", "lm"):
-        raise ValueError(f"MAP solver must be 'gn' or 'lm', got {solver!r}")
     results = _solve(lsq, args, zs, solver)
     retry = [i for i, r in enumerate(results) if not r.converged and solver != "lm"]
     if retry:
