@@ -150,7 +150,9 @@ class ExecutableStore:
     unproven: set[str] = field(default_factory=set, repr=False)
     """Keys loaded from a file that have not run yet (a failure there recompiles)."""
     pending: dict[str, Any] = field(default_factory=dict, repr=False)
-    """Loads started by :meth:`prefetch` (futures), by key."""
+    """Loads started by :meth:`prefetch` or :meth:`preload` (futures), by key."""
+    used: dict[str, str] = field(default_factory=dict, repr=False)
+    """Name of every executable run in this process, by key, in order of first use."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_machine", _machine())
@@ -160,7 +162,7 @@ class ExecutableStore:
         that changes what a closure computes without changing argument shapes)."""
         fp = hashlib.sha256(f"{self.fingerprint}\0{label}".encode()).hexdigest()
         return ExecutableStore(
-            self.folder, fp, self.loaded, self.events, self.unproven, self.pending
+            self.folder, fp, self.loaded, self.events, self.unproven, self.pending, self.used
         )
 
     def jit(self, name: str, fn: Callable) -> Callable:
@@ -197,6 +199,7 @@ class ExecutableStore:
                 compiled, out_tree = exe
                 outs = compiled(*[leaves[i] for i in dyn])
             self.unproven.discard(key)
+            self.used.setdefault(key, name)
             return jax.tree_util.tree_unflatten(out_tree, outs)
 
         call.__name__ = f"aot_{name}"
@@ -217,6 +220,57 @@ class ExecutableStore:
         pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"aot-{name}")
         self.pending[key] = pool.submit(self._load, path, name, key)
         pool.shutdown(wait=False)
+
+    def remember(self, label: str) -> Path | None:
+        """Write the executables this process has run, in order of first use, as the
+        manifest ``recent/<label>.json`` (what :meth:`preload` starts loading in the next
+        process with the same label). Returns its path (None: in memory only)."""
+        if self.folder is None or not self.used:
+            return None
+        import json
+
+        entry = {
+            "format": _FORMAT,
+            "fingerprint": self.fingerprint,
+            "executables": [{"key": k, "name": n} for k, n in self.used.items()],
+        }
+        path = self.folder / "recent" / f"{label}.json"
+        try:
+            _write_atomic(path, json.dumps(entry, indent=1).encode())
+        except OSError:
+            return None  # a read-only cache: the next process just does not preload
+        return path
+
+    def preload(self, label: str) -> int:
+        """Start loading, in one background thread and in their order of first use, the
+        executables the last process with ``label`` ran (:meth:`remember`), before this
+        process knows which it needs: a CLI overlaps the loads with its imports and its
+        reading of the input. A call whose key was preloaded waits for that load; one that
+        is not wastes only background time. Only a manifest of this store's fingerprint
+        (this code) is used. Returns the number of loads started."""
+        if self.folder is None:
+            return 0
+        import json
+
+        try:
+            entry = json.loads((self.folder / "recent" / f"{label}.json").read_text())
+            if entry.get("format") != _FORMAT or entry.get("fingerprint") != self.fingerprint:
+                return 0
+            todo = [(str(e["key"]), str(e["name"])) for e in entry["executables"]]
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return 0  # no manifest, or not one of ours: nothing to guess from
+        from concurrent.futures import ThreadPoolExecutor
+
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"aot-preload-{label}")
+        started = 0
+        for key, name in todo:
+            path = self._path(key)
+            if key in self.loaded or key in self.pending or path is None or not path.is_file():
+                continue
+            self.pending[key] = pool.submit(self._load, path, name, key)
+            started += 1
+        pool.shutdown(wait=False)
+        return started
 
     # ----------------------------------------------------------------- internals
     def _signature(self, name: str, args: tuple):

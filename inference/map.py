@@ -4,11 +4,11 @@ r"""Maximum a posteriori estimate by nonlinear least squares, with a Laplace cov
            R(z) = [\,r(\theta(z)),\; r_\text{prior}(z)\,],\qquad
            \Sigma_z \approx (J^\top J)^{-1},\; J = \partial R/\partial z\,|_{\hat z}.
 
-The solve (optimistix Levenberg–Marquardt or Gauss–Newton), the Jacobian at the solution
-(``jax.jacfwd``, recomputed: optimistix does not return it; kept in the result for budgets by
-row) and its thin SVD run in one compiled function, cached per problem object: repeated fits
-with the same data shapes do not retrace; with ``problem.executables`` (:mod:`inference.aot`)
-a new process loads it instead of tracing and compiling.
+The solve (optimistix Levenberg–Marquardt or Gauss–Newton), the residuals and Jacobian at the
+solution (from the solver's last accepted linearisation, materialised; kept in the result for
+budgets by row) and its thin SVD run in one compiled function, cached per problem object:
+repeated fits with the same data shapes do not retrace; with ``problem.executables``
+(:mod:`inference.aot`) a new process loads it instead of tracing and compiling.
 :func:`fit_map_batch` vmaps the same function over a leading batch axis of the data (lanes run
 in lock step: a batch costs its slowest member; failures are reported per lane, never raised).
 """
@@ -180,8 +180,11 @@ def _core(problem: LeastSquaresProblem, solver, max_steps: int) -> Callable:
         fn = problem.stacked_residuals
         sol = optx.least_squares(fn, solver, z0, data, max_steps=max_steps, throw=False)
         z = sol.value
-        r = fn(z, data)
-        jac = jax.jacfwd(fn)(z, data)
+        # R and J at ẑ from the solver's last accepted step (its linearisation there):
+        # recomputing them by jacfwd after the loop doubled the compiled program
+        info = sol.state.f_info
+        r = info.residual
+        jac = info.jac.as_matrix()
         padded = jac
         if jac.shape[0] < p:  # under-determined: pad so the thin SVD has p values
             padded = jnp.concatenate([jac, jnp.zeros((p - jac.shape[0], p))])

@@ -35,21 +35,24 @@ PROGRAM = textwrap.dedent(
     f = store.jit("toy", fn)
     x = np.arange(12.0).reshape(3, 4) / 10
     data = {"shift": np.float64(2.0), "scale": 3.0}
-    if len(sys.argv) > 4:  # load in the background first, as chekan does for what comes next
+    how = sys.argv[4] if len(sys.argv) > 4 else ""
+    if how == "prefetch":  # load in the background first, as chekan does for what comes next
         store.prefetch("toy", np.zeros((3, 4)), data)
+    started = store.preload("toy-run") if how == "preload" else -1  # what the last run used
     out = f(x, data)
+    store.remember("toy-run")
     print(store.events[-1][1], repr(float(out["trace"])), repr(float(out["chol"][2, 1])),
-          len(store.events))
+          len(store.events), started)
     """
 )
 
 
-def _run(folder: Path, fingerprint: str, code: str = "1", prefetch: bool = False) -> list[str]:
-    """The program in a new process; ``code`` changes what it computes (× the shift)."""
+def _run(folder: Path, fingerprint: str, code: str = "1", how: str = "") -> list[str]:
+    """The program in a new process; ``code`` changes what it computes (× the shift);
+    ``how``: "prefetch" or "preload" the executable before the call."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
     proc = subprocess.run(
-        [sys.executable, "-c", PROGRAM, str(folder), fingerprint, code]
-        + (["prefetch"] if prefetch else []),
+        [sys.executable, "-c", PROGRAM, str(folder), fingerprint, code] + ([how] if how else []),
         env=env,
         capture_output=True,
         text=True,
@@ -78,9 +81,24 @@ def test_a_new_process_loads_what_the_first_compiled_with_the_same_numbers(tmp_p
 
 def test_a_prefetched_executable_is_loaded_once_and_used(tmp_path):
     first = _run(tmp_path, "code-v1")
-    out = _run(tmp_path, "code-v1", prefetch=True)  # same signature: the call waits for it
+    out = _run(tmp_path, "code-v1", how="prefetch")  # same signature: the call waits for it
     assert out[0] == "loaded" and out[3] == "1"  # one event: loaded once, in the background
     assert out[1:3] == first[1:3]
+
+
+def test_preload_starts_what_the_last_run_used_and_only_for_the_same_code(tmp_path):
+    first = _run(tmp_path, "code-v1", how="preload")  # no manifest yet: nothing to start
+    assert first[0] == "compiled" and first[4] == "0"
+    manifest = tmp_path / "recent" / "toy-run.json"
+    assert manifest.is_file()  # remember() wrote what this run used
+    out = _run(tmp_path, "code-v1", how="preload")
+    assert out[4] == "1"  # started before the call knew its key
+    assert out[0] == "loaded" and out[3] == "1"  # the call used that load: one event
+    assert out[1:3] == first[1:3]
+    other = _run(tmp_path, "code-v2", code="2", how="preload")  # other code: never guessed
+    assert other[4] == "0" and other[0] == "compiled"
+    manifest.write_text("{not json")  # a damaged manifest only means no preload
+    assert _run(tmp_path, "code-v2", code="2", how="preload")[4] == "0"
 
 
 def test_other_code_never_loads_a_stored_executable(tmp_path):

@@ -13,11 +13,10 @@ from __future__ import annotations
 import itertools
 import math
 
-import jax.numpy as jnp
 import numpy as np
 
-import chekan.jaxconfig  # noqa: F401
 from chekan.holds import HoldTable, segment_record
+from chekan.jaxconfig import device_array
 from chekan.joint.angles import AngleSensorSpec, SystematicBasis
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.units import ARCSEC_PER_RAD
@@ -163,32 +162,32 @@ def prepare_record(
         S = sb.size
     direction = np.array([0.0, 1.0]) if holds.axis == "y" else np.array([1.0, 0.0])
     data = RecordData(
-        g=jnp.asarray(record.g_local_mgal, dtype=jnp.float64),
-        m0=jnp.asarray(record.ccd_center_pix, dtype=jnp.float64),
-        m_ref=jnp.asarray(m_level_ref, dtype=jnp.float64),
-        hold_tx=jnp.asarray(holds.tilt_x_rad),
-        hold_ty=jnp.asarray(holds.tilt_y_rad),
-        direction=jnp.asarray(direction),
-        own=jnp.asarray(own),
-        prev=jnp.asarray(prev),
-        d0=jnp.asarray(d0),
-        dstep=jnp.asarray(np.array([r[4] for r in rows])),
-        n_t=jnp.asarray(np.array([r[5] for r in rows], dtype=float)),
-        y=jnp.asarray(y),
-        cnt=jnp.asarray(cnt),
-        mask=jnp.asarray(cnt > 0),
-        mv_tx=jnp.asarray(mv_tx),
-        mv_ty=jnp.asarray(mv_ty),
-        mv_lag=jnp.asarray(mv_lag),
-        mv_mask=jnp.asarray(mv_mask),
-        dt=jnp.asarray(dt_s),
-        hold_T=jnp.asarray(hold_T),
-        drift_basis=jnp.asarray(P),
-        angle_basis=jnp.asarray(basis),
-        angle_prior_var=jnp.asarray(prior_var),
-        mv_angle_basis=jnp.asarray(mv_basis),
-        sigma_base=jnp.asarray(_robust_sigma(record, holds)),
-        hold_mask=jnp.ones(H, dtype=bool),  # False for padding (see RecordData.pad)
+        g=device_array(record.g_local_mgal, dtype=np.float64),
+        m0=device_array(record.ccd_center_pix, dtype=np.float64),
+        m_ref=device_array(m_level_ref, dtype=np.float64),
+        hold_tx=device_array(holds.tilt_x_rad),
+        hold_ty=device_array(holds.tilt_y_rad),
+        direction=device_array(direction),
+        own=device_array(own),
+        prev=device_array(prev),
+        d0=device_array(d0),
+        dstep=device_array(np.array([r[4] for r in rows])),
+        n_t=device_array(np.array([r[5] for r in rows], dtype=float)),
+        y=device_array(y),
+        cnt=device_array(cnt),
+        mask=device_array(cnt > 0),
+        mv_tx=device_array(mv_tx),
+        mv_ty=device_array(mv_ty),
+        mv_lag=device_array(mv_lag),
+        mv_mask=device_array(mv_mask),
+        dt=device_array(dt_s),
+        hold_T=device_array(hold_T),
+        drift_basis=device_array(P),
+        angle_basis=device_array(basis),
+        angle_prior_var=device_array(prior_var),
+        mv_angle_basis=device_array(mv_basis),
+        sigma_base=device_array(_robust_sigma(record, holds)),
+        hold_mask=device_array(np.ones(H, dtype=bool)),  # False for padding (see RecordData.pad)
     )
     structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L, S)
     return RecordModel(structure, data, holds.step, t_mid, (t0, t1), angle_spec)

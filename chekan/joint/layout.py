@@ -19,10 +19,9 @@ from typing import Any
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-import chekan.jaxconfig  # noqa: F401
+from chekan.jaxconfig import device_array
 from chekan.joint.angles import AngleSensorSpec
 
 
@@ -144,12 +143,12 @@ class RecordData(eqx.Module):
             axes, fill = f.metadata["pad"]
             x = np.asarray(getattr(self, f.name))
             widths = [(0, extra[a]) for a in axes] + [(0, 0)] * (x.ndim - len(axes))
-            changes[f.name] = jnp.asarray(np.pad(x, widths, constant_values=fill))
+            changes[f.name] = device_array(np.pad(x, widths, constant_values=fill))
         return dataclasses.replace(self, **changes)
 
     def with_level(self, m_ref: Any) -> RecordData:
         """The same data with the level reference reading moved to ``m_ref`` (pix)."""
-        return dataclasses.replace(self, m_ref=jnp.asarray(m_ref, dtype=jnp.float64))
+        return dataclasses.replace(self, m_ref=device_array(m_ref, dtype=np.float64))
 
 
 @dataclass(frozen=True)

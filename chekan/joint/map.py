@@ -2,9 +2,10 @@
 
 ``MAP_PASSES`` Gauss–Newton solves over θ (β projected out; LM where GN fails). Between
 two solves the level reference moves to its estimate and the hyperparameters are
-converged at fixed θ (:func:`chekan.joint.em.between_passes`). A fixed small number of EM
-updates is not enough: σ_o creeps up from its start by ~15 % per update, and stopping
-early understates the sd of b by 5–10 % (z² ≈ 1.2–1.6 in the validation study).
+converged at fixed θ (:func:`chekan.joint.em_compiled.between_passes`, one compiled loop;
+with ``solver="lm"`` the host loop of 0.2, :func:`chekan.joint.em.between_passes`). A fixed
+small number of EM updates is not enough: σ_o creeps up from its start by ~15 % per update,
+and stopping early understates the sd of b by 5–10 % (z² ≈ 1.2–1.6 in the validation study).
 
 One loop serves a single record (:func:`inference.map.fit_map`) and a batch of records
 padded to one structure (:func:`inference.map.fit_map_batch`, vmapped lanes). The solver
@@ -21,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chekan.joint.em import between_passes
+from chekan.joint import em, em_compiled
 from chekan.joint.layout import RecordModel
 from chekan.joint.problem import K_DESIGN, Hyper, default_hyper, problem_for
 from inference.map import MapResult, SolverName, fit_map, fit_map_batch
@@ -32,6 +33,10 @@ MAP_PASSES = 3  # solves; between them the hyperparameters are converged at fixe
 # 5–7 steps where LM's trust region took 10–30 (measured on the paper's 9 h program);
 # a pass that does not converge is redone by LM from the same start (_solve_pass)
 SOLVER: SolverName = "gn"
+# steps allowed per solver: a Gauss–Newton pass that has not converged in 32 steps will not
+# (it oscillates on records that hardly identify θ, e.g. one short round) and LM redoes it;
+# 256 GN steps cost ~0.45 s there for nothing
+MAX_STEPS: dict[str, int] = {"gn": 32, "lm": 256}
 # vmapped lanes per solve: the XLA CPU runtime (jax 0.10) deadlocks on this model's
 # vmapped LM at 4 lanes and more (measured; see inference.map.fit_map_batch); on CPU a
 # vmapped solve costs about the sum of its lanes anyway, so pairs lose nothing
@@ -93,6 +98,7 @@ def fit_map_em_many(
     zs: list[Any] = [space.to_z(i) for i in inits]
     histories: list[list[dict]] = [[] for _ in range(B)]
     results: list[MapResult] = []
+    between_passes = em_compiled.between_passes if solver == "gn" else em.between_passes
     for it in range(MAP_PASSES):
         args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
         results = _solve_pass(prob.lsq, args, zs, solver)
@@ -120,10 +126,13 @@ def _solve_pass(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult
 
 
 def _solve(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
+    steps = MAX_STEPS[solver]
     if len(args) == 1:
-        return [fit_map(lsq, args[0], zs[0], solver=solver)]
+        return [fit_map(lsq, args[0], zs[0], solver=solver, max_steps=steps)]
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *args)
-    batch = fit_map_batch(lsq, stacked, np.stack(zs), max_lanes=MAX_LANES, solver=solver)
+    batch = fit_map_batch(
+        lsq, stacked, np.stack(zs), max_lanes=MAX_LANES, solver=solver, max_steps=steps
+    )
     return [batch.item(i) for i in range(len(args))]
 
 

@@ -34,8 +34,9 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from chekan.jaxconfig import executable_store
+from chekan.jaxconfig import device_array, executable_store
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import beta_prior_var, normal_equations, solve_beta
 from chekan.parameters import unit_of
@@ -83,10 +84,10 @@ def default_hyper(
 ) -> Hyper:
     """Hyperparameters as the model functions take them (the EM starts here)."""
     return {
-        "noise_scale": jnp.asarray(noise_scale, dtype=jnp.float64),
-        "sigma_theta_arcsec": jnp.asarray(sigma_theta_arcsec, dtype=jnp.float64),
-        "sigma_hold_pix": jnp.asarray(sigma_hold_pix, dtype=jnp.float64),
-        "slew_error": jnp.asarray(slew_error, dtype=jnp.float64),
+        "noise_scale": device_array(noise_scale, dtype=np.float64),
+        "sigma_theta_arcsec": device_array(sigma_theta_arcsec, dtype=np.float64),
+        "sigma_hold_pix": device_array(sigma_hold_pix, dtype=np.float64),
+        "slew_error": device_array(slew_error, dtype=np.float64),
     }
 
 
