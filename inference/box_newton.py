@@ -94,4 +94,4 @@ def minimise_in_box(
 
     x = jnp.clip(x0, lower, upper)
     x, fx, _, k = jax.lax.while_loop(cond, body, (x, f(x), jnp.inf, 0))
-    return BoxNewtonResult(x, fx, k)
+    return BoxNewtonResult(x, fx, jnp.asarray(k))
