@@ -247,8 +247,10 @@ class ExecutableStore:
         process knows which it needs: a CLI overlaps the loads with its imports and its
         reading of the input. A call whose key was preloaded waits for that load; one that
         is not wastes only background time. Only a manifest of this store's fingerprint
-        (this code) is used. Returns the number of loads started."""
-        if self.folder is None:
+        (this code) is used, and only in a process that has not run or started loading an
+        executable yet (a batch of records of other shapes guesses once, not per record).
+        Returns the number of loads started."""
+        if self.folder is None or self.used or self.pending or self.loaded:
             return 0
         import json
 
