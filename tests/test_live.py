@@ -188,6 +188,44 @@ def _boom(record, round_no):  # module level: the worker process imports it
     raise RuntimeError(f"boom {round_no}")
 
 
+_ORPHAN = """
+import sys, time
+sys.path.insert(0, sys.argv[1])
+from chekan.live import calib
+r = calib.MapRunner(job=time.sleep)  # a "MAP" that takes 10 minutes
+r.submit(600, None)
+time.sleep(0.5)
+print(*r._pool._processes, flush=True)  # the worker's pid
+time.sleep(600)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc")
+def test_the_map_worker_ends_when_the_page_is_killed_mid_job():
+    page = subprocess.Popen(
+        [sys.executable, "-c", _ORPHAN, str(ROOT)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        worker = int(page.stdout.readline())
+        assert _alive(worker)
+        page.kill()  # SIGKILL: no chance to shut the pool down
+        page.wait(10)
+        deadline = time.monotonic() + 15
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _alive(worker), "the MAP worker outlived its page"
+    finally:
+        page.kill()
+
+
 def test_update_errors_do_not_stop_the_page(tmp_path):
     from chekan.live.server import LiveServer
 

@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import math
 import multiprocessing
+import os
 import tempfile
+import threading
 import time
 import warnings
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -131,6 +133,23 @@ def _map_job(record: Record, round_no: int) -> dict:
     }
 
 
+def exit_with_parent(parent_pid: int, period_s: float = 1.0) -> None:
+    """Worker initialiser: end this process once ``parent_pid`` is no longer its parent.
+
+    A page killed outright (SIGKILL, or SIGTERM without cleanup) cannot shut its pool
+    down, and its worker, orphaned in the middle of a MAP, ran on for minutes (found by
+    the suite: one stray worker per killed page). A daemon thread checks the parent once
+    per ``period_s``.
+    """
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(period_s)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
 class MapRunner:
     """Runs :func:`estimate_map` in one worker process, the newest request first.
 
@@ -150,7 +169,10 @@ class MapRunner:
     def _executor(self) -> ProcessPoolExecutor:
         if self._pool is None:
             self._pool = ProcessPoolExecutor(
-                max_workers=1, mp_context=multiprocessing.get_context("spawn")
+                max_workers=1,
+                mp_context=multiprocessing.get_context("spawn"),
+                initializer=exit_with_parent,
+                initargs=(os.getpid(),),
             )
         return self._pool
 
