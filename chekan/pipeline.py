@@ -16,17 +16,16 @@ from chekan.result import base_result, classical_result
 def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) -> dict:
     """Calibrate a record or a legacy protocol with the chosen method; return the result dict."""
     opts = options or CalibrationOptions()
-    store = None
-    if opts.method != "classical":
-        # before the heavy imports and the reading: a new process starts loading, in the
-        # background, the compiled functions that the last calibration of this method ran
-        from chekan.jaxconfig import executable_store
-
-        store = executable_store()
-        store.preload(f"calibrate-{opts.method}")
     data, kind, cres, result = classical_stage(path, opts)
-    if store is None:
+    if opts.method == "classical":
         return result
+    # once the input has been read (a bad file fails at once, not after the loads), before
+    # the heavy imports: a new process starts loading, in the background, the compiled
+    # functions that the last calibration of this method ran
+    from chekan.jaxconfig import executable_store
+
+    store = executable_store()
+    store.preload(f"calibrate-{opts.method}")
     from chekan.joint import estimate  # heavy imports only when needed
 
     out = estimate(data, kind=kind, classical=cres, base=result, options=opts)
