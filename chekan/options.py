@@ -28,9 +28,10 @@ class CalibrationOptions:
     # random part per hold; "independent": every hold's error independent (before 0.2).
     angle_errors: str = "systematic"
     angle_bound_arcsec: float | None = None  # None: the record's header, else 3″ (the paper)
-    # map/bayes on records: the solver of every MAP pass. "gn": Gauss–Newton, with
-    # Levenberg–Marquardt where it fails (fast); "lm": LM only (before 0.3; the MAP moves
-    # by < 0.01 sd between the two: the regression snapshot keeps "lm")
+    # map/bayes on records: the MAP's numerics. "gn": Gauss–Newton passes, with
+    # Levenberg–Marquardt where one fails, and the EM between passes compiled (0.3.1,
+    # fast); "lm": LM passes and the host EM with SciPy's M-step (0.2; the MAP moves by
+    # < 0.01 sd between the two: the regression snapshot keeps "lm")
     map_solver: Literal["gn", "lm"] = "gn"
 
     def angle_spec(self, meta: dict, source: str = "record"):
