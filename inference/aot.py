@@ -243,8 +243,9 @@ class ExecutableStore:
     def preload(self, label: str) -> int:
         """Start loading, in ``PRELOAD_THREADS`` background threads and in their order of
         first use, the executables the last process with ``label`` ran (:meth:`remember`),
-        before this process knows which it needs: a CLI overlaps the loads with its imports and its
-        reading of the input. A call whose key was preloaded waits for that load; one that
+        before this process knows which it needs: a CLI overlaps the loads with its heavy
+        imports and its set-up (``chekan.pipeline.calibrate_file`` starts them once the input
+        has been read). A call whose key was preloaded waits for that load; one that
         is not wastes only background time. Only a manifest of this store's fingerprint
         (this code) is used, and only in a process that has not run or started loading an
         executable yet (a batch of records of other shapes guesses once, not per record).

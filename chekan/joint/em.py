@@ -20,6 +20,11 @@ from chekan.joint.problem import Hyper, default_hyper, executables, problem_for
 BETA_AT = "beta_at"  # the stored executable's name (see prefetch)
 HYPER_TOL = 1e-4  # EM at fixed θ stops when no log-hyperparameter moves more than this
 HYPER_MAX_UPDATES = 200  # ~8 ms each on a 9 h record
+# the noise M-step: box of (log s₁, log s₂, log κ) and the priors of
+# chekan.joint.problem.hyper_params (log s ~ N(0, 0.5), log κ ~ N(log 0.003, 1.5))
+NOISE_LOWER = np.log([0.05, 0.05, 1e-5])
+NOISE_UPPER = np.log([50.0, 50.0, 0.5])
+S_SD, K_LOC, K_SD = 0.5, np.log(0.003), 1.5
 
 
 def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:
@@ -96,7 +101,6 @@ def noise_m_step(e2, b0, trans, mask) -> tuple[np.ndarray, float]:
 
     m = mask.astype(float)
     t2 = trans**2
-    k_loc, k_sd, s_sd = np.log(0.003), 1.5, 0.5
 
     def f(x):
         ls, lk = x[:2], x[2]
@@ -104,32 +108,39 @@ def noise_m_step(e2, b0, trans, mask) -> tuple[np.ndarray, float]:
         v = np.where(mask, v, 1.0)
         q = m * (1.0 / v - e2 / v**2)  # ∂(log v + e²/v)/∂v
         val = 0.5 * np.sum(m * (np.log(v) + e2 / v))
-        val += 0.5 * np.sum((ls / s_sd) ** 2) + 0.5 * ((lk - k_loc) / k_sd) ** 2
-        g_s = np.sum(q * np.exp(2 * ls)[None, :] * b0, axis=0) + ls / s_sd**2
-        g_k = np.sum(q * np.exp(2 * lk) * t2) + (lk - k_loc) / k_sd**2
+        val += 0.5 * np.sum((ls / S_SD) ** 2) + 0.5 * ((lk - K_LOC) / K_SD) ** 2
+        g_s = np.sum(q * np.exp(2 * ls)[None, :] * b0, axis=0) + ls / S_SD**2
+        g_k = np.sum(q * np.exp(2 * lk) * t2) + (lk - K_LOC) / K_SD**2
         return val, np.concatenate([g_s, [g_k]])
 
-    x0 = np.array([0.0, 0.0, k_loc])
-    bounds = [(np.log(0.05), np.log(50.0))] * 2 + [(np.log(1e-5), np.log(0.5))]
+    x0 = np.array([0.0, 0.0, K_LOC])
+    bounds = list(zip(NOISE_LOWER, NOISE_UPPER, strict=True))
     res = minimize(f, x0, jac=True, method="L-BFGS-B", bounds=bounds)
     return np.exp(res.x[:2]), float(np.exp(res.x[2]))
 
 
+def beta_moments(v: dict, h: Hyper, structure: ModelStructure, data: RecordData):
+    """Traceable: the whitened residuals, β̂ and its conditional variances diag(M⁻¹), the
+    base noise variance, the transient amplitudes and the bins' leverages at θ (values
+    ``v``): what an EM update needs (here on the host, compiled in
+    :mod:`chekan.joint.em_compiled`)."""
+    rw, beta, L, (_, G, s, _, _, nv, trans, P) = solve_beta(v, h, structure, data, extras=True)
+    Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
+    # leverage of each bin: (Ã M⁻¹ Ãᵀ)ᵢᵢ with Ã the whitened design (E[r²] = r̂² + lev)
+    A = dense_design(G, s, structure, data, P)  # (N, 2, p)
+    sw = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
+    X = jnp.einsum("qp,njp->njq", Linv, A * sw[..., None])
+    lev = jnp.sum(X**2, axis=-1)
+    return rw, beta, jnp.sum(Linv**2, axis=0), noise_var(h, data), trans, lev
+
+
 @functools.cache
 def _beta_at_jit(structure: ModelStructure):
-    """Jitted β̂ with its conditional variances and the bins' leverages (one per structure)."""
+    """Jitted :func:`beta_moments` at θ = z (one per structure)."""
     space = problem_for(structure).map_space
 
     def fn(z, h, data: RecordData):
-        v = space.to_values(z)
-        rw, beta, L, (_, G, s, _, _, nv, trans, P) = solve_beta(v, h, structure, data, extras=True)
-        Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
-        # leverage of each bin: (Ã M⁻¹ Ãᵀ)ᵢᵢ with Ã the whitened design (E[r²] = r̂² + lev)
-        A = dense_design(G, s, structure, data, P)  # (N, 2, p)
-        sw = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
-        X = jnp.einsum("qp,njp->njq", Linv, A * sw[..., None])
-        lev = jnp.sum(X**2, axis=-1)
-        return rw, beta, jnp.sum(Linv**2, axis=0), noise_var(h, data), trans, lev
+        return beta_moments(space.to_values(z), h, structure, data)
 
     return executables(structure).jit(BETA_AT, fn)
 

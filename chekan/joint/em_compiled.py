@@ -21,17 +21,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chekan.joint.em import HYPER_MAX_UPDATES, HYPER_TOL
+from chekan.joint.em import (
+    HYPER_MAX_UPDATES,
+    HYPER_TOL,
+    K_LOC,
+    K_SD,
+    NOISE_LOWER,
+    NOISE_UPPER,
+    S_SD,
+    beta_moments,
+)
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
-from chekan.joint.likelihood import dense_design, noise_var, solve_beta
+from chekan.joint.likelihood import solve_beta
 from chekan.joint.problem import Hyper, default_hyper, executables, problem_for
 from inference.box_newton import minimise_in_box
 
 EM_PASS = "em_between_passes"  # the stored executable's name (see prefetch)
-# the M-step's box and priors, as in chekan.joint.em.noise_m_step
-_NOISE_LOWER = np.log([0.05, 0.05, 1e-5])
-_NOISE_UPPER = np.log([50.0, 50.0, 0.5])
-_K_LOC, _K_SD, _S_SD = np.log(0.003), 1.5, 0.5
 
 
 def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:
@@ -39,7 +44,6 @@ def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper,
     the estimate (m_ref ← m_ref + ĉ), the hyperparameters at their EM fixed point given θ = z,
     and the number of EM updates."""
     m_ref, h_new, n = _compiled(model.structure)(jnp.asarray(z), h, model.data)
-    h_new = {k: jax.device_put(np.asarray(v)) for k, v in h_new.items()}
     return model.with_level(np.asarray(m_ref)), h_new, int(n)
 
 
@@ -84,20 +88,13 @@ def em_update(v: dict, h: Hyper, structure: ModelStructure, data: RecordData) ->
     σ_o² = mean(ô² + var o) and σ_θ² = mean(δ̂² + var δ) over the real holds, with the
     conditional variances of β from M⁻¹; (s₁, s₂, κ) from the expected squared residuals
     r̂² + leverage (:func:`noise_m_step`)."""
-    rw, beta, L, (_, G, s, _, _, nv, trans, P) = solve_beta(v, h, structure, data, extras=True)
-    Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
-    var = jnp.sum(Linv**2, axis=0)
-    # leverage of each bin: (Ã M⁻¹ Ãᵀ)ᵢᵢ with Ã the whitened design (E[r²] = r̂² + lev)
-    A = dense_design(G, s, structure, data, P)  # (N, 2, p)
-    sw = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
-    lev = jnp.sum(jnp.einsum("qp,njp->njq", Linv, A * sw[..., None]) ** 2, axis=-1)
+    rw, beta, var, base, trans, lev = beta_moments(v, h, structure, data)
     blocks = structure.beta_blocks
     hold = data.hold_mask.astype(beta.dtype)
 
     def mean_square(ix, w):
         return jnp.sum(w * (beta[ix] ** 2 + var[ix])) / jnp.sum(w)
 
-    base = noise_var(h, data)
     nv = base + (h["slew_error"] * trans) ** 2
     e2 = jnp.where(data.mask, (rw.reshape(data.mask.shape) ** 2 + lev) * nv, 0.0)
     x0 = jnp.concatenate([jnp.log(h["noise_scale"]), jnp.log(h["slew_error"])[None]])
@@ -126,7 +123,7 @@ def noise_m_step(e2, b0, trans, mask, x0) -> tuple[jax.Array, jax.Array]:
         v = jnp.exp(2 * ls)[None, :] * b0 + jnp.exp(2 * lk) * t2
         v = jnp.where(mask, v, 1.0)
         val = 0.5 * jnp.sum(m * (jnp.log(v) + e2 / v))
-        return val + 0.5 * jnp.sum((ls / _S_SD) ** 2) + 0.5 * ((lk - _K_LOC) / _K_SD) ** 2
+        return val + 0.5 * jnp.sum((ls / S_SD) ** 2) + 0.5 * ((lk - K_LOC) / K_SD) ** 2
 
-    x = minimise_in_box(f, x0, jnp.asarray(_NOISE_LOWER), jnp.asarray(_NOISE_UPPER)).x
+    x = minimise_in_box(f, x0, jnp.asarray(NOISE_LOWER), jnp.asarray(NOISE_UPPER)).x
     return jnp.exp(x[:2]), jnp.exp(x[2])

@@ -20,10 +20,8 @@ from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
 from chekan.joint.derived import map_derived, posterior_draws
 from chekan.joint.derived import prefetch as prefetch_map_derived
-from chekan.joint.em import prefetch as prefetch_beta_at
-from chekan.joint.em_compiled import prefetch as prefetch_em_pass
 from chekan.joint.layout import padded_shape
-from chekan.joint.map import MapFit, fit_map_em, initial_values
+from chekan.joint.map import MapFit, em_steps, fit_map_em, initial_values
 from chekan.joint.outputs import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.sampling import sample_posterior
 from chekan.options import CalibrationOptions
@@ -63,7 +61,7 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         # per-hold outputs would carry the padding)
         model = model.pad(*padded_shape([model]))
     # a new process loads the stored executables it will need next while the MAP runs
-    (prefetch_em_pass if options.map_solver == "gn" else prefetch_beta_at)(model)
+    em_steps(options.map_solver).prefetch(model)
     if options.method == "map":
         prefetch_map_derived(model)
     fit = fit_map_em(model, init, progress=options.progress, solver=options.map_solver)

@@ -71,6 +71,13 @@ def initial_values(classical, g: float) -> dict[str, float]:
     }
 
 
+def em_steps(solver: SolverName):
+    """The EM between passes that goes with ``solver``, as a module with ``between_passes``
+    and ``prefetch``: compiled (:mod:`chekan.joint.em_compiled`) with Gauss–Newton, the host
+    EM of 0.2 (:mod:`chekan.joint.em`) with ``"lm"``."""
+    return em_compiled if solver == "gn" else em
+
+
 def fit_map_em(
     model: RecordModel, init: dict, *, progress: bool = False, solver: SolverName = SOLVER
 ) -> MapFit:
@@ -98,7 +105,7 @@ def fit_map_em_many(
     zs: list[Any] = [space.to_z(i) for i in inits]
     histories: list[list[dict]] = [[] for _ in range(B)]
     results: list[MapResult] = []
-    between_passes = em_compiled.between_passes if solver == "gn" else em.between_passes
+    between_passes = em_steps(solver).between_passes
     for it in range(MAP_PASSES):
         args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
         results = _solve_pass(prob.lsq, args, zs, solver)
