@@ -40,6 +40,7 @@ import chekan.jaxconfig  # noqa: F401
 from chekan import model as fm
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
+from inference.barrier import fusion_barrier
 from inference.normal_eq import NormalEquations, posterior_beta_normal
 
 
@@ -65,12 +66,41 @@ def lag_weights(tau_s, data: RecordData):
     return jnp.exp(-d0 / tau_s) * jnp.where(n > 1, q_num / (n * q_den), 1.0)
 
 
-def linear_terms(v: dict, data: RecordData):
+class SlewPath(NamedTuple):
+    """The equilibrium along every slew's measured path and what the lag keeps of it."""
+
+    weight: jax.Array
+    """wₖₘ (H, M): the share of path point m in the lag state at the end of slew k."""
+    readings: jax.Array
+    """E(θₖₘ) (H, M, 2), pixels."""
+    per_rad: jax.Array
+    """∂E/∂θ (H, M, 2) along the tilt direction, pixels per radian."""
+
+
+def slew_path(v: dict, data: RecordData) -> SlewPath:
+    """E and ∂E/∂θ along the slews in one forward-mode pass (their Newton solves are the
+    largest elementwise work of an evaluation: computed once, shared by
+    :func:`linear_terms` and :func:`slew_angle_columns`)."""
+    p = sensor_params(v, data)
+    dirn = data.direction
+
+    def path(h):
+        return fm.equilibrium_readings(p, data.mv_tx + h * dirn[0], data.mv_ty + h * dirn[1])
+
+    zero = jnp.zeros_like(data.mv_tx)
+    Em, dEm = jax.jvp(path, (zero,), (jnp.ones_like(zero),))
+    tau = v["tau_s"]
+    wm = jnp.where(data.mv_mask, -jnp.expm1(-data.dt / tau) * jnp.exp(-data.mv_lag / tau), 0.0)
+    return SlewPath(wm, Em, dEm)
+
+
+def linear_terms(v: dict, data: RecordData, slews: SlewPath | None = None):
     """The pieces of ȳ = f + Aβ: ``f`` (N, 2), lag mixing ``G`` (N, H) and the angle
     sensitivity per arcsec ``s`` (H, 2) = −∂E/∂θ / 206265.
 
     For system j the columns of A are [1, P, G, G·diag(sⱼ), G·diag(sⱼ)·E_enc] acting on
     (cⱼ, dⱼ, oⱼ, δ, e): everything factors through G (see the module docstring).
+    ``slews``: :func:`slew_path` at ``v`` if already computed.
     """
     p = sensor_params(v, data)
     tx, ty = data.hold_tx, data.hold_ty
@@ -82,8 +112,7 @@ def linear_terms(v: dict, data: RecordData):
     E, S = jax.jvp(eq, (jnp.zeros_like(tx),), (jnp.ones_like(tx),))  # (H, 2) each
     tau = v["tau_s"]
     # lag state at the end of each slew: previous hold's equilibrium + the slew's equilibria
-    Em = fm.equilibrium_readings(p, data.mv_tx, data.mv_ty)  # (H, M, 2)
-    wm = jnp.where(data.mv_mask, -jnp.expm1(-data.dt / tau) * jnp.exp(-data.mv_lag / tau), 0.0)
+    wm, Em, _ = slew_path(v, data) if slews is None else slews  # (H, M), (H, M, 2)
     wprev = 1.0 - wm.sum(axis=1)  # (H,)
     Mv = jnp.einsum("hm,hmj->hj", wm, Em)  # (H, 2)
     w = lag_weights(tau, data)  # (N,) weight of the state at the end of the slew
@@ -93,12 +122,12 @@ def linear_terms(v: dict, data: RecordData):
     E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
     jump = jnp.abs(wprev[:, None] * E_prev + Mv + R - E)  # (H, 2) transient amplitude
     trans = w[:, None] * (data.own @ jump)  # (N, 2) transient left in each bin
-    # computed once: left to itself XLA re-derives the tangent of the equilibrium solve
-    # inside every consumer fusion (≈ 270 lines of code each)
-    return jax.lax.optimization_barrier((f, G, -S / ARCSEC_PER_RAD, trans))
+    # computed once: left to itself XLA re-derives the equilibrium solve and its tangent
+    # inside every consumer fusion, elementwise over (H, p) blocks (≈ 220 operations each)
+    return fusion_barrier((f, G, -S / ARCSEC_PER_RAD, trans))
 
 
-def slew_angle_columns(v: dict, data: RecordData) -> jax.Array:
+def slew_angle_columns(v: dict, data: RecordData, slews: SlewPath | None = None) -> jax.Array:
     """P (N, Q, 2): how the shared angle-error terms move each bin through the slews.
 
     The slews are read by the same angle sensor, so its systematic error is in the
@@ -107,18 +136,9 @@ def slew_angle_columns(v: dict, data: RecordData) -> jax.Array:
     wᵢ · (own · ∂Mv/∂ζ). B along the path (``data.mv_angle_basis``) is the hold basis
     continued between the commanded angles (piecewise linear; the scale term θ/θ_max).
     """
-    p = sensor_params(v, data)
-    dirn = data.direction
-
-    def path(h):
-        return fm.equilibrium_readings(p, data.mv_tx + h * dirn[0], data.mv_ty + h * dirn[1])
-
-    zero = jnp.zeros_like(data.mv_tx)
-    _, dEm = jax.jvp(path, (zero,), (jnp.ones_like(zero),))  # (H, M, 2) per rad
-    tau = v["tau_s"]
-    wm = jnp.where(data.mv_mask, -jnp.expm1(-data.dt / tau) * jnp.exp(-data.mv_lag / tau), 0.0)
+    wm, _, dEm = slew_path(v, data) if slews is None else slews  # dEm (H, M, 2) per rad
     dMv = jnp.einsum("hm,hmj,hmq->hqj", wm, -dEm / ARCSEC_PER_RAD, data.mv_angle_basis)
-    w = lag_weights(tau, data)
+    w = lag_weights(v["tau_s"], data)
     own = jnp.argmax(data.own, axis=1)  # the bin's hold (a row of zeros: padding)
     return (w * jnp.sum(data.own, axis=1))[:, None, None] * dMv[own]
 
@@ -130,14 +150,24 @@ def _unsettled_carry(E, Mv, wprev, rho):
     ρ = e^{−T/τ} (T: slew end to hold end); Rₖ = y₀,ₖ − wₚᵣₑᵥ,ₖ Eₖ₋₁ − Mvₖ (R₀ = 0, hold 0
     settled). Deterministic part only: the β terms keep the one-hold carry (the rest is
     second order, ρ·σ_o).
+
+    In dₖ = y₀,ₖ − Eₖ the recurrence is linear, dₖ = aₖ dₖ₋₁ + cₖ (d₀ = 0) with
+    aₖ = wₚᵣₑᵥ,ₖ ρₖ₋₁ and cₖ = wₚᵣₑᵥ,ₖ Eₖ₋₁ + Mvₖ − Eₖ, so dₖ = Σ_{i≤k} (Π_{i<l≤k} aₗ) cᵢ
+    and Rₖ = aₖ dₖ₋₁: a product matrix times c, not a loop over holds (a loop costs a few
+    kernel launches per hold in every evaluation).
     """
-
-    def step(y0_prev, k):
-        y0 = wprev[k] * (E[k - 1] + (y0_prev - E[k - 1]) * rho[k - 1]) + Mv[k]
-        return y0, y0 - wprev[k] * E[k - 1] - Mv[k]
-
-    _, R = jax.lax.scan(step, E[0], jnp.arange(1, E.shape[0]))
-    return jnp.concatenate([jnp.zeros((1, E.shape[1])), R], axis=0)
+    H, J = E.shape
+    zero = jnp.zeros((1, J))
+    a = jnp.concatenate([jnp.zeros(1), wprev[1:] * rho[:-1]])  # a₀ unused (d₀ = 0)
+    c = jnp.concatenate([zero, wprev[1:, None] * E[:-1] + Mv[1:] - E[1:]])
+    idx = np.arange(H)
+    after = idx[None, :] > idx[:, None]  # [i, l]: l > i
+    # T[i, k] = Π_{i<l≤k} aₗ for k ≥ i, 0 for k < i
+    T = np.where(after | (idx[:, None] == idx[None, :]), 1.0, 0.0) * jnp.cumprod(
+        jnp.where(after, a[None, :], 1.0), axis=1
+    )
+    d = T.T @ c
+    return a[:, None] * jnp.concatenate([zero, d[:-1]])
 
 
 def _local_columns(G, s_j, Q, enc, P_j=None):
@@ -178,7 +208,8 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     (:func:`_hold_sparse`): the products with G are sums over bins by hold, O(N), not
     dense O(N·H²) products (most of the work of an evaluation before).
     """
-    f, G, s, trans = linear_terms(v, data)
+    slews = slew_path(v, data)
+    f, G, s, trans = linear_terms(v, data, slews)
     mask = data.mask
     nv = noise_var(h, data, trans)
     W = jnp.where(mask, 1.0 / nv, 0.0)
@@ -217,7 +248,7 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
         rows = [row[:-1] for row in rows]
     bdt = bd[0] + bd[1]
     gx = E.T @ bdt
-    P = slew_angle_columns(v, data) if structure.n_systematic else None
+    P = slew_angle_columns(v, data, slews) if structure.n_systematic else None
     if P is not None:  # the slews' share of the systematic columns (see slew_angle_columns)
         for j in range(2):
             WP = P[..., j] * W[:, j][:, None]  # (N, Q)

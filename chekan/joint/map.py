@@ -106,9 +106,10 @@ def fit_map_em_many(
     histories: list[list[dict]] = [[] for _ in range(B)]
     results: list[MapResult] = []
     between_passes = em_steps(solver).between_passes
+    lm_only = [solver == "lm"] * B  # a record on which Gauss–Newton failed: LM from then on
     for it in range(MAP_PASSES):
         args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
-        results = _solve_pass(prob.lsq, args, zs, solver)
+        results, lm_only = _solve_pass(prob.lsq, args, zs, solver, lm_only)
         zs = [r.z for r in results]
         for i, res in enumerate(results):
             updates = 0
@@ -120,16 +121,29 @@ def fit_map_em_many(
     return [MapFit(results[i], hs[i], tuple(histories[i]), models[i]) for i in range(B)]
 
 
-def _solve_pass(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
+def _solve_pass(
+    lsq, args: list, zs: list, solver: SolverName, lm_only: list[bool]
+) -> tuple[list[MapResult], list[bool]]:
     """One pass for every record with ``solver`` ("gn" or "lm"), and Levenberg–Marquardt
-    from the same start for the records where Gauss–Newton did not converge."""
-    results = _solve(lsq, args, zs, solver)
-    retry = [i for i, r in enumerate(results) if not r.converged and solver != "lm"]
-    if retry:
-        again = _solve(lsq, [args[i] for i in retry], [zs[i] for i in retry], "lm")
-        for i, r in zip(retry, again, strict=True):
-            results[i] = r
-    return results
+    from the same start for the records where Gauss–Newton did not converge; records in
+    ``lm_only`` go straight to LM. Returns the results and the new ``lm_only``.
+
+    A record on which Gauss–Newton failed once fails in the later passes too (a record that
+    hardly identifies θ, e.g. one short round: measured on every pass of such records), and
+    each failure costs its 32 steps before LM starts from the same point.
+    """
+    results: list[Any] = [None] * len(args)
+
+    def solve_some(which: list[int], name: SolverName) -> None:
+        if which:
+            done = _solve(lsq, [args[i] for i in which], [zs[i] for i in which], name)
+            for i, r in zip(which, done, strict=True):
+                results[i] = r
+
+    solve_some([i for i in range(len(args)) if not lm_only[i]], solver)
+    lm_now = [bool(lm_only[i] or not results[i].converged) for i in range(len(args))]
+    solve_some([i for i in range(len(args)) if lm_now[i] and (lm_only[i] or solver != "lm")], "lm")
+    return results, lm_now
 
 
 def _solve(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
