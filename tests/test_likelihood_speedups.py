@@ -84,14 +84,16 @@ def test_a_record_gauss_newton_failed_on_goes_straight_to_lm(monkeypatch):
 
     monkeypatch.setattr(jmap, "_solve", fake_solve)
     args, zs = [0, 1, 2], [None] * 3
-    results, lm_only = jmap._solve_pass(None, args, zs, "gn", [False] * 3)
+    solvers = ["gn"] * 3
+    results, after = jmap._solve_pass(None, args, zs, solvers)
     assert calls == [("gn", [0, 1, 2]), ("lm", [1])]
-    assert lm_only == [False, True, False]
+    assert after == ["gn", "lm", "gn"]
+    assert solvers == ["gn"] * 3  # what it was handed is not changed
     assert all(r.converged for r in results)
     calls.clear()
-    results, lm_only = jmap._solve_pass(None, args, zs, "gn", lm_only)
+    results, after = jmap._solve_pass(None, args, zs, after)
     assert calls == [("gn", [0, 2]), ("lm", [1])]
-    assert lm_only == [False, True, False]
+    assert after == ["gn", "lm", "gn"]
     calls.clear()
-    jmap._solve_pass(None, args, zs, "lm", [True] * 3)
+    jmap._solve_pass(None, args, zs, ["lm"] * 3)
     assert calls == [("lm", [0, 1, 2])]

@@ -160,12 +160,9 @@ def _unsettled_carry(E, Mv, wprev, rho):
     zero = jnp.zeros((1, J))
     a = jnp.concatenate([jnp.zeros(1), wprev[1:] * rho[:-1]])  # a₀ unused (d₀ = 0)
     c = jnp.concatenate([zero, wprev[1:, None] * E[:-1] + Mv[1:] - E[1:]])
-    idx = np.arange(H)
-    after = idx[None, :] > idx[:, None]  # [i, l]: l > i
+    after = np.triu(np.ones((H, H), dtype=bool), 1)  # [i, l]: l > i
     # T[i, k] = Π_{i<l≤k} aₗ for k ≥ i, 0 for k < i
-    T = np.where(after | (idx[:, None] == idx[None, :]), 1.0, 0.0) * jnp.cumprod(
-        jnp.where(after, a[None, :], 1.0), axis=1
-    )
+    T = np.triu(np.ones((H, H))) * jnp.cumprod(jnp.where(after, a[None, :], 1.0), axis=1)
     d = T.T @ c
     return a[:, None] * jnp.concatenate([zero, d[:-1]])
 
@@ -312,8 +309,9 @@ def _hold_sparse(G, data: RecordData) -> _HoldSparse:
 
 def predict(v: dict, structure: ModelStructure, data: RecordData):
     """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
-    f, G, s, _ = linear_terms(v, data)
-    P = slew_angle_columns(v, data) if structure.n_systematic else None
+    slews = slew_path(v, data)
+    f, G, s, _ = linear_terms(v, data, slews)
+    P = slew_angle_columns(v, data, slews) if structure.n_systematic else None
     return f, dense_design(G, s, structure, data, P)
 
 

@@ -106,10 +106,10 @@ def fit_map_em_many(
     histories: list[list[dict]] = [[] for _ in range(B)]
     results: list[MapResult] = []
     between_passes = em_steps(solver).between_passes
-    lm_only = [solver == "lm"] * B  # a record on which Gauss–Newton failed: LM from then on
+    solvers: list[SolverName] = [solver] * B  # LM from a Gauss–Newton failure on
     for it in range(MAP_PASSES):
         args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
-        results, lm_only = _solve_pass(prob.lsq, args, zs, solver, lm_only)
+        results, solvers = _solve_pass(prob.lsq, args, zs, solvers)
         zs = [r.z for r in results]
         for i, res in enumerate(results):
             updates = 0
@@ -122,28 +122,28 @@ def fit_map_em_many(
 
 
 def _solve_pass(
-    lsq, args: list, zs: list, solver: SolverName, lm_only: list[bool]
-) -> tuple[list[MapResult], list[bool]]:
-    """One pass for every record with ``solver`` ("gn" or "lm"), and Levenberg–Marquardt
-    from the same start for the records where Gauss–Newton did not converge; records in
-    ``lm_only`` go straight to LM. Returns the results and the new ``lm_only``.
+    lsq, args: list, zs: list, solvers: list[SolverName]
+) -> tuple[list[MapResult], list[SolverName]]:
+    """One pass, every record with its solver ("gn" or "lm"), and Levenberg–Marquardt
+    from the same start for the records where Gauss–Newton did not converge. Returns the
+    results and each record's solver for the next pass: LM where Gauss–Newton failed.
 
     A record on which Gauss–Newton failed once fails in the later passes too (a record that
     hardly identifies θ, e.g. one short round: measured on every pass of such records), and
     each failure costs its 32 steps before LM starts from the same point.
     """
     results: list[Any] = [None] * len(args)
-
-    def solve_some(which: list[int], name: SolverName) -> None:
-        if which:
-            done = _solve(lsq, [args[i] for i in which], [zs[i] for i in which], name)
-            for i, r in zip(which, done, strict=True):
-                results[i] = r
-
-    solve_some([i for i in range(len(args)) if not lm_only[i]], solver)
-    lm_now = [bool(lm_only[i] or not results[i].converged) for i in range(len(args))]
-    solve_some([i for i in range(len(args)) if lm_now[i] and (lm_only[i] or solver != "lm")], "lm")
-    return results, lm_now
+    after = list(solvers)
+    for name in ("gn", "lm"):  # GN first: its failures join the LM solve
+        which = [i for i, s in enumerate(after) if s == name]
+        if not which:
+            continue
+        done = _solve(lsq, [args[i] for i in which], [zs[i] for i in which], name)
+        for i, r in zip(which, done, strict=True):
+            results[i] = r
+            if name == "gn" and not r.converged:
+                after[i] = "lm"
+    return results, after
 
 
 def _solve(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
