@@ -185,10 +185,23 @@ def solve_deflection(du_z, u_y, u_zh, phi_h, lam, g, newton_steps: int = NEWTON_
 @jax.jit
 def equilibrium_readings(params: SensorParams, tx_rad, ty_rad):
     """Equilibrium readings (…, 2) of both systems at platform attitude (tx, ty), pixels."""
+    return jnp.moveaxis(equilibrium_by_system(params, tx_rad, ty_rad), 0, -1)
+
+
+def equilibrium_by_system(params: SensorParams, tx_rad, ty_rad):
+    """:func:`equilibrium_readings` with the systems on the *leading* axis (2, …).
+
+    XLA on CPU vectorises the innermost axis: with the systems last (an axis of 2) the
+    Newton loop runs scalar, 4× slower (measured on 1728 points). Callers that evaluate
+    many attitudes (the slews, every log-density evaluation) keep this layout.
+    """
     phi_h, lam, _ = level_state(params)
     du_z, u_y, u_zh = up_vector_deviation(tx_rad, ty_rad, params.gamma_rad, params.eps_rad)
-    delta = solve_deflection(du_z, u_y, u_zh, phi_h, lam, params.g_mgal)
-    return params.m_level_pix + params.K_pix_per_rad * delta
+    first = [jnp.moveaxis(x, -1, 0) for x in (du_z, u_y, u_zh)]
+    col = (2,) + (1,) * (du_z.ndim - 1)
+    phi_h, lam, m_level = (jnp.reshape(x, col) for x in (phi_h, lam, params.m_level_pix))
+    delta = solve_deflection(*first, phi_h, lam, params.g_mgal)
+    return m_level + params.K_pix_per_rad * delta
 
 
 @jax.jit

@@ -38,3 +38,21 @@ def short_session(short_program, tmp_path_factory):
     path = tmp_path_factory.mktemp("session") / "rec.csv"
     write_record(path, rec)
     return path, rec, truth
+
+
+@pytest.fixture(scope="session")
+def short_session_theta(short_session) -> dict:
+    """The joint model's θ (b₁, b₂, K, ε₁, ε₂, Δγ, τ) at the short session's truth, as JAX
+    scalars."""
+    import jax.numpy as jnp
+
+    truth = short_session[2]
+    return {
+        "b1": jnp.asarray(truth.b_mgal_per_pix[0]),
+        "b2": jnp.asarray(truth.b_mgal_per_pix[1]),
+        "K": jnp.asarray(truth.K_pix_per_rad),
+        "eps1_arcmin": jnp.asarray(truth.eps_arcmin[0]),
+        "eps2_arcmin": jnp.asarray(truth.eps_arcmin[1]),
+        "dgamma_arcmin": jnp.asarray(truth.dgamma_arcmin),
+        "tau_s": jnp.asarray(truth.tau_s),
+    }

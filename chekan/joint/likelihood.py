@@ -72,9 +72,9 @@ class SlewPath(NamedTuple):
     weight: jax.Array
     """wₖₘ (H, M): the share of path point m in the lag state at the end of slew k."""
     readings: jax.Array
-    """E(θₖₘ) (H, M, 2), pixels."""
+    """E(θₖₘ) (2, H, M), pixels (systems first: see :func:`chekan.model.equilibrium_by_system`)."""
     per_rad: jax.Array
-    """∂E/∂θ (H, M, 2) along the tilt direction, pixels per radian."""
+    """∂E/∂θ (2, H, M) along the tilt direction, pixels per radian."""
 
 
 def slew_path(v: dict, data: RecordData) -> SlewPath:
@@ -85,10 +85,12 @@ def slew_path(v: dict, data: RecordData) -> SlewPath:
     dirn = data.direction
 
     def path(h):
-        return fm.equilibrium_readings(p, data.mv_tx + h * dirn[0], data.mv_ty + h * dirn[1])
+        return fm.equilibrium_by_system(p, data.mv_tx + h * dirn[0], data.mv_ty + h * dirn[1])
 
     zero = jnp.zeros_like(data.mv_tx)
-    Em, dEm = jax.jvp(path, (zero,), (jnp.ones_like(zero),))
+    # materialised in this layout: left to itself XLA fuses the last Newton step into a
+    # transposing copy for the consumers' contractions, which runs scalar
+    Em, dEm = fusion_barrier(jax.jvp(path, (zero,), (jnp.ones_like(zero),)))
     tau = v["tau_s"]
     wm = jnp.where(data.mv_mask, -jnp.expm1(-data.dt / tau) * jnp.exp(-data.mv_lag / tau), 0.0)
     return SlewPath(wm, Em, dEm)
@@ -112,9 +114,9 @@ def linear_terms(v: dict, data: RecordData, slews: SlewPath | None = None):
     E, S = jax.jvp(eq, (jnp.zeros_like(tx),), (jnp.ones_like(tx),))  # (H, 2) each
     tau = v["tau_s"]
     # lag state at the end of each slew: previous hold's equilibrium + the slew's equilibria
-    wm, Em, _ = slew_path(v, data) if slews is None else slews  # (H, M), (H, M, 2)
+    wm, Em, _ = slew_path(v, data) if slews is None else slews  # (H, M), (2, H, M)
     wprev = 1.0 - wm.sum(axis=1)  # (H,)
-    Mv = jnp.einsum("hm,hmj->hj", wm, Em)  # (H, 2)
+    Mv = jnp.einsum("hm,jhm->hj", wm, Em)  # (H, 2)
     w = lag_weights(tau, data)  # (N,) weight of the state at the end of the slew
     G = (1.0 - w)[:, None] * data.own + (w * (data.own @ wprev))[:, None] * data.prev
     R = _unsettled_carry(E, Mv, wprev, jnp.exp(-data.hold_T / tau))
@@ -127,20 +129,45 @@ def linear_terms(v: dict, data: RecordData, slews: SlewPath | None = None):
     return fusion_barrier((f, G, -S / ARCSEC_PER_RAD, trans))
 
 
-def slew_angle_columns(v: dict, data: RecordData, slews: SlewPath | None = None) -> jax.Array:
-    """P (N, Q, 2): how the shared angle-error terms move each bin through the slews.
+class SlewColumns(NamedTuple):
+    """The slews' share of the systematic angle-error columns, factored by hold:
+    Pᵢ = cᵢ · Uₖ₍ᵢ₎ for bin i in hold k(i) (:func:`slew_angle_terms`)."""
+
+    weight: jax.Array
+    """cᵢ (N,): the bin's lag weight wᵢ (0 for padding)."""
+    per_hold: jax.Array
+    """Uₖ = ∂Mvₖ/∂ζ (H, Q, 2): how ζ moves the lag state after slew k, pixels per unit ζ."""
+    own: jax.Array
+    """k(i) (N,) int: the bin's hold."""
+
+    def dense(self) -> jax.Array:
+        """P (N, Q, 2) (reference and dense design)."""
+        return self.weight[:, None, None] * self.per_hold[self.own]
+
+    def times(self, zeta) -> jax.Array:
+        """P ζ as (N, 2): one product per hold, then gathered."""
+        return self.weight[:, None] * jnp.einsum("hqj,q->hj", self.per_hold, zeta)[self.own]
+
+
+def slew_angle_terms(v: dict, data: RecordData, slews: SlewPath | None = None) -> SlewColumns:
+    """How the shared angle-error terms move each bin through the slews (factored).
 
     The slews are read by the same angle sensor, so its systematic error is in the
     measured slew path too: the lag state after slew k, Mvₖ = Σₘ wₖₘ E(θₖₘ), becomes
-    Σₘ wₖₘ E(θₖₘ − Σ_q B_q(θₖₘ) ζ_q), whose ζ-derivative enters the bins as
-    wᵢ · (own · ∂Mv/∂ζ). B along the path (``data.mv_angle_basis``) is the hold basis
+    Σₘ wₖₘ E(θₖₘ − Σ_q B_q(θₖₘ) ζ_q), whose ζ-derivative Uₖ = ∂Mvₖ/∂ζ enters the bins as
+    Pᵢ = wᵢ · U_{k(i)}. B along the path (``data.mv_angle_basis``) is the hold basis
     continued between the commanded angles (piecewise linear; the scale term θ/θ_max).
     """
-    wm, _, dEm = slew_path(v, data) if slews is None else slews  # dEm (H, M, 2) per rad
-    dMv = jnp.einsum("hm,hmj,hmq->hqj", wm, -dEm / ARCSEC_PER_RAD, data.mv_angle_basis)
+    wm, _, dEm = slew_path(v, data) if slews is None else slews  # dEm (2, H, M) per rad
+    dMv = jnp.einsum("hm,jhm,hmq->hqj", wm, -dEm / ARCSEC_PER_RAD, data.mv_angle_basis)
     w = lag_weights(v["tau_s"], data)
     own = jnp.argmax(data.own, axis=1)  # the bin's hold (a row of zeros: padding)
-    return (w * jnp.sum(data.own, axis=1))[:, None, None] * dMv[own]
+    return SlewColumns(w * jnp.sum(data.own, axis=1), dMv, own)
+
+
+def slew_angle_columns(v: dict, data: RecordData, slews: SlewPath | None = None) -> jax.Array:
+    """P (N, Q, 2), dense (:func:`slew_angle_terms`; reference and tests)."""
+    return slew_angle_terms(v, data, slews).dense()
 
 
 def _unsettled_carry(E, Mv, wprev, rho):
@@ -174,9 +201,10 @@ def _local_columns(G, s_j, Q, enc, P_j=None):
     return jnp.concatenate([Q, G, Gs, X], axis=1)
 
 
-def apply_A(beta, G, s, structure: ModelStructure, data: RecordData, P=None):
-    """A·β as (N, 2), without forming A (``P``: :func:`slew_angle_columns` or None):
-    system j's share is Q qⱼ + G (oⱼ + sⱼ∘(δ + E ζ)) + Pⱼ ζ (:func:`_local_columns`)."""
+def apply_A(beta, G, s, structure: ModelStructure, data: RecordData, P: SlewColumns | None = None):
+    """A·β as (N, 2), without forming A (``P``: :func:`slew_angle_terms` or None):
+    system j's share is Q qⱼ + G (oⱼ + sⱼ∘(δ + E ζ)) + Pⱼ ζ (:func:`_local_columns`),
+    both systems at once (on the trailing axis)."""
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
     sp = _hold_sparse(G, data)
     b = structure.beta_blocks
@@ -184,15 +212,12 @@ def apply_A(beta, G, s, structure: ModelStructure, data: RecordData, P=None):
     shared = np.concatenate([b["encoder"], b["angle_systematic"]])
     zeta = beta[shared]
     angle = beta[b["angle_error"]] + data.angle_basis @ zeta  # (H,) arcsec
-    out = []
-    for j in range(2):
-        q = beta[j * nq : (j + 1) * nq]
-        o = beta[b["hold_offset"][j * H : (j + 1) * H]]
-        y = Q @ q + sp.times(o + s[:, j] * angle)
-        if P is not None:
-            y = y + P[..., j] @ zeta
-        out.append(y)
-    return jnp.stack(out, axis=1)
+    q = beta[: 2 * nq].reshape(2, nq).T  # (nq, 2)
+    o = beta[b["hold_offset"]].reshape(2, H).T  # (H, 2)
+    y = Q @ q + sp.times(o + s * angle[:, None])
+    if P is not None:
+        y = y + P.times(zeta)
+    return y
 
 
 def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordData):
@@ -203,64 +228,86 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     GG·diag(s), diag(s)·GG·diag(s) (summed over systems for δ) and their products with E.
     Row i of G has two entries, aᵢ at its own hold and bᵢ at the hold before
     (:func:`_hold_sparse`): the products with G are sums over bins by hold, O(N), not
-    dense O(N·H²) products (most of the work of an evaluation before).
+    dense O(N·H²) products (most of the work of an evaluation before). Both systems are
+    computed together, on a trailing axis j: one kernel for both, not one each (an
+    evaluation is bound by the number of kernels it launches, not by arithmetic).
     """
     slews = slew_path(v, data)
     f, G, s, trans = linear_terms(v, data, slews)
     mask = data.mask
     nv = noise_var(h, data, trans)
-    W = jnp.where(mask, 1.0 / nv, 0.0)
+    W = jnp.where(mask, 1.0 / nv, 0.0)  # (N, 2)
     r = jnp.where(mask, data.y - f, 0.0)
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
     E = data.angle_basis
     nq, H, L = Q.shape[1], G.shape[1], E.shape[1]
     sp = _hold_sparse(G, data)
-    QQ, QG, QGs, GG, GGs, sGGs, bq, bo, bd = [], [], [], [], [], [], [], [], []
-    for j in range(2):
-        Wj, sj = W[:, j], s[:, j]
-        WQ = Q * Wj[:, None]
-        QQ.append(Q.T @ WQ)
-        QG.append(sp.t_times(WQ).T)
-        QGs.append(QG[j] * sj[None, :])
-        GG.append(sp.gram(Wj))
-        GGs.append(GG[j] * sj[None, :])
-        sGGs.append(sj[:, None] * GGs[j])
-        bq.append(WQ.T @ r[:, j])
-        bo.append(sp.t_times(Wj * r[:, j]))
-        bd.append(sj * bo[j])
+    Wr = W * r
+    WQ = Q[:, :, None] * W[:, None, :]  # (N, nq, 2)
+    QQ = jnp.einsum("nq,nrj->jqr", Q, WQ)  # (2, nq, nq)
+    QG = jnp.transpose(sp.t_times(WQ), (2, 1, 0))  # (2, nq, H)
+    QGs = QG * s.T[:, None, :]
+    GG = jnp.moveaxis(sp.gram(W), 2, 0)  # (2, H, H)
+    GGs = GG * s.T[:, None, :]
+    Sd = jnp.einsum("jh,jhk->hk", s.T, GGs)  # Σⱼ diag(sⱼ)·GGⱼ·diag(sⱼ)
+    bq = Q.T @ Wr  # (nq, 2)
+    bo = sp.t_times(Wr)  # (H, 2)
+    bdt = jnp.sum(s * bo, axis=1)
+    QGsE = QGs @ E  # (2, nq, L)
+    GGsE = GGs @ E  # (2, H, L)
+    SdE = Sd @ E
     Zqq, Zqh, Zhh = jnp.zeros((nq, nq)), jnp.zeros((nq, H)), jnp.zeros((H, H))
-    Sd = sGGs[0] + sGGs[1]
     rows = [
-        [QQ[0], Zqq, QG[0], Zqh, QGs[0], QGs[0] @ E],
-        [Zqq, QQ[1], Zqh, QG[1], QGs[1], QGs[1] @ E],
-        [QG[0].T, Zqh.T, GG[0], Zhh, GGs[0], GGs[0] @ E],
-        [Zqh.T, QG[1].T, Zhh, GG[1], GGs[1], GGs[1] @ E],
-        [QGs[0].T, QGs[1].T, GGs[0].T, GGs[1].T, Sd, Sd @ E],
+        [QQ[0], Zqq, QG[0], Zqh, QGs[0], QGsE[0]],
+        [Zqq, QQ[1], Zqh, QG[1], QGs[1], QGsE[1]],
+        [QG[0].T, Zqh.T, GG[0], Zhh, GGs[0], GGsE[0]],
+        [Zqh.T, QG[1].T, Zhh, GG[1], GGs[1], GGsE[1]],
+        [QGs[0].T, QGs[1].T, GGs[0].T, GGs[1].T, Sd, SdE],
     ]
+    gx = E.T @ bdt
+    P = slew_angle_terms(v, data, slews) if structure.n_systematic else None
+    if P is not None:  # the slews' share of the systematic columns (see slew_angle_terms)
+        # Pᵢ = cᵢ U_{k(i)}: every product with P is a sum over bins by hold, then one small
+        # product per hold with U (H, L, 2); P itself (N, L, 2) is never formed
+        U, own = P.per_hold, P.own
+        Wc = W * P.weight[:, None]  # (N, 2)
+        per_bin = jnp.concatenate(
+            [
+                jnp.broadcast_to(x[:, :, None], (x.shape[0], x.shape[1], 2))
+                for x in (Q, jnp.stack([sp.a, sp.b, P.weight], axis=1))
+            ]
+            + [r[:, None, :]],
+            axis=1,
+        )  # (N, nq + 4, 2): Q, a, b, c, r
+        by_hold = jax.ops.segment_sum(Wc[:, None, :] * per_bin, own, num_segments=H)
+        QWc, aWc, bWc = by_hold[:, :nq], by_hold[:, nq], by_hold[:, nq + 1]
+        c2W, rWc = by_hold[:, nq + 2], by_hold[:, nq + 3]
+        # Gᵀ diag(W c) P: own-hold entries aᵢ, previous-hold entries bᵢ (every bin of hold
+        # k has the same previous hold, ``prev_of``)
+        prev_of = jax.ops.segment_max(sp.prev, own, num_segments=H)
+        prev_of = jnp.clip(prev_of, 0, H - 1)  # holds without bins: their sums are 0
+        GtWP = aWc[:, None, :] * U + jax.ops.segment_sum(
+            bWc[:, None, :] * U, prev_of, num_segments=H
+        )  # (H, L, 2)
+        QWP = jnp.einsum("hqj,hlj->jql", QWc, U)
+        rows[0][5] = rows[0][5] + QWP[0]
+        rows[1][5] = rows[1][5] + QWP[1]
+        rows[2][5] = rows[2][5] + GtWP[..., 0]
+        rows[3][5] = rows[3][5] + GtWP[..., 1]
+        sGtWP = jnp.einsum("hj,hlj->hl", s, GtWP)
+        rows[4][5] = rows[4][5] + sGtWP
+        cross = E.T @ sGtWP  # Σⱼ (G diag(sⱼ) E)ᵀ Wⱼ Pⱼ
+        ee = cross + cross.T + jnp.einsum("hj,hlj,hmj->lm", c2W, U, U)
+        gx = gx + jnp.einsum("hlj,hj->l", U, rWc)
+    else:
+        ee = jnp.zeros((L, L))
     if L:
-        rows.append(
-            [(QGs[0] @ E).T, (QGs[1] @ E).T, (GGs[0] @ E).T, (GGs[1] @ E).T, E.T @ Sd, E.T @ Sd @ E]
-        )
+        rows.append([rows[i][5].T for i in range(5)] + [E.T @ SdE + ee])
     else:
         rows = [row[:-1] for row in rows]
-    bdt = bd[0] + bd[1]
-    gx = E.T @ bdt
-    P = slew_angle_columns(v, data, slews) if structure.n_systematic else None
-    if P is not None:  # the slews' share of the systematic columns (see slew_angle_columns)
-        for j in range(2):
-            WP = P[..., j] * W[:, j][:, None]  # (N, Q)
-            GsE = sp.times(s[:, j][:, None] * E)
-            GtWP = sp.t_times(WP)
-            rows[j][5] = rows[j][5] + Q.T @ WP
-            rows[2 + j][5] = rows[2 + j][5] + GtWP
-            rows[4][5] = rows[4][5] + s[:, j][:, None] * GtWP
-            rows[5][5] = rows[5][5] + GsE.T @ WP + WP.T @ GsE + P[..., j].T @ WP
-            gx = gx + WP.T @ r[:, j]
-        for i in range(5):
-            rows[5][i] = rows[i][5].T
     Mg = jnp.block(rows)
-    g = jnp.concatenate([bq[0], bq[1], bo[0], bo[1], bdt] + ([gx] if L else []))
-    rWr = jnp.sum(W * r * r)
+    g = jnp.concatenate([bq[:, 0], bq[:, 1], bo[:, 0], bo[:, 1], bdt] + ([gx] if L else []))
+    rWr = jnp.sum(Wr * r)
     logdet_n = jnp.sum(jnp.where(mask, jnp.log(nv), 0.0))
     pieces = (f, G, s, r, W, nv, trans, P)
     return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), pieces
@@ -288,12 +335,16 @@ class _HoldSparse(NamedTuple):
         return seg(self.a.reshape(shape) * Y, self.own) + seg(self.b.reshape(shape) * Y, self.prev)
 
     def gram(self, w):
-        """Gᵀ diag(w) G: the diagonal from a² and b², the hold-to-previous entries from ab."""
+        """Gᵀ diag(w) G (H, H, …) for weights w (N, …): the diagonal from a² and b², the
+        hold-to-previous entries from ab."""
         H = self.n_holds
+        shape = (-1,) + (1,) * (w.ndim - 1)
+        a, b = self.a.reshape(shape), self.b.reshape(shape)
         seg = functools.partial(jax.ops.segment_sum, num_segments=H)
-        diag = seg(w * self.a**2, self.own) + seg(w * self.b**2, self.prev)
-        cross = jnp.zeros((H, H)).at[self.own, self.prev].add(w * self.a * self.b)
-        return jnp.diag(diag) + cross + cross.T
+        diag = seg(w * a**2, self.own) + seg(w * b**2, self.prev)  # (H, …)
+        cross = jnp.zeros((H, H, *w.shape[1:])).at[self.own, self.prev].add(w * a * b)
+        eye = jnp.eye(H).reshape((H, H) + (1,) * (w.ndim - 1))
+        return eye * diag[None] + cross + jnp.swapaxes(cross, 0, 1)
 
 
 def _hold_sparse(G, data: RecordData) -> _HoldSparse:
@@ -311,17 +362,21 @@ def predict(v: dict, structure: ModelStructure, data: RecordData):
     """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
     slews = slew_path(v, data)
     f, G, s, _ = linear_terms(v, data, slews)
-    P = slew_angle_columns(v, data, slews) if structure.n_systematic else None
+    P = slew_angle_terms(v, data, slews) if structure.n_systematic else None
     return f, dense_design(G, s, structure, data, P)
 
 
-def dense_design(G, s, structure: ModelStructure, data: RecordData, P=None) -> jax.Array:
-    """The design ``A`` (N, 2, p) formed from the pieces of :func:`linear_terms`."""
+def dense_design(
+    G, s, structure: ModelStructure, data: RecordData, P: SlewColumns | None = None
+) -> jax.Array:
+    """The design ``A`` (N, 2, p) formed from the pieces of :func:`linear_terms` (``P``:
+    :func:`slew_angle_terms` or None)."""
     Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
     N = G.shape[0]
+    Pd = None if P is None else P.dense()
     cols = []
     for j in range(2):
-        X = _local_columns(G, s[:, j], Q, data.angle_basis, None if P is None else P[..., j])
+        X = _local_columns(G, s[:, j], Q, data.angle_basis, None if Pd is None else Pd[..., j])
         A = jnp.zeros((N, structure.n_beta)).at[:, structure.beta_index(j)].add(X)
         cols.append(A)
     return jnp.stack(cols, axis=1)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from chekan import model as fm
@@ -26,19 +28,11 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     t0, t1 = model.t_span_s
     s = 2.0 * (holds.t_mid_s - t0) / max(t1 - t0, 1.0) - 1.0
     P = np.polynomial.legendre.legvander(np.nan_to_num(s), model.drift_degree)[:, 1:]
-    reps = []
     g = float(g_local)
-    for i in take:
-        sp = fm.make_params(
-            g_mgal=g,
-            K_pix_per_rad=float(np.sqrt(g / 2 / flat["a"][i])) if flat["a"][i] > 0 else K_DESIGN,
-            b_mgal_per_pix=[flat["b1"][i], flat["b2"][i]],
-            m_level_pix=flat["m_level_pix"][i],
-            eps_rad=np.array([flat["eps1_arcmin"][i], flat["eps2_arcmin"][i]]) / ARCMIN_PER_RAD,
-            gamma_rad=flat["dgamma_arcmin"][i] / ARCMIN_PER_RAD,
-        )
-        E = np.asarray(fm.equilibrium_readings(sp, holds.tilt_x_rad, holds.tilt_y_rad))
-        S = np.asarray(fm.reading_sensitivity_to_tilt(sp, holds.tilt_x_rad, holds.tilt_y_rad))
+    E_all, S_all = _equilibria(g, flat, take, holds)  # (draws, K, 2) each, one call
+    reps = []
+    for n_draw, i in enumerate(take):
+        E, S = E_all[n_draw], S_all[n_draw]
         drift = P @ flat["drift_coeffs"][i].T
         o = rng.normal(0, flat["sigma_hold_pix"][i], E.shape)
         d = rng.normal(0, flat["sigma_theta_arcsec"][i], E.shape[0]) / ARCSEC_PER_RAD
@@ -48,6 +42,29 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
         cres = fit_classical(increments_from_holds(rep, g), a_fixed=a_fixed)
         reps.append(cres.delta_g_mgal)
     return np.stack(reps)  # (draws, R, 2, n)
+
+
+def _equilibria(g: float, flat: dict, take, holds):
+    """E and ∂E/∂θ at the hold attitudes for the draws ``take``, in one vectorised call
+    (a loop over draws dispatched two jitted calls and built parameters per draw)."""
+    a = flat["a"][take]
+    K = np.where(a > 0, np.sqrt(g / 2 / np.where(a > 0, a, 1.0)), K_DESIGN)
+    n = len(take)
+    fields = {
+        "g_mgal": np.full(n, g),
+        "K_pix_per_rad": K,
+        "m0_pix": np.full(n, 1024.0),  # make_params' default, as the per-draw loop had
+        "b_mgal_per_pix": np.stack([flat["b1"][take], flat["b2"][take]], axis=1),
+        "m_level_pix": flat["m_level_pix"][take],
+        "eps_rad": np.stack([flat["eps1_arcmin"][take], flat["eps2_arcmin"][take]], axis=1)
+        / ARCMIN_PER_RAD,
+        "gamma_rad": flat["dgamma_arcmin"][take] / ARCMIN_PER_RAD,
+    }
+    sp = fm.SensorParams(**{k: jnp.asarray(v, dtype=jnp.float64) for k, v in fields.items()})
+    tx, ty = holds.tilt_x_rad, holds.tilt_y_rad
+    E = jax.vmap(fm.equilibrium_readings, in_axes=(0, None, None))(sp, tx, ty)
+    S = jax.vmap(fm.reading_sensitivity_to_tilt, in_axes=(0, None, None))(sp, tx, ty)
+    return np.asarray(E), np.asarray(S)
 
 
 def drift_curve(draws, model, hp: float, n: int = 60) -> dict:
