@@ -156,3 +156,49 @@ def test_source_fingerprint_follows_the_code(tmp_path):
     (pkg / "m.py").write_text("x = 2\n")
     assert source_fingerprint(pkg) != before
     assert source_fingerprint(pkg, extra=("jax==0",)) != source_fingerprint(pkg)
+
+
+class _Unhashable:
+    """A static leaf that cannot be hashed (its key is then computed on every call)."""
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __init__(self, k: float) -> None:
+        self.k = k
+
+    def __repr__(self) -> str:
+        return f"_Unhashable({self.k})"
+
+
+def test_remembered_keys_equal_fresh_keys_and_tell_programs_apart():
+    """The key memo gives the key a fresh computation gives; other shapes, other static
+    leaves, another name or a scoped store get their own; an unhashable static leaf works."""
+    store = ExecutableStore(None, "fp")
+    x, y = np.zeros(3), np.zeros(4)
+    first = store._signature("f", (x, "a"))[0]
+    assert store._signature("f", (x, "a"))[0] == first
+    assert len(store.keys) == 1
+    fresh = ExecutableStore(None, "fp")._key("f", *_tree_static_sig((x, "a")))
+    assert first == fresh
+    others = {
+        store._signature("f", (y, "a"))[0],
+        store._signature("f", (x, "b"))[0],
+        store._signature("g", (x, "a"))[0],
+        store.scoped("structure")._signature("f", (x, "a"))[0],
+    }
+    assert first not in others and len(others) == 4
+    f = store.jit("u", lambda v, u: v * u.k)
+    np.testing.assert_array_equal(np.asarray(f(x + 1, _Unhashable(2.0))), 2.0)
+    np.testing.assert_array_equal(np.asarray(f(x + 1, _Unhashable(3.0))), 3.0)
+
+
+def _tree_static_sig(args):
+    """(treedef, static, signature) of ``args`` as the store builds them."""
+    import jax
+
+    from inference.aot import _aval, _is_array
+
+    leaves, treedef = jax.tree_util.tree_flatten(args)
+    dyn = [i for i, v in enumerate(leaves) if _is_array(v)]
+    static = tuple((i, leaves[i]) for i in range(len(leaves)) if i not in dyn)
+    return treedef, static, [_aval(leaves[i]) for i in dyn]
