@@ -24,10 +24,12 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 # isort: split
 
 import math
+import os
 import sys
 import time
 import warnings
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any, Literal
@@ -86,6 +88,11 @@ class SamplerConfig:
     proposal_scale: float = 1.3
     seed: int = 0
     progress: bool = True
+    threads: int | None = None
+    """Ensembles advanced concurrently (None: min(n_chains, CPU count)). The draws are the
+    same for any value: each ensemble has its own random state and the log-density is
+    deterministic; the compiled log-density releases the GIL, so one ensemble's Python
+    (emcee's moves) overlaps another's evaluation."""
 
     def walkers(self, ndim: int) -> int:
         """Number of walkers per ensemble for a ``ndim``-dimensional problem (validated)."""
@@ -109,6 +116,8 @@ class SamplerConfig:
         kinds = ("de", "de-snooker", "stretch", "de-independence")
         if self.moves not in kinds:
             raise ValueError(f"moves must be one of {', '.join(kinds)}; got {self.moves!r}")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads must be ≥ 1 or None, got {self.threads}")
 
 
 @dataclass
@@ -449,13 +458,14 @@ def sample(
     ess = np.zeros(ndim)
     burn = 0
     converged = False
+    workers = config.threads or min(nc, os.cpu_count() or 1)
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="ensemble") if workers > 1 else None
     try:
         while n_steps < config.max_steps:
             k = min(config.check_every, config.max_steps - n_steps)
-            for c in range(nc):
-                states[c] = samplers[c].run_mcmc(
-                    states[c], k, progress=False, skip_initial_state_check=n_steps > 0
-                )
+
+            work = [(samplers[c], states[c], k, n_steps > 0) for c in range(nc)]
+            states = list(pool.map(_advance, work) if pool else map(_advance, work))
             n_steps += k
             bar.update(k)
             chains = [s.get_chain() for s in samplers]
@@ -472,6 +482,8 @@ def sample(
                 break
     finally:
         bar.close()
+        if pool is not None:
+            pool.shutdown()
 
     burn, thin = _burn_thin(tau, n_steps)
     if config.max_draws:
@@ -509,6 +521,12 @@ def sample(
         ess=ess,
         n_walkers=nw,
     )
+
+
+def _advance(job: tuple[emcee.EnsembleSampler, emcee.State, int, bool]) -> emcee.State:
+    """``k`` more steps of one ensemble from its state (a job for the thread pool)."""
+    sampler, state, k, started = job
+    return sampler.run_mcmc(state, k, progress=False, skip_initial_state_check=started)
 
 
 def _eval_blobs(blob_fn: Callable, draws: np.ndarray, data: Any, chunk: int) -> dict:

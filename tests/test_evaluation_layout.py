@@ -98,6 +98,7 @@ def test_predictive_equilibria_equal_per_draw_evaluation():
     from chekan.joint.outputs import _equilibria
     from chekan.joint.problem import K_DESIGN
     from chekan.units import ARCMIN_PER_RAD
+    from inference.aot import ExecutableStore
 
     g = 981_600.0
     flat = {
@@ -114,6 +115,10 @@ def test_predictive_equilibria_equal_per_draw_evaluation():
     )
     take = np.array([2, 0, 1])
     E, S = _equilibria(g, flat, take, holds)
+    # through an executable store (as calibrate runs it): the same numbers
+    E2, S2 = _equilibria(g, flat, take, holds, ExecutableStore(None, "test"))
+    np.testing.assert_array_equal(E2, E)
+    np.testing.assert_array_equal(S2, S)
     for n, i in enumerate(take):
         a = flat["a"][i]
         sp = fm.make_params(

@@ -11,6 +11,8 @@ them for every posterior draw, with β drawn given θ.
 from __future__ import annotations
 
 import functools
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -184,8 +186,12 @@ def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict
     pad = (-n) % chunk
     zp = np.concatenate([zs, np.repeat(zs[-1:], pad, axis=0)])
     kp = jnp.concatenate([keys, jnp.repeat(keys[-1:], pad, axis=0)])
-    parts = [
-        fn(jnp.asarray(zp[i : i + chunk]), kp[i : i + chunk], model.data)
-        for i in range(0, n + pad, chunk)
-    ]
+
+    def part(i: int) -> dict:
+        out = fn(jnp.asarray(zp[i : i + chunk]), kp[i : i + chunk], model.data)
+        return jax.block_until_ready(out)
+
+    # chunks in threads (the compiled loop releases the GIL): the same numbers, both cores
+    with ThreadPoolExecutor(min(2, os.cpu_count() or 1)) as pool:
+        parts = list(pool.map(part, range(0, n + pad, chunk)))
     return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}
