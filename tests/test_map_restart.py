@@ -51,9 +51,11 @@ def test_restart_keeps_the_first_pass_unless_it_gains(monkeypatch):
     restart that lowers the cost by more than RESTART_GAIN replaces it, one that lowers it
     by less does not (the same mode found again keeps its numbers)."""
     seen: list[list[float]] = []
+    given: list[list[str]] = []
 
     def fake_pass(lsq, args, zs, solvers):
         seen.append([float(z[0]) for z in zs])
+        given.append(list(solvers))
         tau = float(zs[0][0])
         cost = {5.0: 10.0, 120.0: 49.5}[tau]
         return [_Res([0.0], cost) for _ in zs], ["gn"] * len(zs)
@@ -64,6 +66,9 @@ def test_restart_keeps_the_first_pass_unless_it_gains(monkeypatch):
     results, solvers = jmap._restart_tails(_Prob(), [None, None], inits, first, ["gn", "lm"])
     assert seen == [[5.0], [120.0]]  # only record 1, from each restart τ
     assert results[0] is first[0] and results[1].cost == 10.0 and solvers == ["gn", "gn"]
+    assert given == [["gn"], ["gn"]]  # the fit's solver (default Gauss–Newton)
+    jmap._restart_tails(_Prob(), [None, None], inits, first, ["lm", "lm"], "lm")
+    assert given[2:] == [["lm"], ["lm"]]  # map_solver="lm": the restarts use LM too
     monkeypatch.setattr(
         jmap,
         "_solve_pass",

@@ -191,7 +191,8 @@ def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict
         out = fn(jnp.asarray(zp[i : i + chunk]), kp[i : i + chunk], model.data)
         return jax.block_until_ready(out)
 
-    # chunks in threads (the compiled loop releases the GIL): the same numbers, both cores
-    with ThreadPoolExecutor(min(2, os.cpu_count() or 1)) as pool:
-        parts = list(pool.map(part, range(0, n + pad, chunk)))
+    # chunks in threads, one per core (the compiled loop releases the GIL): the same numbers
+    starts = range(0, n + pad, chunk)
+    with ThreadPoolExecutor(min(len(starts), os.cpu_count() or 1)) as pool:
+        parts = list(pool.map(part, starts))
     return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}

@@ -122,7 +122,7 @@ def fit_map_em_many(
         args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
         results, solvers = _solve_pass(prob.lsq, args, zs, solvers)
         if it == 0:
-            results, solvers = _restart_tails(prob, args, inits, results, solvers)
+            results, solvers = _restart_tails(prob, args, inits, results, solvers, solver)
         zs = [r.z for r in results]
         for i, res in enumerate(results):
             updates = 0
@@ -141,17 +141,23 @@ def _in_tails(space, res: MapResult) -> bool:
 
 
 def _restart_tails(
-    prob, args: list, inits: Sequence[dict], results: list[MapResult], solvers: list[SolverName]
+    prob,
+    args: list,
+    inits: Sequence[dict],
+    results: list[MapResult],
+    solvers: list[SolverName],
+    solver: SolverName = SOLVER,
 ) -> tuple[list[MapResult], list[SolverName]]:
     """The first pass again from τ₀ in ``TAU_RESTARTS_S`` for the records :func:`_in_tails`
-    flags; each keeps the lowest cost, a restart only if it gains ``RESTART_GAIN``.
-    Returns the results and each record's solver for the next pass (new lists)."""
+    flags, with the fit's ``solver`` as the first pass had; each keeps the lowest cost, a
+    restart only if it gains ``RESTART_GAIN``. Returns the results and each record's
+    solver for the next pass (new lists)."""
     space = prob.map_space
     flagged = [i for i, r in enumerate(results) if _in_tails(space, r)]
     results, solvers = list(results), list(solvers)
     for tau in TAU_RESTARTS_S if flagged else ():
         zs = [space.to_z({**inits[i], "tau_s": tau}) for i in flagged]
-        done, after = _solve_pass(prob.lsq, [args[i] for i in flagged], zs, [SOLVER] * len(flagged))
+        done, after = _solve_pass(prob.lsq, [args[i] for i in flagged], zs, [solver] * len(flagged))
         for k, i in enumerate(flagged):
             if np.isfinite(done[k].cost) and (
                 not np.isfinite(results[i].cost) or done[k].cost < results[i].cost - RESTART_GAIN
