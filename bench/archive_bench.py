@@ -98,7 +98,11 @@ def _pass_row(
     rdt = sum(ok)
     note += f"; loop: {len(ok)}/{len(loop)} files in {rdt:.1f} s, 1 process, no archive"
     if len(ok) > 1:  # the first call compiles (or loads the persistent cache)
-        note += f" (first {ok[0]:.2f} s, then median {statistics.median(ok[1:]):.2f} s)"
+        med = statistics.median(ok[1:])
+        note += f" (first {ok[0]:.2f} s, then median {med:.3f} s"
+        # the steady state of warm workers, without their start-up (imports, executables)
+        note += f": {jobs} warm workers ≈ {jobs / med:.1f}/s)"
+        values["warm_sessions_per_s_estimate"] = jobs / med
     ratio = _rate(n_done, dt) / _rate(len(ok), rdt) if ok and n_done else float("nan")
     note += f"; {ratio:.2f}× the plain loop's rate"
     values.update(

@@ -48,3 +48,37 @@ def test_between_passes_reaches_the_host_fixed_point_and_level(short_session):
     again = em_compiled.between_passes(m_comp, z, h_comp)[1]
     for k in h_comp:
         assert np.max(np.abs(np.log(again[k]) - np.log(h_comp[k]))) < 2e-3
+
+
+def test_between_passes_reaches_the_fixed_point_where_em_creeps(tmp_path):
+    """A short one-round archive session: σ_θ creeps towards its floor and 200 EM updates
+    stop far from the fixed point; after EM_UPDATES_BEFORE_NEWTON updates Newton solves
+    h = EM(h), so one more update moves no log-hyperparameter by more than 1e-6."""
+    from chekan.archive.synth import InstrumentSpec, short_program, write_session
+    from chekan.options import CalibrationOptions
+    from chekan.pipeline import classical_stage
+
+    path = tmp_path / "session.csv"
+    write_session(
+        path, InstrumentSpec("T-6", seed=7), "2012-05-01", seed=7, program=short_program()
+    )
+    opts = CalibrationOptions(method="map", progress=False)
+    rec, _, cres, _ = classical_stage(path, opts)
+    _, model = joint.prepare(rec, None, angle_spec=opts.angle_spec(rec.meta, "r"))
+    prob = joint.problem_for(model.structure)
+    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
+    z, h0 = fit.result.z, joint.default_hyper()
+    moved, h, n = em_compiled.between_passes(fit.model, z, h0)
+    assert em_compiled.EM_UPDATES_BEFORE_NEWTON < n < em.HYPER_MAX_UPDATES
+    v = prob.map_space.to_values(z)
+    st, data = model.structure, moved.data
+    update = jax.jit(lambda h: em_compiled.em_update(v, h, st, data))
+    again = update(h)
+    for k in h:
+        assert np.max(np.abs(np.log(again[k]) - np.log(h[k]))) < 1e-6, k
+    capped = jax.jit(
+        lambda h: jax.lax.fori_loop(0, em.HYPER_MAX_UPDATES, lambda _, x: update(x), h)
+    )
+    plain = capped(h0)  # EM alone: still creeping after its 200 updates
+    gap = max(float(np.max(np.abs(np.log(plain[k]) - np.log(h[k])))) for k in h)
+    assert gap > 0.05, gap

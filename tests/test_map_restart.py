@@ -46,33 +46,78 @@ class _Prob:
     lsq = None
 
 
-def test_restart_keeps_the_first_pass_unless_it_gains(monkeypatch):
-    """Record 0 is well inside the prior: never restarted. Record 1 sits in the tails: a
-    restart that lowers the cost by more than RESTART_GAIN replaces it, one that lowers it
-    by less does not (the same mode found again keeps its numbers)."""
-    seen: list[list[float]] = []
-    given: list[list[str]] = []
+NAN = float("nan")
+# (record, τ₀, solver) -> (z = prior z-score, cost, converged)
+_PASSES = {
+    ("bulk", 30.0, "gn"): ([0.5], 1.0, True),  # inside the prior: kept, never restarted
+    ("tails", 30.0, "gn"): ([7.0], 50.0, True),  # in the tails: restarted
+    ("tails", 5.0, "gn"): ([0.0], 10.0, True),  # gains 40: replaces it
+    ("tails", 120.0, "gn"): ([0.0], 9.5, True),  # gains 0.5 on 10: does not
+    ("same", 30.0, "gn"): ([7.0], 50.0, True),
+    ("same", 5.0, "gn"): ([0.0], 49.5, True),  # the same mode again: keeps the first
+    ("same", 120.0, "gn"): ([0.0], 49.5, True),
+    ("fails", 30.0, "gn"): ([0.0], NAN, False),  # GN fails from τ₀ = 30 s ...
+    ("fails", 5.0, "gn"): ([0.0], 12.0, True),  # ... and converges from 5 s: no LM at all
+    ("fails", 120.0, "gn"): ([0.0], NAN, False),
+    ("none", 30.0, "gn"): ([0.0], NAN, False),  # no start converges inside the prior:
+    ("none", 5.0, "gn"): ([9.0], 30.0, True),
+    ("none", 120.0, "gn"): ([0.0], NAN, False),
+    ("none", 30.0, "lm"): ([1.0], 20.0, True),  # LM from the starts where GN failed
+    ("none", 120.0, "lm"): ([1.0], 19.5, True),
+}
 
-    def fake_pass(lsq, args, zs, solvers):
-        seen.append([float(z[0]) for z in zs])
-        given.append(list(solvers))
-        tau = float(zs[0][0])
-        cost = {5.0: 10.0, 120.0: 49.5}[tau]
-        return [_Res([0.0], cost) for _ in zs], ["gn"] * len(zs)
 
-    monkeypatch.setattr(jmap, "_solve_pass", fake_pass)
-    first = [_Res([0.5], 1.0), _Res([7.0], 50.0)]
-    inits = [{"tau_s": 30.0}, {"tau_s": 30.0}]
-    results, solvers = jmap._restart_tails(_Prob(), [None, None], inits, first, ["gn", "lm"])
-    assert seen == [[5.0], [120.0]]  # only record 1, from each restart τ
-    assert results[0] is first[0] and results[1].cost == 10.0 and solvers == ["gn", "gn"]
-    assert given == [["gn"], ["gn"]]  # the fit's solver (default Gauss–Newton)
-    jmap._restart_tails(_Prob(), [None, None], inits, first, ["lm", "lm"], "lm")
-    assert given[2:] == [["lm"], ["lm"]]  # map_solver="lm": the restarts use LM too
-    monkeypatch.setattr(
-        jmap,
-        "_solve_pass",
-        lambda lsq, args, zs, solvers: ([_Res([0.0], 49.5) for _ in zs], ["gn"] * len(zs)),
-    )
-    results, solvers = jmap._restart_tails(_Prob(), [None, None], inits, first, ["gn", "lm"])
-    assert results[1] is first[1] and solvers == ["gn", "lm"]
+def _fake_solve(calls: list):
+    def solve(lsq, args, zs, solver):
+        taus = [float(z[0]) for z in zs]
+        calls.append((list(args), taus, solver))
+        return [_Res(*_PASSES[(a, t, solver)]) for a, t in zip(args, taus, strict=True)]
+
+    return solve
+
+
+def test_first_pass_restarts_only_the_records_in_the_tails(monkeypatch):
+    """A record inside the prior is never restarted. One in the tails is solved again from
+    each restart τ with the fit's solver; a restart replaces the first pass only if it
+    lowers the cost by more than RESTART_GAIN (the same mode found again keeps its
+    numbers)."""
+    calls: list = []
+    monkeypatch.setattr(jmap, "_solve", _fake_solve(calls))
+    records = ["bulk", "tails", "same"]
+    inits = [{"tau_s": 30.0}] * 3
+    results, solvers = jmap._first_pass(_Prob(), records, inits, "gn")
+    assert calls == [
+        (records, [30.0] * 3, "gn"),
+        (["tails", "same"], [5.0, 5.0], "gn"),
+        (["tails", "same"], [120.0, 120.0], "gn"),
+    ]
+    assert [r.cost for r in results] == [1.0, 10.0, 50.0]
+    assert solvers == ["gn", "gn", "gn"]
+
+
+def test_first_pass_runs_lm_only_where_no_start_converged_in_the_prior(monkeypatch):
+    """Levenberg–Marquardt, the fallback of a Gauss–Newton pass that did not converge, runs
+    only for a record where no start gave a converged pass inside the prior's bulk, and only
+    from the starts where Gauss–Newton failed; a converged pass beats a failed one."""
+    calls: list = []
+    monkeypatch.setattr(jmap, "_solve", _fake_solve(calls))
+    results, solvers = jmap._first_pass(_Prob(), ["fails", "none"], [{"tau_s": 30.0}] * 2, "gn")
+    assert calls[-1] == (["none", "none"], [30.0, 120.0], "lm")
+    assert len(calls) == 4  # GN from the three starts, then one LM solve
+    assert results[0].cost == 12.0 and results[1].cost == 20.0  # 19.5 gains only 0.5
+    assert solvers == ["gn", "lm"]
+
+
+def test_first_pass_with_lm_restarts_with_lm(monkeypatch):
+    """``map_solver="lm"``: the restarts use LM too, and there is no other fallback."""
+    calls: list = []
+    passes = {(r, t, "lm"): v for (r, t, s), v in _PASSES.items() if s == "gn"}
+
+    def solve(lsq, args, zs, solver):
+        calls.append((list(args), [float(z[0]) for z in zs], solver))
+        return [_Res(*passes[(a, float(z[0]), solver)]) for a, z in zip(args, zs, strict=True)]
+
+    monkeypatch.setattr(jmap, "_solve", solve)
+    results, solvers = jmap._first_pass(_Prob(), ["tails"], [{"tau_s": 30.0}], "lm")
+    assert [c[2] for c in calls] == ["lm", "lm", "lm"]
+    assert results[0].cost == 10.0 and solvers == ["lm"]

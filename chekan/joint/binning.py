@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from chekan.holds import HoldTable, segment_record
-from chekan.jaxconfig import device_array
+from chekan.jaxconfig import device_arrays
 from chekan.joint.angles import AngleSensorSpec, SystematicBasis
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.units import ARCSEC_PER_RAD
@@ -161,33 +161,35 @@ def prepare_record(
         mv_basis = np.concatenate([mv_basis, sb.at(mv_theta) * mv_mask[..., None]], axis=-1)
         S = sb.size
     direction = np.array([0.0, 1.0]) if holds.axis == "y" else np.array([1.0, 0.0])
-    data = RecordData(
-        g=device_array(record.g_local_mgal, dtype=np.float64),
-        m0=device_array(record.ccd_center_pix, dtype=np.float64),
-        m_ref=device_array(m_level_ref, dtype=np.float64),
-        hold_tx=device_array(holds.tilt_x_rad),
-        hold_ty=device_array(holds.tilt_y_rad),
-        direction=device_array(direction),
-        own=device_array(own),
-        prev=device_array(prev),
-        d0=device_array(d0),
-        dstep=device_array(np.array([r[4] for r in rows])),
-        n_t=device_array(np.array([r[5] for r in rows], dtype=float)),
-        y=device_array(y),
-        cnt=device_array(cnt),
-        mask=device_array(cnt > 0),
-        mv_tx=device_array(mv_tx),
-        mv_ty=device_array(mv_ty),
-        mv_lag=device_array(mv_lag),
-        mv_mask=device_array(mv_mask),
-        dt=device_array(dt_s),
-        hold_T=device_array(hold_T),
-        drift_basis=device_array(P),
-        angle_basis=device_array(basis),
-        angle_prior_var=device_array(prior_var),
-        mv_angle_basis=device_array(mv_basis),
-        sigma_base=device_array(_robust_sigma(record, holds)),
-        hold_mask=device_array(np.ones(H, dtype=bool)),  # False for padding (see RecordData.pad)
-    )
+    # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
+    arrays = {
+        "g": np.asarray(record.g_local_mgal, dtype=np.float64),
+        "m0": np.asarray(record.ccd_center_pix, dtype=np.float64),
+        "m_ref": np.asarray(m_level_ref, dtype=np.float64),
+        "hold_tx": np.asarray(holds.tilt_x_rad),
+        "hold_ty": np.asarray(holds.tilt_y_rad),
+        "direction": direction,
+        "own": np.asarray(own),
+        "prev": np.asarray(prev),
+        "d0": np.asarray(d0),
+        "dstep": np.array([r[4] for r in rows]),
+        "n_t": np.array([r[5] for r in rows], dtype=float),
+        "y": np.asarray(y),
+        "cnt": np.asarray(cnt),
+        "mask": cnt > 0,
+        "mv_tx": np.asarray(mv_tx),
+        "mv_ty": np.asarray(mv_ty),
+        "mv_lag": np.asarray(mv_lag),
+        "mv_mask": np.asarray(mv_mask),
+        "dt": np.asarray(dt_s),
+        "hold_T": np.asarray(hold_T),
+        "drift_basis": np.asarray(P),
+        "angle_basis": np.asarray(basis),
+        "angle_prior_var": np.asarray(prior_var),
+        "mv_angle_basis": np.asarray(mv_basis),
+        "sigma_base": np.asarray(_robust_sigma(record, holds)),
+        "hold_mask": np.ones(H, dtype=bool),  # False for padding (see RecordData.pad)
+    }
+    data = RecordData(**device_arrays(arrays))
     structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L, S)
     return RecordModel(structure, data, holds.step, t_mid, (t0, t1), angle_spec)

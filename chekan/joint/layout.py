@@ -21,7 +21,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
-from chekan.jaxconfig import device_array
+from chekan.jaxconfig import device_array, device_arrays
 from chekan.joint.angles import AngleSensorSpec
 
 
@@ -143,8 +143,8 @@ class RecordData(eqx.Module):
             axes, fill = f.metadata["pad"]
             x = np.asarray(getattr(self, f.name))
             widths = [(0, extra[a]) for a in axes] + [(0, 0)] * (x.ndim - len(axes))
-            changes[f.name] = device_array(np.pad(x, widths, constant_values=fill))
-        return dataclasses.replace(self, **changes)
+            changes[f.name] = np.pad(x, widths, constant_values=fill)
+        return dataclasses.replace(self, **device_arrays(changes))
 
     def with_level(self, m_ref: Any) -> RecordData:
         """The same data with the level reference reading moved to ``m_ref`` (pix)."""

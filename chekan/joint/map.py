@@ -37,6 +37,12 @@ SOLVER: SolverName = "gn"
 # (it oscillates on records that hardly identify θ, e.g. one short round) and LM redoes it;
 # 256 GN steps cost ~0.45 s there for nothing
 MAX_STEPS: dict[str, int] = {"gn": 32, "lm": 256}
+# the solver's tolerance on the step and on the residual change (optimistix's Cauchy test,
+# relative and absolute, in working units): Gauss–Newton converges here about 1000-fold
+# per step (9e-3, 5e-6, 5e-9, 2e-12 on the 9 h record) and returns the point after the
+# step that passed the test, so 1e-8 leaves it 3e-11 sd from the 1e-10 answer and saves
+# one linearisation in six (the solve's largest cost)
+MAP_TOL = 1e-8
 # vmapped lanes per solve: the XLA CPU runtime (jax 0.10) deadlocks on this model's
 # vmapped LM at 4 lanes and more (measured; see inference.map.fit_map_batch); on CPU a
 # vmapped solve costs about the sum of its lanes anyway, so pairs lose nothing
@@ -120,9 +126,10 @@ def fit_map_em_many(
     solvers: list[SolverName] = [solver] * B  # LM from a Gauss–Newton failure on
     for it in range(MAP_PASSES):
         args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
-        results, solvers = _solve_pass(prob.lsq, args, zs, solvers)
         if it == 0:
-            results, solvers = _restart_tails(prob, args, inits, results, solvers, solver)
+            results, solvers = _first_pass(prob, args, inits, solver)
+        else:
+            results, solvers = _solve_pass(prob.lsq, args, zs, solvers)
         zs = [r.z for r in results]
         for i, res in enumerate(results):
             updates = 0
@@ -140,29 +147,68 @@ def _in_tails(space, res: MapResult) -> bool:
     return (not res.converged) or bool(np.any(~np.isfinite(prior_z) | (prior_z > PRIOR_TAIL)))
 
 
-def _restart_tails(
-    prob,
-    args: list,
-    inits: Sequence[dict],
-    results: list[MapResult],
-    solvers: list[SolverName],
-    solver: SolverName = SOLVER,
+def _better(new: MapResult, old: MapResult) -> bool:
+    """Whether a pass from a later start replaces the one kept so far: a finite cost beats a
+    non-finite one, a converged pass a non-converged one, and otherwise only a cost lower
+    by more than ``RESTART_GAIN`` (the same mode found again keeps the earlier numbers)."""
+    if not np.isfinite(new.cost):
+        return False
+    if not np.isfinite(old.cost):
+        return True
+    if new.converged != old.converged:
+        return bool(new.converged)
+    return bool(new.cost < old.cost - RESTART_GAIN)
+
+
+def _first_pass(
+    prob, args: list, inits: Sequence[dict], solver: SolverName = SOLVER
 ) -> tuple[list[MapResult], list[SolverName]]:
-    """The first pass again from τ₀ in ``TAU_RESTARTS_S`` for the records :func:`_in_tails`
-    flags, with the fit's ``solver`` as the first pass had; each keeps the lowest cost, a
-    restart only if it gains ``RESTART_GAIN``. Returns the results and each record's
-    solver for the next pass (new lists)."""
-    space = prob.map_space
-    flagged = [i for i, r in enumerate(results) if _in_tails(space, r)]
-    results, solvers = list(results), list(solvers)
+    """The first pass, from several starts where the classical one is not good enough.
+
+    1. ``solver`` from the classical start (τ₀ = 30 s) for every record.
+    2. For the records where that pass :func:`_in_tails`: the same solver from τ₀ in
+       ``TAU_RESTARTS_S``.
+    3. Levenberg–Marquardt (the fallback of a Gauss–Newton pass that did not converge),
+       only for the records where no start gave a converged pass inside the prior's bulk,
+       from each start whose Gauss–Newton pass did not converge.
+
+    Each record keeps its best pass in start order (:func:`_better`). A short one-round
+    session with a fast lag used to run LM from the classical start into a mode where the
+    holds never settle (0.1–0.9 s) before the restart from τ₀ = 5 s found the truth in 20 ms.
+    Returns the results and each record's solver for the next passes (new lists).
+    """
+    space, lsq = prob.map_space, prob.lsq
+    starts = [[space.to_z(i)] for i in inits]  # starts[i][k]: record i, start k
+    tried = [[r] for r in _solve(lsq, args, [s[0] for s in starts], solver)]
+    used: list[list[SolverName]] = [[solver] for _ in inits]
+    flagged = [i for i, t in enumerate(tried) if _in_tails(space, t[0])]
     for tau in TAU_RESTARTS_S if flagged else ():
         zs = [space.to_z({**inits[i], "tau_s": tau}) for i in flagged]
-        done, after = _solve_pass(prob.lsq, [args[i] for i in flagged], zs, [solver] * len(flagged))
-        for k, i in enumerate(flagged):
-            if np.isfinite(done[k].cost) and (
-                not np.isfinite(results[i].cost) or done[k].cost < results[i].cost - RESTART_GAIN
-            ):
-                results[i], solvers[i] = done[k], after[k]
+        done = _solve(lsq, [args[i] for i in flagged], zs, solver)
+        for i, z, r in zip(flagged, zs, done, strict=True):
+            starts[i].append(z)
+            tried[i].append(r)
+            used[i].append(solver)
+    if solver == "gn":
+        redo = [
+            (i, k)
+            for i in flagged
+            if all(_in_tails(space, r) for r in tried[i])
+            for k, r in enumerate(tried[i])
+            if not r.converged
+        ]
+        if redo:
+            done = _solve(lsq, [args[i] for i, _ in redo], [starts[i][k] for i, k in redo], "lm")
+            for (i, k), r in zip(redo, done, strict=True):
+                tried[i][k], used[i][k] = r, "lm"
+    results, solvers = [], []
+    for t, u in zip(tried, used, strict=True):
+        best = 0
+        for k in range(1, len(t)):
+            if _better(t[k], t[best]):
+                best = k
+        results.append(t[best])
+        solvers.append(u[best])
     return results, solvers
 
 
@@ -191,13 +237,17 @@ def _solve_pass(
     return results, after
 
 
+def map_pass_settings(solver: SolverName) -> dict:
+    """The keyword arguments of :func:`inference.map.fit_map` for one MAP pass."""
+    return {"solver": solver, "max_steps": MAX_STEPS[solver], "rtol": MAP_TOL, "atol": MAP_TOL}
+
+
 def _solve(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
-    steps = MAX_STEPS[solver]
     if len(args) == 1:
-        return [fit_map(lsq, args[0], zs[0], solver=solver, max_steps=steps)]
+        return [fit_map(lsq, args[0], zs[0], **map_pass_settings(solver))]
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *args)
     batch = fit_map_batch(
-        lsq, stacked, np.stack(zs), max_lanes=MAX_LANES, solver=solver, max_steps=steps
+        lsq, stacked, np.stack(zs), max_lanes=MAX_LANES, **map_pass_settings(solver)
     )
     return [batch.item(i) for i in range(len(args))]
 
