@@ -60,6 +60,7 @@ def _run(seed: int, quick: bool) -> list[Row]:
     from chekan.classical import calibrate_record
     from chekan.demo import demo_program
     from chekan.joint import fit_map_em, initial_values, prepare, problem_for
+    from chekan.joint.map import map_pass_settings
     from chekan.simulate import simulate_session
     from inference.map import fit_map
 
@@ -125,7 +126,7 @@ def _run(seed: int, quick: bool) -> list[Row]:
 
     data = (fit.model.data, h)  # fit_map_em compiled fit_map (Gauss–Newton) for these shapes
     z0 = prob.map_space.to_z(init)
-    as_run = _map_settings()  # the Gauss–Newton pass exactly as calibrate runs it
+    as_run = map_pass_settings("gn")  # the Gauss–Newton pass exactly as calibrate runs it
     fit_map(prob.lsq, data, z0, solver="lm")  # compiles (or loads) the LM solve: not timed
     fit_map(prob.lsq, data, z0, **as_run)
     t_gn = _best_of(lambda: fit_map(prob.lsq, data, z0, **as_run), 5)
@@ -185,13 +186,6 @@ def _run(seed: int, quick: bool) -> list[Row]:
     )
 
     return rows
-
-
-def _map_settings() -> dict:
-    """``fit_map``'s settings in ``calibrate``: Gauss–Newton, its step cap and tolerance."""
-    from chekan.joint.map import map_pass_settings
-
-    return map_pass_settings("gn")
 
 
 def main(argv: list[str] | None = None) -> int:

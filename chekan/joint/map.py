@@ -115,22 +115,19 @@ def fit_map_em_many(
     if len(structures) != 1:
         raise ValueError(f"a batch needs one structure (pad the models), got {structures}")
     prob = problem_for(structures.pop())
-    space = prob.map_space
     models = list(models)
     B = len(models)
     hs = [default_hyper() for _ in range(B)]
-    zs: list[Any] = [space.to_z(i) for i in inits]
     histories: list[list[dict]] = [[] for _ in range(B)]
     results: list[MapResult] = []
     between_passes = em_steps(solver).between_passes
-    solvers: list[SolverName] = [solver] * B  # LM from a Gauss–Newton failure on
+    solvers: list[SolverName] = []  # each record's solver after the first pass (LM where GN failed)
     for it in range(MAP_PASSES):
         args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
         if it == 0:
             results, solvers = _first_pass(prob, args, inits, solver)
-        else:
-            results, solvers = _solve_pass(prob.lsq, args, zs, solvers)
-        zs = [r.z for r in results]
+        else:  # from the previous pass's θ̂
+            results, solvers = _solve_pass(prob.lsq, args, [r.z for r in results], solvers)
         for i, res in enumerate(results):
             updates = 0
             if it < MAP_PASSES - 1:
