@@ -11,6 +11,7 @@ import hashlib
 import json
 import math
 from pathlib import Path
+from statistics import NormalDist
 from typing import Any
 
 import numpy as np
@@ -48,10 +49,12 @@ def sha256_file(path: str | Path) -> str:
 
 
 def z_for(prob: float) -> float:
-    """Two-sided standard-normal quantile: P(|Z| < z) = prob."""
-    from scipy.special import ndtri
+    """Two-sided standard-normal quantile: P(|Z| < z) = prob.
 
-    return float(ndtri(0.5 + prob / 2.0))
+    The standard library's inverse (Wichura's AS 241, equal to ``scipy.special.ndtri`` within
+    2 ulp) spares every new process the 0.2–0.7 s import of ``scipy.special``.
+    """
+    return NormalDist().inv_cdf(0.5 + prob / 2.0)
 
 
 def param_entry(mean: float, sd: float | None, hdi_prob: float, unit: str = "", **extra) -> dict:

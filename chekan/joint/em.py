@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import chekan.jaxconfig  # noqa: F401
+from chekan.jaxconfig import device_array
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import dense_design, noise_var, solve_beta
 from chekan.joint.problem import Hyper, default_hyper, executables, problem_for
@@ -148,12 +148,12 @@ def _beta_at_jit(structure: ModelStructure):
 def prefetch(model: RecordModel) -> None:
     """Start loading the stored β̂ executable of this model's structure in the background
     (:meth:`inference.aot.ExecutableStore.prefetch`)."""
-    z = jnp.zeros(problem_for(model.structure).map_space.size)
+    z = np.zeros(problem_for(model.structure).map_space.size)  # jnp.zeros compiles (20 ms)
     executables(model.structure).prefetch(BETA_AT, z, default_hyper(), model.data)
 
 
 def beta_at(structure: ModelStructure, z, h: Hyper, data: RecordData):
     """β̂, its conditional variances diag(M⁻¹), the whitened residuals, the base noise
     variance, the transient amplitudes and the bins' leverages at θ = z."""
-    out = _beta_at_jit(structure)(jnp.asarray(z), h, data)
+    out = _beta_at_jit(structure)(device_array(z), h, data)
     return tuple(np.asarray(x) for x in out)

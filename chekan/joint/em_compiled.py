@@ -30,8 +30,8 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
+from chekan.jaxconfig import device_array
 from chekan.joint.em import (
     HYPER_MAX_UPDATES,
     HYPER_TOL,
@@ -46,6 +46,7 @@ from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import solve_beta
 from chekan.joint.problem import Hyper, default_hyper, executables, problem_for
 from inference.box_newton import minimise_in_box
+from inference.map import jacobian_once
 
 EM_PASS = "em_between_passes"  # the stored executable's name (see prefetch)
 EM_UPDATES_BEFORE_NEWTON = 32  # then Newton on the fixed point (module docstring)
@@ -58,14 +59,14 @@ def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper,
     """:func:`chekan.joint.em.between_passes` compiled: the model with its level moved to
     the estimate (m_ref ← m_ref + ĉ), the hyperparameters at their EM fixed point given θ = z,
     and the number of EM updates."""
-    m_ref, h_new, n = _compiled(model.structure)(jnp.asarray(z), h, model.data)
+    m_ref, h_new, n = _compiled(model.structure)(device_array(z), h, model.data)
     return model.with_level(np.asarray(m_ref)), h_new, int(n)
 
 
 def prefetch(model: RecordModel) -> None:
     """Start loading this structure's stored executable in the background
     (:meth:`inference.aot.ExecutableStore.prefetch`)."""
-    z = jnp.zeros(problem_for(model.structure).map_space.size)
+    z = np.zeros(problem_for(model.structure).map_space.size)  # jnp.zeros compiles (20 ms)
     executables(model.structure).prefetch(EM_PASS, z, default_hyper(), model.data)
 
 
@@ -121,14 +122,22 @@ def _newton(v: dict, structure: ModelStructure, data: RecordData, carry):
     """The EM fixed point h = EM(h) by optimistix's Newton in log h, from the EM iterate
     in ``carry`` = (h, updates, change); the carry unchanged where Newton fails (EM then
     goes on), else (h*, updates + Newton steps, 0)."""
+    import optimistix as optx  # at trace time only: stored executables do not need it
+
     h, n, change = carry
 
-    def em_map(x, _):
-        return _log_hyper(em_update(v, _hyper(x), structure, data))
+    def em_map(x, args):
+        v_, data_ = args
+        return _log_hyper(em_update(v_, _hyper(x), structure, data_))
 
     solver: optx.Newton = optx.Newton(rtol=NEWTON_TOL, atol=NEWTON_TOL)
     sol: optx.Solution = optx.fixed_point(
-        em_map, solver, _log_hyper(h), max_steps=NEWTON_MAX_STEPS, throw=False
+        jacobian_once(em_map),  # one copy of the EM map's tangent code, not two
+        solver,
+        _log_hyper(h),
+        (v, data),
+        max_steps=NEWTON_MAX_STEPS,
+        throw=False,
     )
     ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(sol.value))
     x = jnp.where(ok, sol.value, _log_hyper(h))
