@@ -177,9 +177,8 @@ def _check_solver(solver: SolverName) -> None:
 
 
 def _make_solver(solver: SolverName, rtol: float, atol: float):
-    import optimistix as optx
+    import optimistix as optx  # the name was checked by ``_compiled``, before tracing
 
-    _check_solver(solver)
     if solver == "lm":
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     return optx.GaussNewton(rtol=rtol, atol=atol)

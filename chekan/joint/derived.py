@@ -30,7 +30,7 @@ from chekan.joint.likelihood import (
     solve_beta,
 )
 from chekan.joint.map import MapFit
-from chekan.joint.problem import default_hyper, executables, problem_for
+from chekan.joint.problem import executables, prefetch_args, problem_for
 from chekan.parameters import PARAMETER_UNITS
 from inference.normal_eq import draw_beta_normal
 
@@ -97,9 +97,8 @@ def _map_derived_jit(structure: ModelStructure):
 def prefetch(model: RecordModel) -> None:
     """Start loading the stored executable of :func:`map_derived` for this model's
     structure in the background (:meth:`inference.aot.ExecutableStore.prefetch`)."""
-    z = np.zeros(problem_for(model.structure).map_space.size)  # jnp.zeros compiles (20 ms)
-    args = (z, default_hyper(), model.data, model.duration_h)
-    executables(model.structure).prefetch(MAP_DERIVED, *args)
+    args = prefetch_args(model.structure, model.data)
+    executables(model.structure).prefetch(MAP_DERIVED, *args, model.duration_h)
 
 
 def map_derived(fit: MapFit) -> dict:

@@ -15,7 +15,7 @@ import numpy as np
 from chekan.jaxconfig import device_array
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import dense_design, noise_var, solve_beta
-from chekan.joint.problem import Hyper, default_hyper, executables, problem_for
+from chekan.joint.problem import Hyper, default_hyper, executables, prefetch_args, problem_for
 
 BETA_AT = "beta_at"  # the stored executable's name (see prefetch)
 HYPER_TOL = 1e-4  # EM at fixed θ stops when no log-hyperparameter moves more than this
@@ -148,8 +148,8 @@ def _beta_at_jit(structure: ModelStructure):
 def prefetch(model: RecordModel) -> None:
     """Start loading the stored β̂ executable of this model's structure in the background
     (:meth:`inference.aot.ExecutableStore.prefetch`)."""
-    z = np.zeros(problem_for(model.structure).map_space.size)  # jnp.zeros compiles (20 ms)
-    executables(model.structure).prefetch(BETA_AT, z, default_hyper(), model.data)
+    args = prefetch_args(model.structure, model.data)
+    executables(model.structure).prefetch(BETA_AT, *args)
 
 
 def beta_at(structure: ModelStructure, z, h: Hyper, data: RecordData):

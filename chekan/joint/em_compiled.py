@@ -44,7 +44,7 @@ from chekan.joint.em import (
 )
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import solve_beta
-from chekan.joint.problem import Hyper, default_hyper, executables, problem_for
+from chekan.joint.problem import Hyper, executables, prefetch_args, problem_for
 from inference.box_newton import minimise_in_box
 from inference.map import jacobian_once
 
@@ -66,8 +66,8 @@ def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper,
 def prefetch(model: RecordModel) -> None:
     """Start loading this structure's stored executable in the background
     (:meth:`inference.aot.ExecutableStore.prefetch`)."""
-    z = np.zeros(problem_for(model.structure).map_space.size)  # jnp.zeros compiles (20 ms)
-    executables(model.structure).prefetch(EM_PASS, z, default_hyper(), model.data)
+    args = prefetch_args(model.structure, model.data)
+    executables(model.structure).prefetch(EM_PASS, *args)
 
 
 @functools.cache

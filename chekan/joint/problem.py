@@ -120,6 +120,13 @@ def executables(structure: ModelStructure) -> ExecutableStore:
     return executable_store().scoped(repr(structure))
 
 
+def prefetch_args(structure: ModelStructure, data: RecordData) -> tuple:
+    """``(z, h, data)`` with the shapes the MAP-side executables take, for
+    :meth:`inference.aot.ExecutableStore.prefetch`: z on the host (``jnp.zeros`` would
+    compile a program in a new process, 20 ms)."""
+    return np.zeros(problem_for(structure).map_space.size), default_hyper(), data
+
+
 @functools.cache
 def problem_for(structure: ModelStructure) -> CalibrationProblem:
     """Both views of the model for one structure, built once (compiled solvers live in the
