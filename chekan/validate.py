@@ -147,12 +147,13 @@ def run_session(
 
 def _map_columns(rec, cres, settle_s: float, scenario: Scenario) -> dict[str, Any]:
     """MAP + Laplace on the in-memory record (the steps of ``chekan.joint.estimate``)."""
-    from chekan.joint import fit_map_em, initial_values, prepare
+    from chekan.joint import fit_map_em, initial_values, prepare, tau_from_transients
     from chekan.joint.derived import map_derived
 
     spec = scenario.options().angle_spec(rec.meta)
-    _, model = prepare(rec, settle_s, angle_spec=spec)
-    fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
+    holds, model = prepare(rec, settle_s, angle_spec=spec)
+    init = initial_values(cres, rec.g_local_mgal)
+    fit = fit_map_em(model, init, tau_hint_s=lambda: tau_from_transients(rec, holds))
     md = map_derived(fit)
     out: dict[str, Any] = {}
     for p in PARAMS:

@@ -64,6 +64,11 @@ _PASSES = {
     ("none", 120.0, "gn"): ([0.0], NAN, False),
     ("none", 30.0, "lm"): ([1.0], 20.0, True),  # LM from the starts where GN failed
     ("none", 120.0, "lm"): ([1.0], 19.5, True),
+    ("hinted", 30.0, "gn"): ([7.0], 50.0, True),  # in the tails; its own τ (5.2 s) ...
+    ("hinted", 5.2, "gn"): ([0.0], 10.0, True),  # ... lands in the bulk: no other restart
+    ("hintbad", 30.0, "gn"): ([7.0], 50.0, True),
+    ("hintbad", 100.0, "gn"): ([8.0], 40.0, True),  # its hint's pass is in the tails too:
+    ("hintbad", 5.0, "gn"): ([0.0], 10.0, True),  # 5 s is tried, 120 s (within 1.5× of 100) not
 }
 
 
@@ -121,3 +126,41 @@ def test_first_pass_with_lm_restarts_with_lm(monkeypatch):
     results, solvers = jmap._first_pass(_Prob(), ["tails"], [{"tau_s": 30.0}], "lm")
     assert [c[2] for c in calls] == ["lm", "lm", "lm"]
     assert results[0].cost == 10.0 and solvers == ["lm"]
+
+
+def test_a_records_own_tau_is_tried_first_and_spares_the_other_restarts(monkeypatch):
+    """The pipeline's τ hint (read off the transients) is the first restart: where its pass
+    lands in the prior's bulk no fixed restart runs; where it does not, the fixed restarts
+    follow, skipping a τ within RESTART_APART of one tried. A record inside the prior is
+    never restarted and its hint function is never called."""
+    calls: list = []
+    monkeypatch.setattr(jmap, "_solve", _fake_solve(calls))
+
+    def never() -> float:
+        raise AssertionError("the hint of a record that needs no restart was read")
+
+    records = ["bulk", "hinted", "hintbad"]
+    results, solvers = jmap._first_pass(
+        _Prob(), records, [{"tau_s": 30.0}] * 3, "gn", [never, lambda: 5.2, 100.0]
+    )
+    assert calls == [
+        (records, [30.0] * 3, "gn"),
+        (["hinted", "hintbad"], [5.2, 100.0], "gn"),
+        (["hintbad"], [5.0], "gn"),
+    ]
+    assert [r.cost for r in results] == [1.0, 10.0, 10.0]
+    assert solvers == ["gn", "gn", "gn"]
+
+
+def test_tau_read_off_the_transients_of_simulated_sessions():
+    """``tau_from_transients`` recovers the simulated lag of a one-round archive session
+    (120 s dwells) from 2 s to 2 dwells, within 2 %."""
+    from chekan.archive.synth import short_program
+    from chekan.holds import segment_record
+    from chekan.joint.start import tau_from_transients
+    from chekan.simulate import Truth, simulate_session
+
+    for tau in (2.0, 5.0, 30.0, 240.0):
+        rec, _ = simulate_session(short_program(), Truth(serial="T", tau_s=tau), seed=3)
+        holds = segment_record(rec, settle_s=float(rec.meta["program_settle_s"]))
+        assert abs(tau_from_transients(rec, holds) / tau - 1) < 0.02, tau

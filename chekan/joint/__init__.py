@@ -8,6 +8,7 @@ module             what it does
 ``likelihood``     f(θ) + A(θ)β, normal equations, β̂ (the physics of the bins)
 ``problem``        parameters and priors; MAP least squares; marginal density
 ``em``             between LM passes: level re-centring, EM of hyperparameters
+``start``          the MAP's start: classical θ; a τ read off the settling transients
 ``map``            MAP + EM for one record or a batch → :class:`MapFit`
 ``derived``        a, b₀, drift slope: one function for map, bayes and design
 ``budget``         the uncertainty budget of b and U (k = 2)
@@ -22,8 +23,9 @@ module             what it does
 from chekan.joint.binning import BIN_EDGES_S, prepare, prepare_record
 from chekan.joint.estimate import estimate, map_result, posterior_result
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel, padded_shape
-from chekan.joint.map import MapFit, fit_map_em, fit_map_em_many, initial_values
+from chekan.joint.map import MapFit, fit_map_em, fit_map_em_many
 from chekan.joint.problem import CalibrationProblem, default_hyper, problem_for
+from chekan.joint.start import initial_values, tau_from_transients
 
 __all__ = [
     "BIN_EDGES_S",
@@ -43,4 +45,5 @@ __all__ = [
     "prepare",
     "prepare_record",
     "problem_for",
+    "tau_from_transients",
 ]

@@ -13,6 +13,7 @@ chunk falls back to one record at a time, so a batch never loses a record it cou
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Sequence
 
@@ -20,7 +21,8 @@ from chekan.jaxconfig import single_threaded_blas
 from chekan.joint.binning import prepare
 from chekan.joint.estimate import map_result
 from chekan.joint.layout import padded_shape
-from chekan.joint.map import fit_map_em, fit_map_em_many, initial_values
+from chekan.joint.map import fit_map_em, fit_map_em_many
+from chekan.joint.start import initial_values, tau_from_transients
 from chekan.options import CalibrationOptions
 
 
@@ -39,29 +41,36 @@ def _estimate_map_many(
 ) -> list[dict | Exception]:
     t_start = time.perf_counter()
     out: list[dict | Exception | None] = [None] * len(items)
-    ready = []  # (index, model, init)
+    ready = []  # (index, model, init, τ hint)
     for i, (record, cres, _base) in enumerate(items):
         try:
-            _holds, model = prepare(
+            holds, model = prepare(
                 record,
                 options.settle_s,
                 encoder=options.encoder_error,
                 angle_spec=options.angle_spec(record.meta),
             )
-            ready.append((i, model, initial_values(cres, record.g_local_mgal)))
+            ready.append(
+                (
+                    i,
+                    model,
+                    initial_values(cres, record.g_local_mgal),
+                    functools.partial(tau_from_transients, record, holds),
+                )
+            )
         except Exception as e:  # one bad record never spoils the chunk
             out[i] = e
     if ready:
         H, N, M, S = padded_shape([r[1] for r in ready])
         padded = [r[1].pad(H, N, M, S) for r in ready]
         try:
-            fits = fit_map_em_many(padded, [r[2] for r in ready])
+            fits = fit_map_em_many(padded, [r[2] for r in ready], tau_hints_s=[r[3] for r in ready])
         except Exception:  # e.g. out of memory: do them one by one
             fits = None
-        for k, (i, model, init) in enumerate(ready):
+        for k, (i, model, init, hint) in enumerate(ready):
             base = items[i][2]
             try:
-                fit = fit_map_em(model, init) if fits is None else fits[k]
+                fit = fit_map_em(model, init, tau_hint_s=hint) if fits is None else fits[k]
                 per = (time.perf_counter() - t_start) / len(ready)
                 out[i] = map_result(fit, base, options, time.perf_counter() - per)
             except Exception as e:

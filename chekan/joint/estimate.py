@@ -7,6 +7,7 @@ the fit to :func:`map_result` or :func:`posterior_result`; batch re-analysis cal
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 
@@ -21,9 +22,10 @@ from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertaint
 from chekan.joint.derived import map_derived, posterior_draws
 from chekan.joint.derived import prefetch as prefetch_map_derived
 from chekan.joint.layout import padded_shape
-from chekan.joint.map import MapFit, em_steps, fit_map_em, initial_values
+from chekan.joint.map import MapFit, em_steps, fit_map_em
 from chekan.joint.outputs import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.sampling import sample_posterior
+from chekan.joint.start import initial_values, tau_from_transients
 from chekan.options import CalibrationOptions
 from chekan.parameters import PARAMETER_UNITS
 from chekan.result import param_entry, posterior_entry
@@ -64,7 +66,13 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
     em_steps(options.map_solver).prefetch(model)
     if options.method == "map":
         prefetch_map_derived(model)
-    fit = fit_map_em(model, init, progress=options.progress, solver=options.map_solver)
+    fit = fit_map_em(
+        model,
+        init,
+        progress=options.progress,
+        solver=options.map_solver,
+        tau_hint_s=functools.partial(tau_from_transients, record, holds),
+    )
     if options.method == "map":
         return map_result(fit, base, options, t_start)
     return posterior_result(fit, holds, record, base, options, t_start)

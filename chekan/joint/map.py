@@ -14,7 +14,8 @@ returns new state, :class:`MapFit`, with the model whose level reference has mov
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,7 +25,7 @@ import numpy as np
 
 from chekan.joint import em, em_compiled
 from chekan.joint.layout import RecordModel
-from chekan.joint.problem import K_DESIGN, Hyper, default_hyper, problem_for
+from chekan.joint.problem import Hyper, default_hyper, problem_for
 from inference.map import MapResult, SolverName, fit_map, fit_map_batch
 
 MAP_PASSES = 3  # solves; between them the hyperparameters are converged at fixed θ
@@ -56,8 +57,19 @@ MAX_LANES = 2
 # its cost (the same objective: same data and hyperparameters) is lower by RESTART_GAIN,
 # so a record whose restart finds the same mode keeps its numbers.
 TAU_RESTARTS_S = (5.0, 120.0)
+# a record's own τ (chekan.joint.start.tau_from_transients, the pipeline's hint) is tried
+# before TAU_RESTARTS_S, and if its pass lands in the prior's bulk those are not tried: on
+# the one-round archive sessions (τ = 5 s) the restart from 120 s was the costliest solve
+# of the record (23 steps into NaN). A start within a factor RESTART_APART of one already
+# tried is skipped.
+RESTART_APART = 1.5
 PRIOR_TAIL = 3.0
 RESTART_GAIN = 1.0
+
+
+#: a record's τ hint (s) for the first restart, a function that reads it (called only if a
+#: restart is needed), or None
+TauHint = float | Callable[[], float] | None
 
 
 @dataclass(frozen=True)
@@ -72,22 +84,6 @@ class MapFit:
     model: RecordModel
 
 
-def initial_values(classical, g: float) -> dict[str, float]:
-    """θ to start the LM from, from the classical fit (a = g/2K², eq. 10)."""
-    a = classical.a
-    K = float(np.sqrt(g / (2 * a))) if a > 0 else K_DESIGN
-    eps = classical.eps_arcmin if classical.eps_arcmin is not None else np.zeros(2)
-    return {
-        "b1": float(classical.b_mean[0]),
-        "b2": float(classical.b_mean[1]),
-        "K": K,
-        "eps1_arcmin": float(eps[0]),
-        "eps2_arcmin": float(eps[1]),
-        "dgamma_arcmin": 0.0,
-        "tau_s": 30.0,
-    }
-
-
 def em_steps(solver: SolverName):
     """The EM between passes that goes with ``solver``, as a module with ``between_passes``
     and ``prefetch``: compiled (:mod:`chekan.joint.em_compiled`) with Gauss–Newton, the host
@@ -96,10 +92,18 @@ def em_steps(solver: SolverName):
 
 
 def fit_map_em(
-    model: RecordModel, init: dict, *, progress: bool = False, solver: SolverName = SOLVER
+    model: RecordModel,
+    init: dict,
+    *,
+    progress: bool = False,
+    solver: SolverName = SOLVER,
+    tau_hint_s: TauHint = None,
 ) -> MapFit:
-    """MAP with EM updates of the hyperparameters for one record (module docstring)."""
-    return fit_map_em_many([model], [init], progress=progress, solver=solver)[0]
+    """MAP with EM updates of the hyperparameters for one record (module docstring);
+    ``tau_hint_s``: the first τ to restart from if the first pass needs a restart (a
+    function is called only then)."""
+    hints = None if tau_hint_s is None else [tau_hint_s]
+    return fit_map_em_many([model], [init], progress=progress, solver=solver, tau_hints_s=hints)[0]
 
 
 def fit_map_em_many(
@@ -108,9 +112,11 @@ def fit_map_em_many(
     *,
     progress: bool = False,
     solver: SolverName = SOLVER,
+    tau_hints_s: Sequence[TauHint] | None = None,
 ) -> list[MapFit]:
     """:func:`fit_map_em` for records of one structure; more than one are solved as a
-    batch of vmapped lanes in every pass (pad them first: :meth:`RecordModel.pad`)."""
+    batch of vmapped lanes in every pass (pad them first: :meth:`RecordModel.pad`).
+    ``tau_hints_s``: each record's first τ to restart from (None: none)."""
     structures = {m.structure for m in models}
     if len(structures) != 1:
         raise ValueError(f"a batch needs one structure (pad the models), got {structures}")
@@ -125,7 +131,7 @@ def fit_map_em_many(
     for it in range(MAP_PASSES):
         args = [(m.data, h) for m, h in zip(models, hs, strict=True)]
         if it == 0:
-            results, solvers = _first_pass(prob, args, inits, solver)
+            results, solvers = _first_pass(prob, args, inits, solver, tau_hints_s)
         else:  # from the previous pass's θ̂
             results, solvers = _solve_pass(prob.lsq, args, [r.z for r in results], solvers)
         for i, res in enumerate(results):
@@ -136,6 +142,11 @@ def fit_map_em_many(
                 pass_entry(it, res.converged, res.num_steps, res.cost, progress and B == 1, updates)
             )
     return [MapFit(results[i], hs[i], tuple(histories[i]), models[i]) for i in range(B)]
+
+
+def _apart(tau_s: float, tried_tau_s: Sequence[float]) -> bool:
+    """Whether a restart from ``tau_s`` is worth a solve after those from ``tried_tau_s``."""
+    return all(abs(math.log(tau_s / t)) > math.log(RESTART_APART) for t in tried_tau_s)
 
 
 def _in_tails(space, res: MapResult) -> bool:
@@ -158,13 +169,20 @@ def _better(new: MapResult, old: MapResult) -> bool:
 
 
 def _first_pass(
-    prob, args: list, inits: Sequence[dict], solver: SolverName = SOLVER
+    prob,
+    args: list,
+    inits: Sequence[dict],
+    solver: SolverName = SOLVER,
+    tau_hints_s: Sequence[TauHint] | None = None,
 ) -> tuple[list[MapResult], list[SolverName]]:
     """The first pass, from several starts where the classical one is not good enough.
 
     1. ``solver`` from the classical start (τ₀ = 30 s) for every record.
-    2. For the records where that pass :func:`_in_tails`: the same solver from τ₀ in
-       ``TAU_RESTARTS_S``.
+    2. For the records where that pass :func:`_in_tails`: the same solver from the
+       record's τ hint (the pipeline's is read off the record's settling transients,
+       :func:`chekan.joint.start.tau_from_transients`); then, for those whose passes are
+       all still in the tails, from τ₀ in ``TAU_RESTARTS_S``. A τ within a factor
+       ``RESTART_APART`` of one already tried is skipped.
     3. Levenberg–Marquardt (the fallback of a Gauss–Newton pass that did not converge),
        only for the records where no start gave a converged pass inside the prior's bulk,
        from each start whose Gauss–Newton pass did not converge.
@@ -179,13 +197,26 @@ def _first_pass(
     tried = [[r] for r in _solve(lsq, args, [s[0] for s in starts], solver)]
     used: list[list[SolverName]] = [[solver] for _ in inits]
     flagged = [i for i, t in enumerate(tried) if _in_tails(space, t[0])]
-    for tau in TAU_RESTARTS_S if flagged else ():
-        zs = [space.to_z({**inits[i], "tau_s": tau}) for i in flagged]
-        done = _solve(lsq, [args[i] for i in flagged], zs, solver)
-        for i, z, r in zip(flagged, zs, done, strict=True):
+    taus = [[float(i["tau_s"])] for i in inits]  # τ₀ of each start tried
+    hints = list(tau_hints_s) if tau_hints_s is not None else [None] * len(inits)
+    rounds: list[list[tuple[int, float]]] = [
+        [(i, float(h() if callable(h) else h)) for i in flagged if (h := hints[i]) is not None]
+    ]
+    rounds += [[(i, tau) for i in flagged] for tau in TAU_RESTARTS_S]
+    settled: set[int] = set()  # records whose hint's pass landed in the prior's bulk
+    for k, todo in enumerate(rounds):
+        which = [(i, t) for i, t in todo if i not in settled and _apart(t, taus[i])]
+        if not which:
+            continue
+        zs = [space.to_z({**inits[i], "tau_s": tau}) for i, tau in which]
+        done = _solve(lsq, [args[i] for i, _ in which], zs, solver)
+        for (i, tau), z, r in zip(which, zs, done, strict=True):
             starts[i].append(z)
             tried[i].append(r)
             used[i].append(solver)
+            taus[i].append(tau)
+            if k == 0 and not _in_tails(space, r):
+                settled.add(i)
     if solver == "gn":
         redo = [
             (i, k)
