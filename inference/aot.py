@@ -23,6 +23,12 @@ function recompiled (never a wrong answer, at worst a compile).
 
 Serialised executables are machine code: load only files this program wrote (the store's
 folder is the user's cache, like JAX's own).
+
+The folder is capped (``max_bytes``, default ``MAX_STORE_BYTES``): after each file it
+writes, a store over the cap deletes the least recently used files (a load touches its
+file) down to ``PRUNE_TO`` of it. Every edit of the code is a new fingerprint, so without a
+cap a developer's store only grows (2.2 GB seen). A file deleted while another process
+loads it is a failed load there: recompiled, never a wrong answer.
 """
 
 from __future__ import annotations
@@ -49,6 +55,9 @@ import numpy as np
 __all__ = ["ExecutableStore", "source_fingerprint"]
 
 _SUFFIX = ".jaxexe"
+#: default size cap of a store's folder, and the fraction of it a prune leaves
+MAX_STORE_BYTES = 1 << 30
+PRUNE_TO = 0.75
 _FORMAT = "chekan-aot/2"  # part of every key: a new format never reads an old file
 # preload threads, taking the executables in their order of first use: 2 beat 1 in every
 # interleaved pair of CLI map runs on 2 cores (9 h record: 3.1–5.0 s against 3.5–6.0 s)
@@ -149,7 +158,8 @@ class ExecutableStore:
     fingerprint: str
     loaded: dict[str, Any] = field(default_factory=dict, repr=False)
     events: list[tuple[str, str]] = field(default_factory=list, repr=False)
-    """``(name, "loaded" | "compiled" | "discarded")`` per executable, oldest first."""
+    """``(name, "loaded" | "compiled" | "discarded" | "not stored: <why>")`` per
+    executable, oldest first."""
     unproven: set[str] = field(default_factory=set, repr=False)
     """Keys loaded from a file that have not run yet (a failure there recompiles)."""
     pending: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -160,6 +170,8 @@ class ExecutableStore:
     """Keys already computed, by (fingerprint, name, tree, static leaves, signature): a
     sampler calls the same executable a thousand times, and hashing the key each time
     cost ≈ 0.3 ms a call."""
+    max_bytes: int = MAX_STORE_BYTES
+    """Size cap of the folder's executables (see the module docstring)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_machine", _machine())
@@ -177,6 +189,7 @@ class ExecutableStore:
             self.pending,
             self.used,
             self.keys,
+            self.max_bytes,
         )
 
     def jit(self, name: str, fn: Callable) -> Callable:
@@ -337,15 +350,49 @@ class ExecutableStore:
             loaded = self._load(by_program, name, key)
             if loaded is not None:
                 if path is not None:
-                    _write_atomic(path, by_program.read_bytes())
+                    _link_or_copy(by_program, path)
+                    self.prune()
                 return loaded
         with _compilation_cache_off():
             compiled = lowered.compile()
         self.events.append((name, "compiled"))
-        for target in (path, by_program):
-            if target is not None:
-                self._save(target, compiled, out_tree)
+        if path is not None and by_program is not None:
+            self._save(by_program, name, compiled, out_tree)
+            if by_program.is_file():
+                _link_or_copy(by_program, path)
+            self.prune()
         return compiled, out_tree
+
+    def prune(self) -> int:
+        """Delete the least recently used executables while the folder holds more than
+        ``max_bytes`` of them, down to ``PRUNE_TO`` of it; those this process has loaded
+        or compiled stay. A file with two names (keyed and filed by program: hard links)
+        counts once and goes with both. Returns the number of files deleted."""
+        if self.folder is None:
+            return 0
+        groups: dict[tuple[int, int], list] = {}  # inode → [mtime, size, names]
+        for f in self.folder.rglob(f"*{_SUFFIX}"):
+            try:
+                st = f.stat()
+            except OSError:  # deleted meanwhile by another process
+                continue
+            groups.setdefault((st.st_dev, st.st_ino), [st.st_mtime, st.st_size, []])[2].append(f)
+        total = sum(size for _, size, _ in groups.values())
+        if total <= self.max_bytes:
+            return 0
+        keep = {self._path(k) for k in self.loaded}
+        deleted = 0
+        for _, size, names in sorted(groups.values(), key=lambda g: g[0]):
+            if total <= PRUNE_TO * self.max_bytes:
+                break
+            if keep.intersection(names):
+                continue
+            for f in names:
+                with contextlib.suppress(OSError):
+                    f.unlink()
+                    deleted += 1
+            total -= size
+        return deleted
 
     def _load(self, path: Path, name: str, key: str):
         from jax.experimental import serialize_executable as se
@@ -360,16 +407,22 @@ class ExecutableStore:
             return None
         self.events.append((name, "loaded"))
         self.unproven.add(key)
+        with contextlib.suppress(OSError):  # recently used: the last a prune deletes
+            os.utime(path)
         return compiled, out_tree[1]
 
-    def _save(self, path: Path, compiled, out_tree) -> None:
+    def _save(self, path: Path, name: str, compiled, out_tree) -> None:
+        """Write the executable to ``path``; where it cannot be (a read-only cache, or an
+        executable that XLA cannot serialise, e.g. one with constant arguments: jax 0.10
+        raises ``NotImplementedError``) it stays in memory only, and the event
+        ``(name, "not stored: <why>")`` says so: the next process compiles it again."""
         from jax.experimental import serialize_executable as se
 
         try:
             payload, in_tree, flat_out_tree = se.serialize(compiled)
             _write_atomic(path, pickle.dumps((payload, in_tree, (flat_out_tree, out_tree))))
-        except Exception:
-            pass  # a read-only cache or an executable that cannot be serialised: memory only
+        except Exception as e:
+            self.events.append((name, f"not stored: {type(e).__name__}: {e}"[:200]))
 
 
 def _in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) -> list[Any]:
@@ -404,6 +457,18 @@ def _in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str)
     for i in range(min(threads, len(jobs))):
         threading.Thread(target=work, name=f"aot-{label}-{i}").start()
     return futures
+
+
+def _link_or_copy(src: Path, dst: Path) -> None:
+    """``dst`` as a second name of ``src``: a hard link (one file on disk, one last-use
+    time for the prune), else an atomic copy."""
+    tmp = dst.with_name(f".tmp-{os.getpid()}-{dst.name}")
+    try:
+        os.link(src, tmp)
+        os.replace(tmp, dst)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        _write_atomic(dst, src.read_bytes())
 
 
 def _write_atomic(path: Path, blob: bytes) -> None:

@@ -129,6 +129,63 @@ def test_an_unreadable_file_is_discarded_and_compiled_afresh(tmp_path):
     assert path.stat().st_size > 1000  # written again
 
 
+def test_an_executable_that_cannot_be_stored_says_so_and_still_runs(tmp_path, monkeypatch):
+    """XLA cannot serialise some executables (jax 0.10: ``NotImplementedError`` for one
+    with constant arguments): the function still runs, nothing is written, and the store's
+    events say why, where the store used to swallow it."""
+    from jax.experimental import serialize_executable
+
+    def refuse(compiled):
+        raise NotImplementedError("const_args")
+
+    monkeypatch.setattr(serialize_executable, "serialize", refuse)
+    store = ExecutableStore(tmp_path, "code-v1")
+    f = store.jit("toy", lambda x: 2.0 * x)
+    assert float(f(jnp.ones(3))[1]) == 2.0
+    assert not list(tmp_path.rglob("*.jaxexe"))
+    names = [e for e in store.events if e[0] == "toy"]
+    assert names[0] == ("toy", "compiled")
+    assert names[1:] == [("toy", "not stored: NotImplementedError: const_args")]
+
+
+def test_a_store_over_its_cap_deletes_the_least_recently_used(tmp_path):
+    """Over ``max_bytes`` the store deletes the oldest executables down to PRUNE_TO of the
+    cap; the newest stay, and so does one this process has loaded, however old."""
+    from inference.aot import PRUNE_TO
+
+    store = ExecutableStore(tmp_path, "code-v1", max_bytes=10_000)
+    ages = {f"k{i}": 1_000_000 + 1000 * i for i in range(8)}  # k0 the oldest
+    for key, mtime in ages.items():
+        f = tmp_path / ("program" if key == "k5" else "") / f"{key}.jaxexe"
+        f.parent.mkdir(exist_ok=True)
+        f.write_bytes(b"x" * 2_000)
+        os.utime(f, (mtime, mtime))
+    os.link(tmp_path / "k7.jaxexe", tmp_path / "program" / "k7p.jaxexe")  # counted once
+    (tmp_path / "recent").mkdir()
+    (tmp_path / "recent" / "calibrate-map.json").write_text("{}")  # not an executable
+    store.loaded["k1"] = object()  # in use here
+    assert store.prune() == 5  # 16 000 bytes down to ≤ 7 500: k0, k2, k3, k4, k5 (program/)
+    left = sorted(p.stem for p in tmp_path.rglob("*.jaxexe"))
+    assert left == ["k1", "k6", "k7", "k7p"]
+    assert len({p.stat().st_ino for p in tmp_path.rglob("*.jaxexe")}) * 2_000 <= PRUNE_TO * 10_000
+    assert (tmp_path / "recent" / "calibrate-map.json").is_file()
+    assert store.prune() == 0  # under the cap: nothing more
+    assert ExecutableStore(None, "memory only").prune() == 0
+
+
+def test_a_load_marks_the_file_recently_used_under_both_its_names(tmp_path):
+    """Loading touches the file, so a prune deletes executables by last use; the keyed
+    name and the one filed by program are one file (a hard link), so a load by key also
+    keeps the program's name, which the next fingerprint of the same program needs."""
+    _run(tmp_path, "code-v1")
+    files = list(tmp_path.rglob("*.jaxexe"))
+    assert len(files) == 2 and len({f.stat().st_ino for f in files}) == 1
+    for f in files:
+        os.utime(f, (1_000_000, 1_000_000))
+    assert _run(tmp_path, "code-v1")[0] == "loaded"
+    assert all(f.stat().st_mtime > 1_000_000 for f in files)
+
+
 def test_shapes_and_static_leaves_key_the_executables():
     store = ExecutableStore(None, "memory only")
     f = store.jit("scaled", lambda x, how: x * 2 if how == "double" else x * 3)
