@@ -24,7 +24,7 @@ where there is no reference tool):
 
 All figures, with their raw numbers and the machine's description (the load average
 matters on a shared machine), go to ``--json``. About 10 minutes on 2 cores with a warm JAX
-cache; ``--quick`` (about 3 minutes): the 3 h record, the CLI's map rows only, the posterior
+cache; ``--quick`` (about 5 minutes): the 3 h record, the CLI's map rows only, the posterior
 bench on the 3 h record, 40 archive sessions, classical only (``--archive-map-n 2`` adds MAP:
 its workers compile for minutes on a cold cache).
 """
@@ -53,7 +53,9 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     ap.add_argument(
-        "--quick", action="store_true", help="small sizes, no posterior, no MAP re-analysis"
+        "--quick",
+        action="store_true",
+        help="small sizes: 3 h record, CLI map rows only, short posterior, no MAP re-analysis",
     )
     ap.add_argument(
         "--skip-bayes", action="store_true", help="no posterior, no bayes CLI runs (saves minutes)"
