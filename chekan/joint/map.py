@@ -179,10 +179,10 @@ def _first_pass(
 
     1. ``solver`` from the classical start (τ₀ = 30 s) for every record.
     2. For the records where that pass :func:`_in_tails`: the same solver from the
-       record's τ hint (the pipeline's is read off the record's settling transients,
-       :func:`chekan.joint.start.tau_from_transients`); then, for those whose passes are
-       all still in the tails, from τ₀ in ``TAU_RESTARTS_S``. A τ within a factor
-       ``RESTART_APART`` of one already tried is skipped.
+       record's τ hint, if it has one (the pipeline's is read off the record's settling
+       transients, :func:`chekan.joint.start.tau_from_transients`); then from each τ₀ in
+       ``TAU_RESTARTS_S``, except for the records whose hint's pass landed in the prior's
+       bulk. A τ within a factor ``RESTART_APART`` of one already tried is skipped.
     3. Levenberg–Marquardt (the fallback of a Gauss–Newton pass that did not converge),
        only for the records where no start gave a converged pass inside the prior's bulk,
        from each start whose Gauss–Newton pass did not converge.
