@@ -23,7 +23,6 @@ from chekan.archive.reanalyze import find_inputs, reanalyze
 from chekan.archive.synth import InstrumentSpec, write_archive_inputs
 from chekan.result import sha256_file
 
-PROTOCOL = Path(__file__).resolve().parents[2] / "shared" / "reference" / "calibr_46_protocol.csv"
 SPECS = [
     InstrumentSpec("A-101", (6.98, 6.88), rate_ppm_per_year=50.0, seed=11),
     InstrumentSpec("B-202", (7.01, 6.93), rate_ppm_per_year=0.0, seed=22),
@@ -33,13 +32,14 @@ SESSIONS = 12
 
 
 @pytest.fixture(scope="module")
-def tree(tmp_path_factory) -> dict:
-    """Inputs: 36 simulated records, the protocol, a duplicate, broken and foreign files."""
+def tree(tmp_path_factory, paper_protocol) -> dict:
+    """Inputs: 36 simulated records, the protocol, a duplicate, broken and foreign files
+    (skipped where the paper's protocol in ../shared is not checked out)."""
     root = tmp_path_factory.mktemp("inputs")
     made = write_archive_inputs(root / "records", SPECS, sessions=SESSIONS, years=10.0)
     good = [p for v in made.values() for p, _ in v]
     (root / "legacy").mkdir()
-    good.append(Path(shutil.copy(PROTOCOL, root / "legacy" / "calibr_46_protocol.csv")))
+    good.append(Path(shutil.copy(paper_protocol, root / "legacy" / "calibr_46_protocol.csv")))
     dup = Path(shutil.copy(good[0], root / "legacy" / "copy_of_first.csv"))
 
     bad = root / "broken"
