@@ -54,7 +54,7 @@ def tau_from_transients(record, holds) -> float:
     minimised: on ``TAU_COARSE_S``, then on a fine grid between the best point's neighbours,
     then by a parabola in log τ. Holds with large transients weigh most. This is a start,
     not an estimate: drift and noise are ignored, and the MAP estimates τ with the full
-    model. Host NumPy, ≈ 3 ms for a one-round session and 25 ms for the paper's 9 h program.
+    model. Host NumPy, ≈ 5 ms for a one-round session and 25–35 ms for a 3 h or 9 h record.
     """
     t = np.asarray(record.t_s, dtype=float)
     m = np.stack([record.m1_pix, record.m2_pix], axis=1).astype(float)
