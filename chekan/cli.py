@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import warnings
 from pathlib import Path
 
 from chekan import __version__
-from chekan.outputs import check_outputs, run_command, sniff_format
+from chekan.outputs import check_outputs, end_process, run_command, sniff_format
 
 EXIT_STATUS = """\
 exit status (every command):
@@ -280,5 +279,12 @@ def main(argv: list[str] | None = None) -> int:
     return run_command(_run, argv)
 
 
+def entry() -> None:
+    """The ``chekan`` command (console script, ``python -m chekan.cli``): :func:`main`, then
+    :func:`chekan.outputs.end_process` (no interpreter teardown). Call :func:`main` to run
+    a command inside a Python process."""
+    end_process(main())
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

@@ -12,6 +12,10 @@
   quietly with status 141 (128 + SIGPIPE, what a shell reports for a Unix tool killed by
   SIGPIPE) instead of a ``BrokenPipeError`` traceback.
 
+- :func:`end_process` ends a command-line process once its command has returned: it
+  flushes the standard streams and exits without the interpreter's teardown (0.5 s of
+  freeing compiled executables after a MAP calibration), unless a thread still has work.
+
 Writing itself goes through :func:`chekan.durable.atomic_output` (temporary file beside
 the target, then renamed into place). Stdlib only: cheap to import from every CLI.
 """
@@ -20,8 +24,10 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import NoReturn
 
 from chekan.errors import ChekanError
 
@@ -144,3 +150,46 @@ def run_command(func: Callable[..., int | None], *args, prog: str = "chekan") ->
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+
+
+#: Threads that :func:`end_process` may cut short: background loads of compiled executables
+#: (:meth:`inference.aot.ExecutableStore.preload`) that the command turned out not to need.
+DISPOSABLE_THREAD_PREFIX = "aot-"
+
+
+def end_process(status: int) -> NoReturn:
+    """Exit with ``status`` as soon as the command has returned (the console scripts' last call).
+
+    The interpreter's own exit frees every object and module one by one: after a MAP
+    calibration that is ≈ 0.5 s of tearing down compiled executables (measured, 9 h record,
+    jax 0.10.2), a sixth of the command's wall time, with nothing left to do. Here the
+    standard streams are flushed and the process ends with ``os._exit``. Every file a command
+    writes is closed by then (:func:`chekan.durable.atomic_output`). A non-daemon thread
+    still running (other than a preload of executables) means work in flight: then the
+    ordinary exit runs, which waits for it. A standard output closed early still ends with
+    :data:`EXIT_CLOSED_PIPE`, quietly.
+    """
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        status = _stdout_closed()
+    except (OSError, ValueError, AttributeError):  # closed or replaced: nothing to flush
+        pass
+    try:
+        sys.stderr.flush()
+    except (OSError, ValueError, AttributeError):
+        pass
+    main = threading.main_thread()
+    busy = [
+        t
+        for t in threading.enumerate()
+        if t is not main
+        and t.is_alive()
+        and not t.daemon
+        and not t.name.startswith(DISPOSABLE_THREAD_PREFIX)
+    ]
+    if busy:
+        sys.exit(status)
+    if "logging" in sys.modules:  # handlers flush and close their files
+        sys.modules["logging"].shutdown()
+    os._exit(status)

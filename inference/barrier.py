@@ -11,9 +11,12 @@ compiled module has no ``opt-barrier``, measured).
 see its trip count (it depends on a value known only at run time), so it keeps the loop,
 and the loop's outputs are buffers: consumers read them instead of recomputing them.
 
-Derivatives pass straight through (``custom_jvp`` with the identity as tangent), so the
-barrier works under ``jvp``, ``grad``, ``jacfwd`` and ``vmap``; only the primal values are
-materialised.
+Derivatives pass through unchanged (the barrier is the identity) and are materialised the
+same way: under ``jacfwd`` the tangents of a value are as costly as the
+value, and without a barrier of their own XLA recomputed them in every consumer (the 9 h
+record's three estimation programs: 57 500 HLO instructions, 51 800 with it, and 3.4 →
+2.2 s to load them). The barrier is a primitive, linear (the identity) and its own transpose,
+lowered to the loop: it works under ``jvp``, ``grad``, ``jacfwd``, ``hessian`` and ``vmap``.
 """
 
 from __future__ import annotations
@@ -26,20 +29,27 @@ from typing import TypeVar
 
 import jax
 import jax.numpy as jnp
+from jax.extend.core import Primitive
+from jax.interpreters import ad, batching, mlir
 
 __all__ = ["fusion_barrier"]
 
 T = TypeVar("T")
 
 
-@jax.custom_jvp
 def fusion_barrier(tree: T) -> T:
     """``tree`` unchanged, computed once: its consumers read it from memory (module
-    docstring). The leaves must be arrays (at least one of them)."""
-    leaves = jax.tree.leaves(tree)
+    docstring), and so do the consumers of its derivatives. The leaves must be arrays (at
+    least one of them)."""
+    leaves, treedef = jax.tree.flatten(tree)
     if not leaves:
         raise ValueError("fusion_barrier needs at least one array")
-    first = jnp.ravel(jnp.asarray(leaves[0]))[:1].astype(float)
+    return jax.tree.unflatten(treedef, _barrier_p.bind(*map(jnp.asarray, leaves)))
+
+
+def _loop_once(*leaves):
+    """``leaves`` routed through a loop of one trip that the compiler cannot count."""
+    first = jnp.ravel(leaves[0])[:1].astype(float)
     # 1 trip; 0 if the value is NaN (or empty): the body is the identity either way, but
     # the compiler cannot know the count and must keep the loop
     trips = jnp.sum(jnp.where(first == first, 1, 0)).astype(jnp.int32)
@@ -47,12 +57,38 @@ def fusion_barrier(tree: T) -> T:
     def body(carry):
         i, values = carry
         keep = i >= 0  # always true, unknown to the compiler
-        return i + 1, jax.tree.map(lambda a: jnp.where(keep, a, jnp.zeros_like(a)), values)
+        return i + 1, [jnp.where(keep, a, jnp.zeros_like(a)) for a in values]
 
-    return jax.lax.while_loop(lambda c: c[0] < trips, body, (jnp.int32(0), tree))[1]
+    return jax.lax.while_loop(lambda c: c[0] < trips, body, (jnp.int32(0), list(leaves)))[1]
 
 
-@fusion_barrier.defjvp
-def _fusion_barrier_jvp(primals, tangents):
-    (tree,), (tangent,) = primals, tangents
-    return fusion_barrier(tree), tangent
+def _jvp(primals, tangents):
+    """Linear (the identity): the tangents pass through a barrier of their own."""
+    live = [i for i, t in enumerate(tangents) if type(t) is not ad.Zero]
+    out_tangents = list(tangents)
+    if live:
+        for i, t in zip(live, _barrier_p.bind(*[tangents[i] for i in live]), strict=True):
+            out_tangents[i] = t
+    return _barrier_p.bind(*primals), out_tangents
+
+
+def _transpose(cotangents, *args):
+    """The identity's transpose is the identity (a barrier again)."""
+    out = list(cotangents)
+    live = [i for i, c in enumerate(cotangents) if type(c) is not ad.Zero]
+    if live:
+        for i, c in zip(live, _barrier_p.bind(*[cotangents[i] for i in live]), strict=True):
+            out[i] = c
+    return out
+
+
+# A primitive, not a ``custom_jvp`` around the loop: reverse mode transposes the tangents'
+# barrier (a ``while_loop`` has no transpose) and ``vmap`` batches it.
+_barrier_p = Primitive("fusion_barrier")
+_barrier_p.multiple_results = True
+_barrier_p.def_impl(lambda *leaves: list(leaves))  # eager: nothing is fused
+_barrier_p.def_abstract_eval(lambda *avals: list(avals))
+ad.primitive_jvps[_barrier_p] = _jvp
+ad.primitive_transposes[_barrier_p] = _transpose
+batching.primitive_batchers[_barrier_p] = lambda args, dims: (_barrier_p.bind(*args), dims)
+mlir.register_lowering(_barrier_p, mlir.lower_fun(_loop_once, multiple_results=True))

@@ -341,6 +341,14 @@ def _messages(result) -> list[str]:
     return out
 
 
+def _host_values(space: ParamSpace, z: np.ndarray) -> dict[str, np.ndarray]:
+    """Named values of ``z`` on the host. A pass that diverged (a start in the prior's far
+    tails) can end where a log-parameter is beyond exp's range: its value is ``inf``, quietly
+    (the caller judges the pass by ``converged`` and the prior's bulk, not by a warning)."""
+    with np.errstate(over="ignore"):
+        return {k: np.asarray(v) for k, v in space.to_values(z).items()}
+
+
 def _laplace(s: np.ndarray, vt: np.ndarray, r: np.ndarray, rcond: float) -> LaplaceCovariance:
     """Laplace covariance, NaN when the residuals at the solution are not finite."""
     if not np.all(np.isfinite(r)):
@@ -381,7 +389,7 @@ def fit_map(
     lap = _laplace(np.asarray(s), np.asarray(vt), r, rcond)
     return MapResult(
         z=z,
-        values={k: np.asarray(v) for k, v in space.to_values(z).items()},
+        values=_host_values(space, z),
         converged=bool(np.asarray(result) == _SUCCESS),  # on the host (no compile)
         num_steps=int(steps),
         message=_messages(result)[0],
@@ -465,7 +473,7 @@ def fit_map_batch(
     sds = [_value_sd(space, z[i], cov_z[i]) for i in range(batch)]
     return MapBatchResult(
         z=z,
-        values={k: np.asarray(v) for k, v in space.to_values(z).items()},
+        values=_host_values(space, z),
         converged=np.asarray(result) == _SUCCESS,
         num_steps=np.asarray(steps),
         messages=_messages(result),

@@ -9,6 +9,7 @@ import shutil
 import stat
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -334,3 +335,36 @@ def test_a_bad_input_starts_no_background_loads(tmp_path, monkeypatch):
     with pytest.raises(ChekanError, match=r"bad\.csv:2"):
         calibrate_file(bad, CalibrationOptions(method="map", progress=False))
     assert started == []
+
+
+# ------------------------------------------------------------------ 4. end of process
+def _end_process_run(body: str, tmp_path) -> subprocess.CompletedProcess:
+    code = "import sys, threading, time\nfrom chekan.outputs import end_process\n" + body
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60
+    )
+
+
+def test_end_process_flushes_and_keeps_the_status(tmp_path):
+    r = _end_process_run("print('done', end='')\nend_process(3)", tmp_path)
+    assert (r.returncode, r.stdout, r.stderr) == (3, "done", "")
+
+
+def test_end_process_waits_for_a_thread_with_work(tmp_path):
+    """A non-daemon thread still running is work in flight: the ordinary exit joins it."""
+    out = tmp_path / "late.txt"
+    body = (
+        f"threading.Thread(target=lambda: (time.sleep(0.5), open({str(out)!r}, 'w').write('x')))"
+        ".start()\nend_process(0)"
+    )
+    r = _end_process_run(body, tmp_path)
+    assert r.returncode == 0 and out.read_text() == "x"
+
+
+def test_end_process_cuts_short_an_unneeded_preload(tmp_path):
+    """A preload of executables (an ``aot-`` thread) is not waited for."""
+    body = "threading.Thread(target=time.sleep, args=(30,), name='aot-x-0').start()\nend_process(5)"
+    t = time.perf_counter()
+    r = _end_process_run(body, tmp_path)
+    assert r.returncode == 5 and time.perf_counter() - t < 20

@@ -76,3 +76,27 @@ def test_the_compiled_program_keeps_the_barrier():
         .compile()
         .as_text()
     )
+
+
+def test_reverse_mode_and_higher_orders_pass_through():
+    """The barrier is linear and its own transpose: ``grad``, ``hessian``, forward over
+    forward and ``vmap`` of ``grad`` give the derivatives of the same function without it."""
+    x = jnp.linspace(-0.7, 1.3, 7)
+    xs = jnp.stack([x, 0.5 * x])
+    with_b = lambda x: _model(x, True)  # noqa: E731
+    without = lambda x: _model(x, False)  # noqa: E731
+    for transform, arg in (
+        (jax.hessian, x),
+        (lambda f: jax.jacfwd(jax.jacfwd(f)), x),
+        (lambda f: jax.jit(jax.jacrev(jax.jacfwd(f))), x),
+        (lambda f: jax.vmap(jax.grad(f)), xs),
+    ):
+        np.testing.assert_allclose(transform(with_b)(arg), transform(without)(arg), rtol=1e-12)
+
+
+def test_tangents_are_materialised_too():
+    """Under ``jacfwd`` the tangents pass through a loop of their own: the Jacobian's program
+    has two loops (value and tangents), so its consumers do not recompute either."""
+    x = jnp.linspace(-0.7, 1.3, 7)
+    text = jax.jit(jax.jacfwd(lambda x: _model(x, True))).lower(x).compile().as_text()
+    assert text.count(" while(") == 2

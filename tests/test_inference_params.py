@@ -87,3 +87,17 @@ def test_errors_explain() -> None:
     with pytest.raises(ValueError, match="flat"):
         sp.sample_prior_z(np.random.default_rng(0))
     assert math.isinf(sp["x"].scale)
+
+
+def test_map_values_of_a_diverged_pass_are_inf_without_a_warning():
+    """A pass that ran into the far tails can end beyond exp's range: the host values say
+    ``inf`` and no RuntimeWarning reaches the user (the pass is judged by its flags)."""
+    import warnings
+
+    from inference.map import _host_values
+
+    space = ParamSpace([Param("b", loc=0.0, scale=1.0, transform="log")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        values = _host_values(space, np.array([1e4]))
+    assert values["b"] == np.inf

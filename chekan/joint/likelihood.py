@@ -115,7 +115,7 @@ def linear_terms(v: dict, data: RecordData, slews: SlewPath | None = None):
     def eq(h):
         return fm.equilibrium_readings(p, tx + h * dirn[0], ty + h * dirn[1])
 
-    E, S = jax.jvp(eq, (jnp.zeros_like(tx),), (jnp.ones_like(tx),))  # (H, 2) each
+    E, S = fusion_barrier(jax.jvp(eq, (jnp.zeros_like(tx),), (jnp.ones_like(tx),)))  # (H, 2)
     tau = v["tau_s"]
     # lag state at the end of each slew: previous hold's equilibrium + the slew's equilibria
     wm, Em, _ = slew_path(v, data) if slews is None else slews  # (H, M), (2, H, M)
