@@ -63,24 +63,25 @@ def _loop_once(*leaves):
     return jax.lax.while_loop(lambda c: c[0] < trips, body, (jnp.int32(0), list(leaves)))[1]
 
 
+def _through_barrier(values: list) -> list:
+    """``values`` with each that is not a symbolic zero passed through one barrier (the
+    zeros stay symbolic: nothing to materialise)."""
+    out = list(values)
+    live = [i for i, v in enumerate(values) if type(v) is not ad.Zero]
+    if live:
+        for i, v in zip(live, _barrier_p.bind(*[values[i] for i in live]), strict=True):
+            out[i] = v
+    return out
+
+
 def _jvp(primals, tangents):
     """Linear (the identity): the tangents pass through a barrier of their own."""
-    live = [i for i, t in enumerate(tangents) if type(t) is not ad.Zero]
-    out_tangents = list(tangents)
-    if live:
-        for i, t in zip(live, _barrier_p.bind(*[tangents[i] for i in live]), strict=True):
-            out_tangents[i] = t
-    return _barrier_p.bind(*primals), out_tangents
+    return _barrier_p.bind(*primals), _through_barrier(tangents)
 
 
 def _transpose(cotangents, *args):
     """The identity's transpose is the identity (a barrier again)."""
-    out = list(cotangents)
-    live = [i for i, c in enumerate(cotangents) if type(c) is not ad.Zero]
-    if live:
-        for i, c in zip(live, _barrier_p.bind(*[cotangents[i] for i in live]), strict=True):
-            out[i] = c
-    return out
+    return _through_barrier(cotangents)
 
 
 # A primitive, not a ``custom_jvp`` around the loop: reverse mode transposes the tangents'
