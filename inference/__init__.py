@@ -7,7 +7,8 @@ The contract: a model supplies
   O(1)-scaled working vector ``z``;
 * a whitened residual function ``residuals(values, data) -> r`` (``r ~ N(0, I)`` at the truth)
   wrapped in a :class:`LeastSquaresProblem`, for MAP + Laplace (:func:`fit_map`,
-  :func:`fit_map_batch`);
+  :func:`fit_map_batch`; Gauss–Newton can stop on its decrement in posterior sds,
+  :class:`DecrementGaussNewton`);
 * and/or a log-density ``log_density(z, data) -> scalar`` (prior + likelihood; linear-Gaussian
   parameters can be integrated out with :func:`marginal_loglik`) for :func:`sample`.
 
@@ -30,6 +31,7 @@ from typing import Any
 # Names are imported on first use (PEP 562): a MAP does not pay for emcee, scipy.stats and
 # ArviZ (≈ 1.5 s of imports in every new process), a sampler does not pay for optimistix.
 _WHERE = {
+    "DecrementGaussNewton": "gauss_newton",
     "LaplaceCovariance": "laplace",
     "laplace_covariance": "laplace",
     "LeastSquaresProblem": "problem",
@@ -65,6 +67,7 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "DecrementGaussNewton",
     "LaplaceCovariance",
     "LeastSquaresProblem",
     "MapBatchResult",

@@ -176,11 +176,24 @@ def _check_solver(solver: SolverName) -> None:
         )
 
 
-def _make_solver(solver: SolverName, rtol: float, atol: float):
+def _check_sd_tol(solver: SolverName, sd_tol: float | None) -> None:
+    if sd_tol is None:
+        return
+    if solver != "gn":
+        raise ValueError("sd_tol (the decrement test) is for solver='gn' (Gauss–Newton) only")
+    if not (0.0 < sd_tol < 1.0):
+        raise ValueError(f"sd_tol is a fraction of a standard deviation in (0, 1): {sd_tol}")
+
+
+def _make_solver(solver: SolverName, rtol: float, atol: float, sd_tol: float | None):
     import optimistix as optx  # the name was checked by ``_compiled``, before tracing
 
     if solver == "lm":
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    if sd_tol is not None:
+        from .gauss_newton import DecrementGaussNewton
+
+        return DecrementGaussNewton(rtol, atol, sd_tol)
     return optx.GaussNewton(rtol=rtol, atol=atol)
 
 
@@ -226,17 +239,27 @@ _jacobian_once.defjvp(_jacobian_once_jvp, symbolic_zeros=True)
 
 
 def _core(
-    problem: LeastSquaresProblem, solver: SolverName, rtol: float, atol: float, max_steps: int
+    problem: LeastSquaresProblem,
+    solver: SolverName,
+    rtol: float,
+    atol: float,
+    max_steps: int,
+    sd_tol: float | None = None,
 ) -> Callable:
     """``(z0, data) -> (z, result, num_steps, residuals, s, vt, J)`` for one problem (not
     jitted). The optimistix solver is built when ``run`` is traced (a stored executable
-    needs neither it nor the import)."""
+    needs neither it nor the import).
+
+    With ``sd_tol`` (Gauss–Newton's decrement test, :mod:`inference.gauss_newton`) a
+    successful solve returns its last linearisation point plus the step computed there
+    (shorter than ``sd_tol`` sds), and the residuals there to first order, r + Jδ; J is
+    the linearisation's (δ away: a relative change of the covariance far below sd_tol)."""
     p = problem.space.size
 
     def run(z0, data):
         import optimistix as optx
 
-        solver_ = _make_solver(solver, rtol, atol)
+        solver_ = _make_solver(solver, rtol, atol, sd_tol)
         cache = problem._compiled
         cache["traces"] = cache.get("traces", 0) + 1  # Python side effect: counts traces
         fn = problem.stacked_residuals
@@ -252,6 +275,11 @@ def _core(
         info = sol.state.f_info
         r = info.residual
         jac = info.jac.as_matrix()
+        if sd_tol is not None:  # take the step computed at the last linearisation
+            ok = sol.result == optx.RESULTS.successful
+            step = jnp.where(ok, sol.state.y_eval - z, 0.0)
+            z = z + step
+            r = r + jac @ step
         padded = jac
         if jac.shape[0] < p:  # under-determined: pad so the thin SVD has p values
             padded = jnp.concatenate([jac, jnp.zeros((p - jac.shape[0], p))])
@@ -263,14 +291,18 @@ def _core(
     return run
 
 
-def _compiled(problem, solver, rtol, atol, max_steps, batched: bool, data_axes=0) -> Callable:
+def _compiled(
+    problem, solver, rtol, atol, max_steps, batched: bool, data_axes=0, sd_tol=None
+) -> Callable:
     if not isinstance(problem, LeastSquaresProblem):
         raise TypeError(f"problem must be a LeastSquaresProblem, got {type(problem).__name__}")
-    key = (solver, float(rtol), float(atol), int(max_steps), batched, _axes_key(data_axes))
+    sd_key = None if sd_tol is None else float(sd_tol)
+    key = (solver, float(rtol), float(atol), int(max_steps), batched, _axes_key(data_axes), sd_key)
     per_problem = problem._compiled  # cached on the problem: freed with it
     if key not in per_problem:
         _check_solver(solver)  # an unknown name fails here, before any tracing
-        run = _core(problem, solver, rtol, atol, int(max_steps))
+        _check_sd_tol(solver, sd_tol)
+        run = _core(problem, solver, rtol, atol, int(max_steps), sd_key)
         if batched:
             run = jax.vmap(run, in_axes=(0, data_axes))
         store = problem.executables
@@ -278,6 +310,8 @@ def _compiled(problem, solver, rtol, atol, max_steps, batched: bool, data_axes=0
             per_problem[key] = eqx.filter_jit(run)
         else:  # kept across processes: no tracing in a new process
             name = f"map_{solver}_{rtol:g}_{atol:g}_{max_steps}_{'batch' if batched else 'one'}"
+            if sd_key is not None:
+                name += f"_sd{sd_key:g}"
             per_problem[key] = store.jit(name, run)
     return per_problem[key]
 
@@ -372,6 +406,7 @@ def fit_map(
     max_steps: int = 256,
     solver: SolverName = "lm",
     rcond: float = DEFAULT_RCOND,
+    sd_tol: float | None = None,
 ) -> MapResult:
     """MAP estimate of ``problem`` given ``data`` (any pytree ``residuals`` accepts).
 
@@ -380,9 +415,13 @@ def fit_map(
     ``data`` are static under ``eqx.filter_jit`` (a new value recompiles): pass arrays.
     Never raises on solver failure: check ``converged``/``message``. Near-singular directions
     (s < rcond·s_max) get infinite sd and their coordinates are listed in ``degenerate``.
+
+    ``sd_tol`` (Gauss–Newton only): also stop when the next step is shorter than this many
+    posterior sds, and take that step (:mod:`inference.gauss_newton`); None: optimistix's
+    Cauchy test on ``rtol``/``atol`` alone.
     """
     space = problem.space
-    run = _compiled(problem, solver, rtol, atol, max_steps, batched=False)
+    run = _compiled(problem, solver, rtol, atol, max_steps, batched=False, sd_tol=sd_tol)
     z, result, steps, r, s, vt, jac = run(_z0(space, z0), data)
     z = np.asarray(z)
     r = np.asarray(r)
@@ -442,6 +481,7 @@ def fit_map_batch(
     solver: SolverName = "lm",
     rcond: float = DEFAULT_RCOND,
     max_lanes: int | None = None,
+    sd_tol: float | None = None,
 ) -> MapBatchResult:
     """MAP for B datasets at once (``jax.vmap`` over the leading axis of ``data_batch``).
 
@@ -454,10 +494,13 @@ def fit_map_batch(
     by repeating its last lane, so one compile serves all groups). On the XLA CPU runtime
     of jax 0.10 a vmapped solve of a large model over 4 or more lanes can deadlock in the
     intra-op thread pool (all threads idle, never returns); groups of 2 do not.
+    ``sd_tol``: as in :func:`fit_map`.
     """
     space = problem.space
     batch = _batch_size(data_batch, data_axes, z0_batch)
-    run = _compiled(problem, solver, rtol, atol, max_steps, batched=True, data_axes=data_axes)
+    run = _compiled(
+        problem, solver, rtol, atol, max_steps, batched=True, data_axes=data_axes, sd_tol=sd_tol
+    )
     z0 = _z0(space, z0_batch, batch)
     if max_lanes is None or max_lanes >= batch:
         z, result, steps, r, s, vt, jac = run(z0, data_batch)
