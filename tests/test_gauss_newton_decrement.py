@@ -46,9 +46,7 @@ def test_stops_earlier_within_sd_tol_of_the_optimum(seed: int) -> None:
     z0 = problem.space.to_z({"A": 1.0, "tau": 4.0})
     tight = fit_map(problem, data, z0, solver="gn", rtol=1e-13, atol=1e-13, max_steps=200)
     cauchy = fit_map(problem, data, z0, solver="gn", rtol=1e-8, atol=1e-8, max_steps=200)
-    fast = fit_map(
-        problem, data, z0, solver="gn", rtol=1e-8, atol=1e-8, max_steps=200, sd_tol=1e-4
-    )
+    fast = fit_map(problem, data, z0, solver="gn", rtol=1e-8, atol=1e-8, max_steps=200, sd_tol=1e-4)
     assert tight.converged and cauchy.converged and fast.converged
     assert fast.num_steps < cauchy.num_steps
     assert _mahalanobis(fast.z - tight.z, tight.cov_z) < 1e-4
