@@ -242,7 +242,7 @@ class ExecutableStore:
         path = self._path(key)
         if key in self.loaded or key in self.pending or path is None or not path.is_file():
             return
-        (self.pending[key],) = _in_background([(self._load, (path, name, key))], 1, name)
+        (self.pending[key],) = _loads_in_background([(self._load, (path, name, key))], 1, name)
 
     def remember(self, label: str) -> Path | None:
         """Write the executables this process has run, in order of first use, as the
@@ -290,7 +290,7 @@ class ExecutableStore:
             path = self._path(key)
             if key not in self.pending and path is not None and path.is_file():
                 jobs.append((key, (self._load, (path, name, key))))
-        futures = _in_background([job for _, job in jobs], PRELOAD_THREADS, label)
+        futures = _loads_in_background([job for _, job in jobs], PRELOAD_THREADS, label)
         for (key, _), fut in zip(jobs, futures, strict=True):
             self.pending[key] = fut
         return len(jobs)
@@ -423,6 +423,22 @@ class ExecutableStore:
             _write_atomic(path, pickle.dumps((payload, in_tree, (flat_out_tree, out_tree))))
         except Exception as e:
             self.events.append((name, f"not stored: {type(e).__name__}: {e}"[:200]))
+
+
+def _loads_in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) -> list[Any]:
+    """:func:`_in_background` for loads, with LAPACK bound first, in the calling thread.
+
+    Binding imports ``scipy.linalg`` (jaxlib takes the kernels from its Cython capsules).
+    Done by a loading thread it raced the caller's own ``import scipy.linalg`` (threadpoolctl
+    in :func:`chekan.jaxconfig.single_threaded_blas`): the two imports can lock each other's
+    submodules, and Python then raises ``_DeadlockError`` in one of them (seen once in a
+    ``calibrate_file`` loop). Here the import happens once, before any thread starts.
+    """
+    if jobs:
+        from jax.experimental import serialize_executable  # noqa: F401  (the loader, too)
+
+        _initialise_lapack()
+    return _in_background(jobs, threads, label)
 
 
 def _in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) -> list[Any]:

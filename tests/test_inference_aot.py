@@ -101,6 +101,49 @@ def test_preload_starts_what_the_last_run_used_and_only_for_the_same_code(tmp_pa
     assert _run(tmp_path, "code-v2", code="2", how="preload")[4] == "0"
 
 
+# a new process that starts loading in the background: the loader's `import scipy.linalg`
+# (jaxlib binds LAPACK from SciPy's Cython capsules) must be done before any thread starts,
+# or it races the caller's own import of SciPy (a `_DeadlockError`, seen once)
+SPY = textwrap.dedent(
+    """
+    import sys, threading
+    from pathlib import Path
+    import numpy as np
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    from inference.aot import ExecutableStore
+    assert "scipy.linalg" not in sys.modules  # else the check below proves nothing
+    seen = []
+    start = threading.Thread.start
+
+    def spy(self):
+        if self.name.startswith("aot-"):
+            seen.append("scipy.linalg.cython_lapack" in sys.modules)
+        return start(self)
+
+    threading.Thread.start = spy
+    store = ExecutableStore(Path(sys.argv[1]), sys.argv[2])
+    store.prefetch("toy", np.zeros((3, 4)), {"shift": np.float64(2.0), "scale": 3.0})
+    loaded = [f.result() is not None for f in store.pending.values()]
+    print(seen, loaded)
+    """
+)
+
+
+def test_background_loads_bind_lapack_before_their_threads_start(tmp_path):
+    _run(tmp_path, "code-v1")  # compiles and stores "toy"
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
+    proc = subprocess.run(
+        [sys.executable, "-c", SPY, str(tmp_path), "code-v1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split("\n")[0] == "[True] [True]"
+
+
 def test_other_code_never_loads_a_stored_executable(tmp_path):
     _run(tmp_path, "code-v1")
     out = _run(tmp_path, "code-v2", code="2")  # other code, a new fingerprint: compiled
