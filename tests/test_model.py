@@ -84,16 +84,21 @@ def test_pm_tilts_cancel_eps_to_first_order_eq_17():
     np.testing.assert_allclose(diffs[0] / diffs[1], 4.0, rtol=0.02)
 
 
+def _params_of(vec):
+    """Sensor parameters from (K, b₁, b₂, ε₁, ε₂, γ): what the derivative tests vary."""
+    return fm.make_params(
+        g_mgal=G,
+        K_pix_per_rad=vec[0],
+        b_mgal_per_pix=vec[1:3],
+        m_level_pix=[1031.2, 1012.9],
+        eps_rad=vec[3:5],
+        gamma_rad=vec[5],
+    )
+
+
 def test_gradients_match_finite_differences():
     def f(vec):
-        p = fm.make_params(
-            g_mgal=G,
-            K_pix_per_rad=vec[0],
-            b_mgal_per_pix=vec[1:3],
-            m_level_pix=[1031.2, 1012.9],
-            eps_rad=vec[3:5],
-            gamma_rad=vec[5],
-        )
+        p = _params_of(vec)
         return fm.equilibrium_readings(p, 1e-4, jnp.deg2rad(jnp.array([2.0, -4.5]))).sum()
 
     f = jax.jit(f)
@@ -142,14 +147,7 @@ def test_drift_polynomial():
 def _unrolled_readings(vec, tx, ty):
     """Reference: the equilibrium by Newton differentiated through every step (no implicit
     rule), unrolled until its derivatives of every order have converged too."""
-    p = fm.make_params(
-        g_mgal=G,
-        K_pix_per_rad=vec[0],
-        b_mgal_per_pix=vec[1:3],
-        m_level_pix=[1031.2, 1012.9],
-        eps_rad=vec[3:5],
-        gamma_rad=vec[5],
-    )
+    p = _params_of(vec)
     phi_h, lam, _ = fm.level_state(p)
     du_z, u_y, u_zh = fm.up_vector_deviation(tx, ty, p.gamma_rad, p.eps_rad)
     args = (du_z, u_y, u_zh, phi_h, lam, p.g_mgal)
@@ -170,15 +168,7 @@ def test_second_derivatives_of_the_equilibrium_are_exact(ty_deg):
     x0 = jnp.array([K, 6.98, 6.88, 1e-3, -8e-4, 2e-3])
 
     def model_readings(vec, t):
-        p = fm.make_params(
-            g_mgal=G,
-            K_pix_per_rad=vec[0],
-            b_mgal_per_pix=vec[1:3],
-            m_level_pix=[1031.2, 1012.9],
-            eps_rad=vec[3:5],
-            gamma_rad=vec[5],
-        )
-        return fm.equilibrium_readings(p, tx, t)
+        return fm.equilibrium_readings(_params_of(vec), tx, t)
 
     def unrolled(vec, t):
         return _unrolled_readings(vec, tx, t)
