@@ -77,7 +77,8 @@ class MapResult:
     values: dict[str, np.ndarray]
     converged: bool
     num_steps: int
-    message: str
+    result_code: int
+    """optimistix's result code (0: success); :attr:`message` says it in words."""
     cost: float
     cov_z: np.ndarray
     jacobian_cond: float
@@ -87,6 +88,12 @@ class MapResult:
     space: ParamSpace | None = field(default=None, repr=False)
     jacobian: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
     """J = ∂R/∂z at ẑ (rows as ``residuals``), for budgets by row (empty if not kept)."""
+
+    @property
+    def message(self) -> str:
+        """"success" or optimistix's explanation of :attr:`result_code` (read when asked:
+        the text needs optimistix imported, ≈ 0.1 s a process that only loads executables)."""
+        return _messages(self.result_code)[0]
 
     def sd(self) -> dict[str, np.ndarray]:
         """Laplace sd per parameter in VALUE space (delta method: ``sd_v = |dv/dz|·sd_z``)."""
@@ -130,7 +137,7 @@ class MapBatchResult:
     values: dict[str, np.ndarray]  # (B, *shape)
     converged: np.ndarray  # (B,) bool
     num_steps: np.ndarray  # (B,) int
-    messages: list[str]
+    result_codes: np.ndarray  # (B,) int: optimistix's result codes (0: success)
     cost: np.ndarray  # (B,)
     cov_z: np.ndarray  # (B, p, p)
     sd: dict[str, np.ndarray]  # (B, *shape) Laplace sd in value space
@@ -144,6 +151,11 @@ class MapBatchResult:
     def __len__(self) -> int:
         return self.z.shape[0]
 
+    @property
+    def messages(self) -> list[str]:
+        """One message per lane (:attr:`MapResult.message`)."""
+        return _messages(self.result_codes)
+
     def item(self, i: int) -> MapResult:
         """Lane ``i`` as a :class:`MapResult`."""
         return MapResult(
@@ -151,7 +163,7 @@ class MapBatchResult:
             values={k: v[i] for k, v in self.values.items()},
             converged=bool(self.converged[i]),
             num_steps=int(self.num_steps[i]),
-            message=self.messages[i],
+            result_code=int(self.result_codes[i]),
             cost=float(self.cost[i]),
             cov_z=self.cov_z[i],
             jacobian_cond=float(self.jacobian_cond[i]),
@@ -433,7 +445,7 @@ def fit_map(
         values=_host_values(space, z),
         converged=bool(result == _SUCCESS),
         num_steps=int(steps),
-        message=_messages(result)[0],
+        result_code=int(result),
         cost=float(0.5 * np.sum(r**2)),
         cov_z=lap.cov,
         jacobian_cond=float(lap.cond),
@@ -521,7 +533,7 @@ def fit_map_batch(
         values=_host_values(space, z),
         converged=np.asarray(result) == _SUCCESS,
         num_steps=np.asarray(steps),
-        messages=_messages(result),
+        result_codes=np.atleast_1d(np.asarray(result)).reshape(-1),
         cost=0.5 * np.sum(r**2, axis=1),
         cov_z=cov_z,
         sd={p.name: np.stack([d[p.name] for d in sds]) for p in space.params},

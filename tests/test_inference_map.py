@@ -170,3 +170,23 @@ def test_laplace_covariance_function() -> None:
     cov, cond, dirs = laplace_covariance(J)
     assert dirs.shape == (1, 4) and np.isinf(cov[0, 0]) and np.isinf(cov[3, 3])
     assert cov[0, 3] == -np.inf and np.isfinite(cov[1, 1])
+
+
+def test_a_failed_lane_keeps_its_code_and_says_it_in_words() -> None:
+    """``result_code`` is optimistix's code (0: success); ``message`` puts it in words only
+    when read (the text needs optimistix imported, which a process running stored
+    executables otherwise never does)."""
+    import optimistix as optx
+
+    y = _decay_data(3)["y"].copy()
+    batch = fit_map_batch(
+        DECAY,
+        {"t": T, "y": np.stack([y, np.where(np.arange(T.size) == 5, np.nan, y)])},
+        data_axes={"t": None, "y": 0},
+    )
+    assert batch.result_codes.tolist()[0] == 0 and batch.result_codes[1] != 0
+    failed = batch.item(1)
+    assert failed.result_code == int(batch.result_codes[1]) and not failed.converged
+    table = optx.RESULTS._index_to_message  # type: ignore[attr-defined]
+    assert failed.message == table[failed.result_code] != "success"
+    assert batch.item(0).message == "success" and batch.messages == ["success", failed.message]
