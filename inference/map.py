@@ -263,9 +263,10 @@ def _core(
     needs neither it nor the import).
 
     With ``sd_tol`` (Gauss–Newton's decrement test, :mod:`inference.gauss_newton`) a
-    successful solve returns its last linearisation point plus the step computed there
-    (shorter than ``sd_tol`` sds), and the residuals there to first order, r + Jδ; J is
-    the linearisation's (δ away: a relative change of the covariance far below sd_tol)."""
+    successful solve returns its last linearisation point plus the step δ computed there
+    (shorter than ``sd_tol`` sds when that test stopped it; smaller still after a step
+    that passed the Cauchy test), and the residuals there to first order, r + Jδ. J is
+    the linearisation's, δ away: the covariance changes by far less than sd_tol."""
     p = problem.space.size
 
     def run(z0, data):
