@@ -71,6 +71,6 @@ class DecrementGaussNewton(optx.AbstractGaussNewton):
         from ``y``."""
         cauchy, result = super().terminate(fn, y, args, options, state, tags)
         newton = state.descent_state.newton
-        decrement = jnp.sqrt(jnp.sum(state.f_info.jac.mv(newton) ** 2))
+        decrement = optx.two_norm(state.f_info.jac.mv(newton))  # residuals of any pytree
         small = jnp.invert(state.first_step) & (decrement < self.sd_tol)
         return cauchy | small, result

@@ -91,7 +91,7 @@ class MapResult:
 
     @property
     def message(self) -> str:
-        """"success" or optimistix's explanation of :attr:`result_code` (read when asked:
+        """ "success" or optimistix's explanation of :attr:`result_code` (read when asked:
         the text needs optimistix imported, ≈ 0.1 s a process that only loads executables)."""
         return _messages(self.result_code)[0]
 

@@ -83,3 +83,27 @@ def test_bad_settings_are_refused() -> None:
     for bad in (0.0, 1.0, -1e-3):
         with pytest.raises(ValueError, match="fraction of a standard deviation"):
             fit_map(problem, data, solver="gn", sd_tol=bad)
+
+
+def test_the_solver_takes_pytrees_as_optimistix_solvers_do() -> None:
+    """Used directly with ``optimistix.least_squares``: parameters and residuals as dicts
+    (the decrement is the 2-norm over every leaf). A linear problem: one step is exact,
+    and the second linearisation sees a zero step."""
+    import optimistix as optx
+
+    from inference import DecrementGaussNewton
+
+    A = np.array([[2.0, 0.5], [0.0, 1.0], [1.0, 1.0]])
+    y = np.array([1.0, -2.0, 0.5])
+
+    def fn(p, _):
+        x = jnp.stack([p["a"], p["b"]])
+        r = A @ x - y
+        return {"first": r[:2], "last": r[2]}
+
+    sol = optx.least_squares(
+        fn, DecrementGaussNewton(1e-12, 1e-12, 1e-6), {"a": 0.0, "b": 0.0}, max_steps=10
+    )
+    x_ls = np.linalg.lstsq(A, y, rcond=None)[0]
+    np.testing.assert_allclose([sol.value["a"], sol.value["b"]], x_ls, atol=1e-12)
+    assert int(sol.stats["num_steps"]) == 2
