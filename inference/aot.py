@@ -446,7 +446,9 @@ def _in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str)
 
     Not daemon threads: a process that ends while one is inside XLA's deserialiser aborts
     (SIGABRT at exit, measured on jax 0.10.2), so the interpreter waits for them; start
-    loads only once the process is likely to use them (after reading its input)."""
+    loads only once the process is likely to use them (after reading its input). They are
+    named ``aot-<label>-<i>``: a caller that ends its process itself may recognise them
+    (``chekan.outputs.DISPOSABLE_THREAD_PREFIX`` relies on that prefix)."""
     import queue
     import threading
     from concurrent.futures import Future

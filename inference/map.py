@@ -518,23 +518,20 @@ def fit_map_batch(
     )
     z0 = _z0(space, z0_batch, batch)
     if max_lanes is None or max_lanes >= batch:
-        z, result, steps, r, s, vt, jac = run(z0, data_batch)
+        out = run(z0, data_batch)
     else:
         out = _in_groups(run, z0, data_batch, data_axes, batch, max_lanes)
-        z, result, steps, r, s, vt, jac = out
-    z = np.asarray(z)
-    r = np.asarray(r)
-    s = np.asarray(s)
-    vt = np.asarray(vt)
+    # every output to the host in one transfer, as in fit_map
+    z, result, steps, r, s, vt, jac = jax.device_get(out)
     laps = [_laplace(s[i], vt[i], r[i], rcond) for i in range(batch)]
     cov_z = np.stack([lap.cov for lap in laps]) if batch else np.zeros((0, space.size, space.size))
     sds = [_value_sd(space, z[i], cov_z[i]) for i in range(batch)]
     return MapBatchResult(
         z=z,
         values=_host_values(space, z),
-        converged=np.asarray(result) == _SUCCESS,
-        num_steps=np.asarray(steps),
-        result_codes=np.atleast_1d(np.asarray(result)).reshape(-1),
+        converged=result == _SUCCESS,
+        num_steps=steps,
+        result_codes=result.reshape(-1),
         cost=0.5 * np.sum(r**2, axis=1),
         cov_z=cov_z,
         sd={p.name: np.stack([d[p.name] for d in sds]) for p in space.params},
@@ -542,6 +539,6 @@ def fit_map_batch(
         degenerate=[_laplace_names(space, lap) for lap in laps],
         residuals=r,
         space=space,
-        jacobian=np.asarray(jac),
+        jacobian=jac,
         _laplace=laps,
     )

@@ -273,11 +273,14 @@ def _solve_pass(
 
 def map_pass_settings(solver: SolverName) -> dict:
     """The keyword arguments of :func:`inference.map.fit_map` for one MAP pass."""
-    settings: dict = {"solver": solver, "max_steps": MAX_STEPS[solver], "rtol": MAP_TOL}
-    settings["atol"] = MAP_TOL
-    if solver == "gn":
-        settings["sd_tol"] = MAP_SD_TOL
-    return settings
+    decrement = {"sd_tol": MAP_SD_TOL} if solver == "gn" else {}
+    return {
+        "solver": solver,
+        "max_steps": MAX_STEPS[solver],
+        "rtol": MAP_TOL,
+        "atol": MAP_TOL,
+        **decrement,
+    }
 
 
 def _solve(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
