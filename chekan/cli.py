@@ -18,21 +18,32 @@ import warnings
 from pathlib import Path
 
 from chekan import __version__
-from chekan.outputs import check_outputs, end_process, run_command, sniff_format
+from chekan.outputs import (
+    PROGRAM,
+    RESULT,
+    Output,
+    check_outputs,
+    end_process,
+    run_command,
+    sniff_format,
+)
 
 EXIT_STATUS = """\
 exit status (every command):
   0    done
-  1    some inputs failed, the others were done (reanalyze, archive add);
+  1    some inputs failed, the others were done (reanalyze; archive add, also a result
+       whose numbers differ from its archived session: --replace);
        a device error (acquire, demo: e.g. TILT,ERR; emulate)
   2    bad input or usage: a malformed file (file:line: problem), a bad option, or an
-       output refused (it is an input of the command, or an existing chekan-record/1 or
-       chekan-protocol/1 file, which no output option overwrites)
+       output refused (it is an input of the command, an existing chekan-record/1 or
+       chekan-protocol/1 file or SQLite database (the archive), which no output option
+       overwrites, or a result JSON or program TOML that only its own kind replaces)
   3    calibrate --strict: the estimate did not converge;
        acquire, demo: a serial link stayed down, acquisition gave up (resume with --resume)
   4    history: an ALARM (a scale-factor change beyond --tolerance-ppm)
   130  interrupted (Ctrl-C; SIGTERM for acquire and emulate)
-  141  standard output was closed early (e.g. piped into head): stopped quietly
+  141  standard output was closed early (e.g. piped into head): the files were written,
+       the rest of the printout dropped quietly
 
 short options (the same in every command that has the option):
   -V/--version  -q/--quiet  -o/--out (the main output file; calibrate: the result JSON)
@@ -92,20 +103,22 @@ def _cmd_calibrate(args) -> int:
     if args.method == "bayes":
         nc = args.netcdf or (json_path.with_suffix(".nc") if json_path else None)
         opts = dataclasses.replace(opts, netcdf=nc)
-    check_outputs([args.input], [json_path, opts.netcdf, args.report])
+    result_out = Output(json_path, writes=RESULT) if json_path else None
+    check_outputs([args.input], [result_out, opts.netcdf, args.report])
     res = calibrate_file(args.input, opts)
-    if not args.quiet:
-        print(format_summary(res))
+    # the files first: a standard output closed early (| head) must not cut them short
+    written = [res["posterior_netcdf"]] if res.get("posterior_netcdf") else []
     if json_path:
         write_result(json_path, res)
-        print(f"wrote {json_path}")
-    if res.get("posterior_netcdf"):
-        print(f"wrote {res['posterior_netcdf']}")
+        written.insert(0, json_path)
     if args.report:
         from chekan.report import render_report
 
-        written = render_report(res, args.report, lang=args.lang)
-        print(f"wrote {written}")
+        written.append(render_report(res, args.report, lang=args.lang))
+    if not args.quiet:
+        print(format_summary(res))
+    for path in written:
+        print(f"wrote {path}")
     conv = res.get("diagnostics", {}).get("converged", True)
     return 0 if conv or not args.strict else 3
 
@@ -126,7 +139,9 @@ def _cmd_program(args) -> int:
 def _cmd_design(args) -> int:
     from chekan.design import run_design_command
 
-    check_outputs([args.program], [args.out, args.json])
+    check_outputs(
+        [args.program], [Output(args.out, writes=PROGRAM) if args.out else None, args.json]
+    )
     return run_design_command(args)
 
 

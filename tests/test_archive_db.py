@@ -165,6 +165,7 @@ def test_cli_add_list_show_export(tmp_path, result46, capsys, monkeypatch):
     assert json.loads(capsys.readouterr().out)["parameters"]["b2"]["unit"] == "mGal/pix"
     assert archive_main(["archive", "show", "5"]) == 2
     db = tmp_path / "other.sqlite"
+    Archive(db).close()  # an empty archive (reading commands refuse a missing one)
     assert archive_main(["archive", "export", str(tmp_path / "x.csv"), "--db", str(db)]) == 0
     assert "0 parameter rows" in capsys.readouterr().out  # --db overrides $CHEKAN_ARCHIVE
     assert archive_main(["archive", "export", str(tmp_path / "y.csv")]) == 0

@@ -172,6 +172,9 @@ def test_netcdf_written_atomically(tmp_path):
     ],
 )
 def test_closed_stdout_ends_quietly(cmd, tmp_path):
+    from chekan.archive.db import Archive
+
+    Archive(tmp_path / "a.sqlite").close()  # reading commands refuse a missing archive
     env = {**os.environ, "PYTHONPATH": str(ROOT), "CHEKAN_ARCHIVE": str(tmp_path / "a.sqlite")}
     p = subprocess.Popen(
         [sys.executable, *cmd], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env
@@ -230,7 +233,9 @@ def test_exit_3_strict_not_converged(proto, monkeypatch):
 
 def test_exit_4_alarm(tmp_path, monkeypatch):
     import chekan.archive.history as history
+    from chekan.archive.db import Archive
 
+    Archive(tmp_path / "a.sqlite").close()  # history refuses a missing archive
     hist = {"alarms": [{"level": "ALARM"}]}
     monkeypatch.setattr(history, "stability_history", lambda *a, **k: hist)
     monkeypatch.setattr(history, "format_history", lambda h: "ALARM")

@@ -24,7 +24,7 @@ import json
 import sys
 from typing import Any
 
-from chekan.outputs import check_outputs, run_command
+from chekan.outputs import SQLITE, Output, check_outputs, run_command
 
 DB_HELP = "archive database (default $CHEKAN_ARCHIVE, else ~/.local/share/chekan/archive.sqlite)"
 
@@ -33,18 +33,27 @@ def _db_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--db", help=DB_HELP)
 
 
+def _db(args: argparse.Namespace) -> Output:
+    """The archive in use (``--db``, ``$CHEKAN_ARCHIVE`` or the default), resolved before
+    the outputs are checked so that no output option can name it unnoticed."""
+    from chekan.archive.db import default_db_path
+
+    return Output(default_db_path(args.db), writes=SQLITE)
+
+
 # ----------------------------------------------------------------------------- archive
 def _cmd_add(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
     from chekan.errors import ChekanError
     from chekan.result import read_result
 
-    check_outputs(args.results, [args.db])
+    db = _db(args)
+    check_outputs(args.results, [db])
     bad = 0
-    with Archive(args.db) as a:
+    with Archive(db.path) as a:
         for path in args.results:
             try:
-                sid = a.add_result(read_result(path), path)
+                sid = a.add_result(read_result(path), path, replace=args.replace)
             except ChekanError as e:
                 print(f"chekan: error: {e}", file=sys.stderr)
                 bad += 1
@@ -56,8 +65,9 @@ def _cmd_add(args: argparse.Namespace) -> int:
 def _cmd_list(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
 
-    check_outputs([], [args.db])
-    with Archive(args.db) as a:
+    db = _db(args)
+    check_outputs([], [db])
+    with Archive(db.path, readonly=True) as a:
         rows = a.list_sessions(args.serial)
         params = {
             r["session_id"]: r for r in a.parameter_rows(args.serial) if r["parameter"] == "b1"
@@ -77,8 +87,9 @@ def _cmd_list(args: argparse.Namespace) -> int:
 def _cmd_show(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
 
-    check_outputs([], [args.db])
-    with Archive(args.db) as a:
+    db = _db(args)
+    check_outputs([], [db])
+    with Archive(db.path, readonly=True) as a:
         s = a.get_session(args.id)
     if args.json:
         print(json.dumps(s, indent=2, ensure_ascii=False))
@@ -112,8 +123,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
     if (args.out is None) == (args.out_opt is None):
         raise ChekanError("archive export: give the CSV file once, as OUT or as -o/--out")
     out = args.out if args.out is not None else args.out_opt
-    check_outputs([args.db], [out])
-    with Archive(args.db) as a:
+    db = _db(args)
+    check_outputs([db.path], [out])
+    with Archive(db.path, readonly=True) as a:
         n = a.export_csv(out, args.serial)
     print(f"wrote {out} ({n} parameter rows)")
     return 0
@@ -126,9 +138,16 @@ def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
     q = asub.add_parser(
         "add",
         help="add result JSON files (idempotent)",
-        epilog="exit status: 0 all added, 1 some files failed (the others were added)",
+        epilog="exit status: 0 all added (or already there with the same numbers), 1 some "
+        "files failed or differ from the archived session (the others were added)",
     )
     q.add_argument("results", nargs="+", help="chekan-result/1 JSON files")
+    q.add_argument(
+        "--replace",
+        action="store_true",
+        help="a result whose numbers differ from the archived session of the same input, "
+        "method and version replaces it (without: reported, not added, exit 1)",
+    )
     _db_arg(q)
     q.set_defaults(func=_cmd_add)
     q = asub.add_parser("list", help="list archived sessions")
@@ -153,11 +172,12 @@ def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
 def _cmd_reanalyze(args: argparse.Namespace) -> int:
     from chekan.archive.reanalyze import reanalyze
 
-    check_outputs([args.dir], [args.db, args.results_dir])
+    db = _db(args)
+    check_outputs([args.dir], [db, args.results_dir])
     rep = reanalyze(
         args.dir,
         args.method,
-        db=args.db,
+        db=str(db.path),
         jobs=args.jobs,
         executor=args.executor,
         scheduler=args.scheduler,
@@ -207,8 +227,9 @@ def _cmd_history(args: argparse.Namespace) -> int:
         write_history_json,
     )
 
-    check_outputs([args.db], [args.plot, args.json])
-    with Archive(args.db) as a:
+    db = _db(args)
+    check_outputs([db.path], [args.plot, args.json])
+    with Archive(db.path, readonly=True) as a:
         hist = stability_history(
             a,
             args.serial,
@@ -218,11 +239,15 @@ def _cmd_history(args: argparse.Namespace) -> int:
             tolerance_ppm=args.tolerance_ppm,
             extra_error=not args.no_extra_error,
         )
-    print(format_history(hist))
+    # the files first: a standard output closed early (| head) must not cut them short
+    written = []
     if args.plot:
-        print(f"wrote {plot_history(hist, args.plot)}")
+        written.append(plot_history(hist, args.plot))
     if args.json:
-        print(f"wrote {write_history_json(args.json, hist)}")
+        written.append(write_history_json(args.json, hist))
+    print(format_history(hist))
+    for path in written:
+        print(f"wrote {path}")
     return 4 if any(x["level"] == "ALARM" for x in hist["alarms"]) else 0
 
 

@@ -127,6 +127,18 @@ def default_db_path(explicit: str | os.PathLike | None = None) -> Path:
     return Path(base) / "chekan" / "archive.sqlite"
 
 
+def _explain(e: sqlite3.DatabaseError) -> str:
+    """The reason of an SQLite error in a user's words."""
+    msg = str(e)
+    if "not a database" in msg:
+        return "not an SQLite database (is --db or $CHEKAN_ARCHIVE the archive?)"
+    if "readonly" in msg or "read-only" in msg:
+        return "the archive cannot be written (a read-only file or folder)"
+    if "unable to open" in msg:
+        return "cannot open the archive (a missing folder, or no permission)"
+    return f"archive database error: {msg}"
+
+
 def _now() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
@@ -189,18 +201,57 @@ def _session_date(result: dict) -> str | None:
     return None
 
 
-class Archive:
-    """An open archive database; use as a context manager or call :meth:`close`."""
+class ArchiveConflict(ChekanError):
+    """A result for an archived session (same input, method and version) with other numbers."""
 
-    def __init__(self, path: str | os.PathLike | None = None):
+
+class Archive:
+    """An open archive database; use as a context manager or call :meth:`close`.
+
+    ``readonly=True`` (the commands that only read: ``list``, ``show``, ``export``,
+    ``history``) opens an existing archive without writing to it and refuses a missing one,
+    so that a mistyped ``--db`` is an error instead of a new empty archive. A file that is
+    not an SQLite database, or one that cannot be written where writing is needed, is a
+    :class:`~chekan.errors.ChekanError` naming the file.
+    """
+
+    def __init__(self, path: str | os.PathLike | None = None, *, readonly: bool = False):
         self.path = default_db_path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.con = sqlite3.connect(self.path, timeout=60.0, isolation_level=None)
-        self.con.row_factory = sqlite3.Row
-        self.con.execute("PRAGMA foreign_keys = ON")
-        self.con.execute("PRAGMA journal_mode = WAL")
-        self.con.execute("PRAGMA synchronous = NORMAL")
-        migrate(self.con)
+        if readonly and not self.path.is_file():
+            raise ChekanError(
+                f"{self.path}: no archive database there (`chekan archive add` or `chekan "
+                "reanalyze` creates one; give --db PATH or set $CHEKAN_ARCHIVE)"
+            )
+        if not readonly:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.con = self._open(readonly)
+        except sqlite3.DatabaseError as e:
+            raise ChekanError(f"{self.path}: {_explain(e)}") from e
+
+    def _open(self, readonly: bool) -> sqlite3.Connection:
+        if readonly:
+            uri = f"{self.path.resolve().as_uri()}?mode=ro"
+            con = sqlite3.connect(uri, uri=True, timeout=60.0, isolation_level=None)
+        else:
+            con = sqlite3.connect(self.path, timeout=60.0, isolation_level=None)
+        try:
+            con.row_factory = sqlite3.Row
+            con.execute("PRAGMA foreign_keys = ON")
+            if readonly:
+                version = schema_version(con)
+                if version == 0:
+                    raise ChekanError(f"{self.path}: an SQLite database, but no chekan archive")
+                if version > SCHEMA_VERSION:
+                    migrate(con)  # raises: written by a newer program
+            else:
+                con.execute("PRAGMA journal_mode = WAL")
+                con.execute("PRAGMA synchronous = NORMAL")
+                migrate(con)
+        except BaseException:
+            con.close()
+            raise
+        return con
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:
@@ -209,8 +260,10 @@ class Archive:
     def __enter__(self) -> Archive:
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
         self.close()
+        if isinstance(exc, sqlite3.DatabaseError):  # e.g. a write to a read-only archive
+            raise ChekanError(f"{self.path}: {_explain(exc)}") from exc
 
     @property
     def posterior_dir(self) -> Path:
@@ -234,11 +287,16 @@ class Archive:
         )
         return {r[0] for r in rows}
 
-    def add_result(self, result: dict, result_path: str | os.PathLike | None = None) -> int:
+    def add_result(
+        self, result: dict, result_path: str | os.PathLike | None = None, *, replace: bool = False
+    ) -> int:
         """Archive one ``chekan-result/1`` dict; return its session id (idempotent).
 
         The key is (input SHA-256, method, software version); the hash is
         ``result["record_sha256"]``, else computed from the input file if it still exists.
+        Adding a result whose numbers (:func:`_content`) equal the archived session's
+        returns that session's id; other numbers raise :class:`ArchiveConflict`, unless
+        ``replace``: then the session (same id) takes the new result.
         """
         from chekan.result import _clean, check_result, sha256_file
 
@@ -257,7 +315,7 @@ class Archive:
         method = str(result["method"])
         version = str((result.get("software") or {}).get("version") or "unknown")
         existing = self.find(sha, method, version)
-        if existing is not None:
+        if existing is not None and not self._replacing(existing, result, where, replace):
             return existing
 
         nc_src = result.get("posterior_netcdf")
@@ -267,31 +325,44 @@ class Archive:
             with self.con:
                 self.con.execute("BEGIN IMMEDIATE")
                 existing = self.find(sha, method, version)  # a concurrent writer won the race
-                if existing is not None:
+                if existing is not None and not self._replacing(existing, result, where, replace):
                     return existing
                 inst_id = self._instrument_id(str(result["serial"]), meta, _session_date(result))
-                cur = self.con.execute(
-                    "INSERT INTO sessions (instrument_id, input_path, input_sha256, input_kind,"
-                    " calibrated_on, metadata_json, method, software_version, created, added,"
-                    " result_path, result_json, netcdf_path)"
-                    " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                    (
-                        inst_id,
-                        str(result["record"]),
-                        sha,
-                        result.get("input_kind"),
-                        _session_date(result),
-                        json.dumps(meta, ensure_ascii=False, sort_keys=True),
-                        method,
-                        version,
-                        result.get("created"),
-                        _now(),
-                        str(Path(result_path).resolve()) if result_path else None,
-                        json.dumps(result, ensure_ascii=False, allow_nan=False),
-                        str(nc_dst) if nc_dst else None,
-                    ),
+                values = (
+                    inst_id,
+                    str(result["record"]),
+                    sha,
+                    result.get("input_kind"),
+                    _session_date(result),
+                    json.dumps(meta, ensure_ascii=False, sort_keys=True),
+                    method,
+                    version,
+                    result.get("created"),
+                    _now(),
+                    str(Path(result_path).resolve()) if result_path else None,
+                    json.dumps(result, ensure_ascii=False, allow_nan=False),
+                    str(nc_dst) if nc_dst else None,
                 )
-                sid = int(cur.lastrowid)
+                if existing is None:
+                    cur = self.con.execute(
+                        f"INSERT INTO sessions ({', '.join(_SESSION_COLUMNS)})"
+                        f" VALUES ({', '.join('?' * len(_SESSION_COLUMNS))})",
+                        values,
+                    )
+                    sid = int(cur.lastrowid)
+                else:
+                    sid = existing
+                    old_nc = self.con.execute(
+                        "SELECT netcdf_path FROM sessions WHERE id = ?", (sid,)
+                    ).fetchone()[0]
+                    self.con.execute(
+                        f"UPDATE sessions SET {', '.join(c + ' = ?' for c in _SESSION_COLUMNS)}"
+                        " WHERE id = ?",
+                        (*values, sid),
+                    )
+                    self.con.execute("DELETE FROM parameters WHERE session_id = ?", (sid,))
+                    if old_nc and old_nc != str(nc_dst):
+                        Path(old_nc).unlink(missing_ok=True)
                 self.con.executemany(
                     "INSERT INTO parameters (session_id, name, mean, sd, hdi_low, hdi_high, unit,"
                     " r_hat, ess_bulk, fixed) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
@@ -302,6 +373,22 @@ class Archive:
             if nc_dst is not None and self._netcdf_owner(nc_dst) is None:
                 nc_dst.unlink(missing_ok=True)
             raise
+
+    def _replacing(self, sid: int, result: dict, where: str, replace: bool) -> bool:
+        """Whether archived session ``sid`` is to take ``result`` (same key): ``False`` when
+        its numbers are the same; ``True`` with ``replace``; else :class:`ArchiveConflict`."""
+        stored = json.loads(
+            self.con.execute("SELECT result_json FROM sessions WHERE id = ?", (sid,)).fetchone()[0]
+        )
+        if _content(stored) == _content(result):
+            return False
+        if replace:
+            return True
+        raise ArchiveConflict(
+            f"{where}: differs from archived session {sid} (the same input, method "
+            f"{result['method']} and software version) in its numbers; not added "
+            "(`chekan archive add --replace` replaces the archived result)"
+        )
 
     def _instrument_id(self, serial: str, meta: dict, date: str | None) -> int:
         """Insert the instrument if new; take its descriptive fields from its newest session."""
@@ -421,6 +508,30 @@ class Archive:
         return len(rows)
 
 
+_SESSION_COLUMNS = (
+    "instrument_id",
+    "input_path",
+    "input_sha256",
+    "input_kind",
+    "calibrated_on",
+    "metadata_json",
+    "method",
+    "software_version",
+    "created",
+    "added",
+    "result_path",
+    "result_json",
+    "netcdf_path",
+)
+
+
+def _content(result: dict) -> tuple:
+    """What makes two results of one session the same: serial, date, parameters (the
+    archived numbers); not when or from which path it was written."""
+    rows = sorted(r[1:] for r in _parameter_rows(0, result))
+    return str(result.get("serial")), _session_date(result), rows
+
+
 def _csv_value(v: Any) -> str:
     return repr(v) if isinstance(v, float) else str(v)
 
@@ -473,23 +584,27 @@ def _parameter_rows(sid: int, result: dict) -> Iterable[tuple]:
 
 # ---------------------------------------------------------------------- module-level API
 def add_result(
-    result: dict, result_path: str | os.PathLike | None = None, *, db: str | None = None
+    result: dict,
+    result_path: str | os.PathLike | None = None,
+    *,
+    db: str | None = None,
+    replace: bool = False,
 ) -> int:
     """:meth:`Archive.add_result` on the archive at ``db`` (default: :func:`default_db_path`)."""
     with Archive(db) as a:
-        return a.add_result(result, result_path)
+        return a.add_result(result, result_path, replace=replace)
 
 
 def list_sessions(serial: str | None = None, *, db: str | None = None) -> list[dict]:
-    with Archive(db) as a:
+    with Archive(db, readonly=True) as a:
         return a.list_sessions(serial)
 
 
 def get_session(session_id: int, *, db: str | None = None) -> dict:
-    with Archive(db) as a:
+    with Archive(db, readonly=True) as a:
         return a.get_session(session_id)
 
 
 def export_csv(path: str | os.PathLike, serial: str | None = None, *, db: str | None = None) -> int:
-    with Archive(db) as a:
+    with Archive(db, readonly=True) as a:
         return a.export_csv(path, serial)
