@@ -212,11 +212,28 @@ class ClassicalResult:
         return {"heavy": float(np.min(up)) / 1000.0, "light": float(np.min(down)) / 1000.0}
 
 
-def fit_classical(table: IncrementTable, a_fixed: float | None = None) -> ClassicalResult:
+def _check_degrees_of_freedom(X: np.ndarray, fits_a: bool) -> None:
+    """Refuse a fit whose coefficients the data cannot determine with a residual left over:
+    its uncertainty would be zero (or undefined), never an honest one."""
+    n, p = X.shape
+    if n <= p or np.linalg.matrix_rank(X) < p:
+        what = "b of each round and system" + (", and a" if fits_a else "")
+        raise ChekanError(
+            f"too few angles for the classical method: {n} increments for {p} coefficients "
+            f"({what}); at least one increment more than coefficients is needed (more "
+            "angles" + (", or --a-fixed)" if fits_a else ")")
+        )
+
+
+def fit_classical(
+    table: IncrementTable, a_fixed: float | None = None, *, preview: bool = False
+) -> ClassicalResult:
     """Least squares of eq. (21) over all rounds and systems (see the module docstring).
 
     ``a_fixed`` (record convention) overrides the table's own fixed ``a``; with neither,
-    one common ``a`` is fitted with the b of every round and system.
+    one common ``a`` is fitted with the b of every round and system. Too few increments to
+    leave a residual is an error, except for a ``preview`` (the live page's b after the first
+    pairs, shown without an uncertainty to speak of).
     """
     a_fix = a_fixed if a_fixed is not None else table.a_fixed
     R, _, n = table.x_pix.shape
@@ -240,6 +257,14 @@ def fit_classical(table: IncrementTable, a_fixed: float | None = None) -> Classi
     else:
         target = yv - a_fix * xv**2
     present = np.flatnonzero(np.abs(X).sum(axis=0) > 0)
+    if not preview:
+        for s in range(2):
+            if not any(np.any(cv == ci) for ci, (_, s_) in enumerate(cols) if s_ == s):
+                raise ChekanError(
+                    f"system {s + 1} has no complete ± pair in any round (no m{s + 1}_pix "
+                    "readings in the holds): both quartz systems are calibrated together"
+                )
+        _check_degrees_of_freedom(X[:, present], fits_a=a_fix is None)
     coef = np.full(X.shape[1], np.nan)
     sol, *_ = np.linalg.lstsq(X[:, present], target, rcond=None)
     coef[present] = sol
@@ -301,9 +326,17 @@ def calibrate_record(record, settle_s: float | None = None, a_fixed: float | Non
         settle_s = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle_s)
     table = increments_from_holds(holds, record.g_local_mgal)
-    return fit_classical(table, a_fixed=a_fixed), holds
+    return _fit_input(table, a_fixed, record.path), holds
 
 
 def calibrate_protocol(protocol, a_fixed: float | None = None) -> ClassicalResult:
     """Classical re-analysis of a legacy protocol table (``a`` fixed to the protocol's)."""
-    return fit_classical(increments_from_protocol(protocol), a_fixed=a_fixed)
+    return _fit_input(increments_from_protocol(protocol), a_fixed, protocol.path)
+
+
+def _fit_input(table: IncrementTable, a_fixed: float | None, path: str | None) -> ClassicalResult:
+    """:func:`fit_classical` of an input; what it cannot fit is an error naming the input."""
+    try:
+        return fit_classical(table, a_fixed=a_fixed)
+    except ChekanError as e:
+        raise ChekanError(f"{path or '<input>'}: {e}") from None

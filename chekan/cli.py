@@ -17,7 +17,7 @@ import dataclasses
 import warnings
 from pathlib import Path
 
-from chekan import __version__
+from chekan import __version__, argtypes
 from chekan.outputs import (
     PROGRAM,
     RESULT,
@@ -105,6 +105,10 @@ def _cmd_calibrate(args) -> int:
         opts = dataclasses.replace(opts, netcdf=nc)
     result_out = Output(json_path, writes=RESULT) if json_path else None
     check_outputs([args.input], [result_out, opts.netcdf, args.report])
+    if args.report:
+        from chekan.report import output_format
+
+        output_format(Path(args.report), None)  # a report it cannot write: before the work
     res = calibrate_file(args.input, opts)
     # the files first: a standard output closed early (| head) must not cut them short
     written = [res["posterior_netcdf"]] if res.get("posterior_netcdf") else []
@@ -163,7 +167,7 @@ def _head(path: Path, n: int = 1 << 16) -> bytes:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    ap = argtypes.Parser(
         prog="chekan",
         description="Tilt-method calibration of the Chekan-AM gravimeter.",
         epilog=EXIT_STATUS,
@@ -176,7 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "-o", "--out", required=True, help="record to write (chekan-record/1 CSV; a new file)"
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="random seed (default 0)")
     p.add_argument("--truth", help="also write the true parameters to this JSON file")
     p.add_argument("--program", help="tilt program TOML (default: the paper's program, 9 h)")
     p.add_argument("--serial", default="SIM-1", help="serial number written into the record")
@@ -197,9 +201,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--netcdf", help="bayes: ArviZ posterior NetCDF (default: beside the JSON)")
     p.add_argument("--report", help="also render the certificate (PDF, or .html)")
     p.add_argument("--lang", choices=("ru", "en"), default="en", help="certificate language")
-    p.add_argument("--hdi-prob", type=float, default=0.95, help="interval probability (0.95)")
-    p.add_argument("--settle-s", type=float, help="settling time excluded from dwell means")
-    p.add_argument("--a-fixed", type=float, help="fix a (mGal/pix², record convention)")
+    p.add_argument(
+        "--hdi-prob", type=argtypes.probability, default=0.95, help="interval probability (0.95)"
+    )
+    p.add_argument(
+        "--settle-s", type=argtypes.non_negative, help="settling time excluded from dwell means"
+    )
+    p.add_argument("--a-fixed", type=argtypes.finite(), help="fix a (mGal/pix², record convention)")
     p.add_argument(
         "--encoder-error",
         action="store_true",
@@ -215,11 +223,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--angle-bound-arcsec",
-        type=float,
+        type=argtypes.real(0.0, 3600.0, open_low=True),
         help="map/bayes: bound of the angle sensors' systematic error, read as rectangular "
         "(GUM Type B); default: the record's platform_angle_bound_arcsec, else 3 (the paper)",
     )
-    p.add_argument("--seed", type=int, default=0, help="sampler seed")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="sampler seed")
     p.add_argument("--quick", action="store_true", help="bayes: cap the sampler at 6000 steps")
     p.add_argument("--strict", action="store_true", help="exit 3 when the sampler did not converge")
     p.add_argument("-q", "--quiet", action="store_true", help="print only what was written")
@@ -234,16 +242,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("program", nargs="?", help="program TOML file (default: the paper's)")
     p.add_argument("--search", action="store_true", help="search programs of the same duration")
-    p.add_argument("--budget-h", type=float, help="clock-time budget with slews (default: given)")
+    p.add_argument(
+        "--budget-h",
+        type=argtypes.real(0.0, 240.0, open_low=True),
+        help="clock-time budget with slews (default: given)",
+    )
     p.add_argument(
         "--objective", choices=("b_mean", "b_max", "a"), default="b_mean", help="what to minimise"
     )
-    p.add_argument("--min-dwell-s", type=float, default=180.0, help="shortest dwell (180 s)")
-    p.add_argument("--min-settle-s", type=float, default=120.0, help="shortest settle (120 s)")
-    p.add_argument("--top", type=int, default=15, help="rows of the ranked table (15)")
+    p.add_argument(
+        "--min-dwell-s", type=argtypes.positive, default=180.0, help="shortest dwell (180 s)"
+    )
+    p.add_argument(
+        "--min-settle-s", type=argtypes.non_negative, default=120.0, help="shortest settle (120 s)"
+    )
+    p.add_argument("--top", type=argtypes.count, default=15, help="rows of the ranked table (15)")
     p.add_argument(
         "--angle-bound-arcsec",
-        type=float,
+        type=float,  # checked by the design's own values (a bad bound: exit 2, named)
         help="bound U of the platform angle sensors' systematic error (default 3; 0: none)",
     )
     p.add_argument("-o", "--out", help="write the best program here (TOML; implies --search)")

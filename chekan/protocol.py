@@ -21,13 +21,14 @@ import numpy as np
 
 from chekan.errors import FormatError
 from chekan.records.framing import (
+    check_gravity_mgal,
     count_problem,
     data_block,
     meta_float,
     read_frame,
     warn_incomplete,
 )
-from chekan.units import one_minus_cos, parse_angle_deg
+from chekan.units import ARCSEC_PER_RAD, one_minus_cos, parse_angle_deg
 
 FORMAT = "chekan-protocol/1"
 _DG_RE = re.compile(r"dg_r(\d+)_s(\d+)")
@@ -119,6 +120,45 @@ def _parse_row(
     return angle, text, da, dg
 
 
+#: How far a row's ``da_ref_mgal`` may lie from g(1 − cos θ): the change of g(1 − cos θ)
+#: over 1″ of angle, plus the table's rounding of the increment (0.01 mGal).
+CONSISTENCY_ARCSEC = 1.0
+ROUNDING_MGAL = 0.01
+
+
+def check_reference_increments(
+    angle_deg: np.ndarray,
+    da_ref_mgal: np.ndarray,
+    path: str | PathLike,
+    lines: list[int],
+    angle_text: list[str],
+) -> float:
+    """The g (mGal) that the table's increments imply, after checking every row against
+    ``da_ref = g (1 − cos θ)``: g is the median of the rows' own ``da_ref / (1 − cos θ)`` (one
+    wrong row cannot move it) and must be the Earth's; a row farther from it than 1″ of angle
+    (a mistyped angle or increment) is a :class:`FormatError` at its line."""
+    theta = np.deg2rad(angle_deg)
+    x = one_minus_cos(theta)
+    tilted = x > 0
+    if not tilted.any():
+        raise FormatError(path, None, "every angle is zero: no reference increment")
+    g = float(np.median(da_ref_mgal[tilted] / x[tilted]))
+    check_gravity_mgal(g, path, None, "the g implied by da_ref_mgal (median of the rows)")
+    tol = g * np.sin(theta) * CONSISTENCY_ARCSEC / ARCSEC_PER_RAD + ROUNDING_MGAL
+    off = np.abs(da_ref_mgal - g * x) > tol
+    if off.any():
+        i = int(np.argmax(off))
+        raise FormatError(
+            path,
+            lines[i],
+            f"da_ref_mgal {da_ref_mgal[i]:.2f} does not match g(1 − cos θ) = "
+            f"{g * x[i]:.2f} mGal for angle {angle_text[i]} (g = {g:.2f} mGal from the other "
+            f"rows; {int(off.sum())} row(s) off by more than 1″ of angle): a mistyped angle or "
+            "increment?",
+        )
+    return g
+
+
 def read_protocol(path: str | PathLike) -> Protocol:
     """Read a ``chekan-protocol/1`` file; malformed input raises :class:`FormatError`.
 
@@ -138,6 +178,8 @@ def read_protocol(path: str | PathLike) -> Protocol:
     a = meta_float(meta, lines_of, path, "a_mgal_per_pix2")
     g = meta_float(meta, lines_of, path, "g_local_mgal")
     assert a is not None
+    if g is not None:
+        check_gravity_mgal(g, path, lines_of.get("g_local_mgal"), "metadata g_local_mgal")
 
     index = {c: i for i, c in enumerate(fr.columns)}
     for c in ("angle", "da_ref_mgal"):
@@ -174,7 +216,13 @@ def read_protocol(path: str | PathLike) -> Protocol:
             raise FormatError(
                 path, fr.header_line, f"column {name!r} has no metadata key {bkey!r} (its b)"
             )
-        b[rounds.index(r), systems.index(s)] = meta_float(meta, lines_of, path, bkey)
+        b_rs = meta_float(meta, lines_of, path, bkey)
+        assert b_rs is not None
+        if b_rs <= 0.0:
+            raise FormatError(
+                path, lines_of.get(bkey), f"metadata {bkey}: a scale factor must be positive"
+            )
+        b[rounds.index(r), systems.index(s)] = b_rs
 
     dg_cols = [(cells[k][0], cells[k][1]) for k in sorted(cells)]
     block, final_nl = data_block(fr.data)
@@ -186,11 +234,13 @@ def read_protocol(path: str | PathLike) -> Protocol:
         rows.pop()
         final_nl = True
     parsed = []
+    row_lines = []
     for i, row in enumerate(rows):
         try:
             parsed.append(
                 _parse_row(row, len(fr.columns), index["angle"], index["da_ref_mgal"], dg_cols)
             )
+            row_lines.append(first + i)
         except _RowError as e:
             if i == len(rows) - 1 and not final_nl:
                 warn_incomplete(path, first + i, str(e), notes, stacklevel=3)
@@ -199,6 +249,9 @@ def read_protocol(path: str | PathLike) -> Protocol:
     if not parsed:
         raise FormatError(path, None, "protocol has no data rows")
 
+    angle_deg = np.array([p[0] for p in parsed])
+    da_ref = np.array([p[2] for p in parsed])
+    check_reference_increments(angle_deg, da_ref, path, row_lines, [p[1] for p in parsed])
     n = len(parsed)
     dg = np.full((len(rounds), len(systems), n), np.nan)
     for k, (r, s) in enumerate(sorted(cells)):
@@ -208,9 +261,9 @@ def read_protocol(path: str | PathLike) -> Protocol:
         serial=serial,
         a_mgal_per_pix2=a,
         g_local_mgal=g,
-        angle_deg=np.array([p[0] for p in parsed]),
+        angle_deg=angle_deg,
         angle_text=[p[1] for p in parsed],
-        da_ref_mgal=np.array([p[2] for p in parsed]),
+        da_ref_mgal=da_ref,
         rounds=rounds,
         systems=systems,
         dg_mgal=dg,

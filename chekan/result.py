@@ -252,3 +252,10 @@ def check_result(data: Any, path: str | Path = "<result>") -> None:
     for name, e in params.items():
         if not isinstance(e, dict) or "mean" not in e:
             raise FormatError(path, None, f"parameters.{name} has no 'mean'")
+    for name in ("b1", "b2"):
+        mean = params[name]["mean"]
+        ok = isinstance(mean, int | float) and not isinstance(mean, bool)
+        if not ok or not math.isfinite(mean) or mean <= 0.0:
+            raise FormatError(
+                path, None, f"parameters.{name}.mean is {mean!r}: not a positive finite number"
+            )

@@ -20,6 +20,7 @@ import signal
 import sys
 import threading
 
+from chekan import argtypes
 from chekan.errors import ChekanError
 from chekan.outputs import check_outputs, run_command
 
@@ -39,21 +40,25 @@ def add_emulate_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--platform", default="/tmp/chekan-platform", help="symlink to the platform pty")
     p.add_argument(
         "--speed",
-        type=float,
+        type=argtypes.real(0.0, 1e6),
         default=1.0,
         help="device seconds per wall second (200: 9 h in under 3 min; 0: as fast as the host "
         "reads, lock-stepped)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of noise, errors and faults")
+    p.add_argument("--seed", type=argtypes.seed, default=0, help="seed of noise, errors and faults")
     p.add_argument(
         "--faults",
         default="",
         help="fault plan, e.g. 'garbage=0.01;badsum=0.01;drop=0.005;stall=sensor@600+30;"
         "vanish=sensor@900+20;fault=1200+40;tilterr=BUSY@3' (see hw/faults.py)",
     )
-    p.add_argument("--duration-s", type=float, help="stop after this many wall seconds")
+    p.add_argument(
+        "--duration-s", type=argtypes.non_negative, help="stop after this many wall seconds"
+    )
     p.add_argument("--serial", default="SIM-1", help="sensor serial number (ID reply)")
-    p.add_argument("--seq-start", type=int, default=0, help="first sensor seq (0-65535)")
+    p.add_argument(
+        "--seq-start", type=argtypes.integer(0, 65535), default=0, help="first sensor seq (0-65535)"
+    )
     p.add_argument("--random-truth", action="store_true", help="draw the instrument from --seed")
     p.add_argument("--truth", help="write the true parameters and holds here (JSON) at exit")
     p.add_argument(
@@ -163,9 +168,15 @@ def add_acquire_parser(subparsers) -> argparse.ArgumentParser:
         metavar="REC",
         help="continue an interrupted run of REC (or of --out); ports come from its journal",
     )
-    p.add_argument("--timeout-s", type=float, help="silence before a port is reopened (5)")
-    p.add_argument("--give-up-s", type=float, help="time without data before giving up (120)")
-    p.add_argument("--reply-timeout-s", type=float, help="wait for a reply to a query (2)")
+    p.add_argument(
+        "--timeout-s", type=argtypes.positive, help="silence before a port is reopened (5)"
+    )
+    p.add_argument(
+        "--give-up-s", type=argtypes.positive, help="time without data before giving up (120)"
+    )
+    p.add_argument(
+        "--reply-timeout-s", type=argtypes.positive, help="wait for a reply to a query (2)"
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress line")
     p.add_argument(
         "--live",
@@ -290,7 +301,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from chekan import __version__
 
-    ap = argparse.ArgumentParser(prog="python -m hw.cli")
+    ap = argtypes.Parser(prog="python -m hw.cli")
     ap.add_argument("-V", "--version", action="version", version=f"chekan {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     add_emulate_parser(sub)

@@ -22,10 +22,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 from typing import Any
 
+from chekan import argtypes
+from chekan.errors import ChekanError
 from chekan.outputs import SQLITE, Output, check_outputs, run_command
 
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 DB_HELP = "archive database (default $CHEKAN_ARCHIVE, else ~/.local/share/chekan/archive.sqlite)"
 
 
@@ -44,7 +48,6 @@ def _db(args: argparse.Namespace) -> Output:
 # ----------------------------------------------------------------------------- archive
 def _cmd_add(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
-    from chekan.errors import ChekanError
     from chekan.result import read_result
 
     db = _db(args)
@@ -118,7 +121,6 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 def _cmd_export(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
-    from chekan.errors import ChekanError
 
     if (args.out is None) == (args.out_opt is None):
         raise ChekanError("archive export: give the CSV file once, as OUT or as -o/--out")
@@ -199,7 +201,12 @@ def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("dir", help="folder searched recursively for chekan-record/1 and -protocol/1")
     p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
-    p.add_argument("-j", "--jobs", type=int, help="worker processes (default: the CPUs available)")
+    p.add_argument(
+        "-j",
+        "--jobs",
+        type=argtypes.integer(1, 1024),
+        help="worker processes (default: the CPUs available)",
+    )
     p.add_argument("--executor", choices=("local", "dask"), default="local")
     p.add_argument("--scheduler", help="dask: scheduler address (default: a LocalCluster)")
     p.add_argument("--results-dir", help="where result JSONs go (default <archive dir>/results)")
@@ -229,6 +236,11 @@ def _cmd_history(args: argparse.Namespace) -> int:
 
     db = _db(args)
     check_outputs([db.path], [args.plot, args.json])
+    if args.plot and Path(args.plot).suffix.lower() not in PLOT_SUFFIXES:
+        raise ChekanError(
+            f"{args.plot}: a plot is written as {', '.join(PLOT_SUFFIXES)} (from the file's "
+            "suffix); choose one of them"
+        )
     with Archive(db.path, readonly=True) as a:
         hist = stability_history(
             a,
@@ -268,7 +280,7 @@ def add_history_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--at", help="date of the prediction, YYYY-MM-DD (default today)")
     p.add_argument(
         "--tolerance-ppm",
-        type=float,
+        type=argtypes.positive,
         default=500.0,
         help="alarm threshold for scale-factor changes, ppm (default 500)",
     )
@@ -295,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m chekan.archive``: the three commands without the rest of ``chekan``."""
     from chekan import __version__
 
-    ap = argparse.ArgumentParser(prog="python -m chekan.archive")
+    ap = argtypes.Parser(prog="python -m chekan.archive")
     ap.add_argument("-V", "--version", action="version", version=f"chekan {__version__}")
     add_parsers(ap.add_subparsers(dest="command", required=True, metavar="COMMAND"))
     return run_command(lambda: (a := ap.parse_args(argv)).func(a))

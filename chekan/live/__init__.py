@@ -19,6 +19,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from chekan import argtypes
+
 LINGER_S = 120.0  # after the run (and its last MAP), the page stays up this long
 
 
@@ -44,8 +46,8 @@ def add_live_parser(subparsers) -> argparse.ArgumentParser:
         "--program",
         help="program TOML for the expected sd at the end (default: the journal's plan)",
     )
-    p.add_argument("--owner-pid", type=int, help=argparse.SUPPRESS)
-    p.add_argument("--linger-s", type=float, help=argparse.SUPPRESS)
+    p.add_argument("--owner-pid", type=argtypes.integer(1), help=argparse.SUPPRESS)
+    p.add_argument("--linger-s", type=argtypes.non_negative, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_live)
     return p
 

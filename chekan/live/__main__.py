@@ -1,14 +1,14 @@
 """``python -m chekan.live REC.csv [--live [HOST:]PORT]``: same as ``chekan live``."""
 
-import argparse
 import sys
 
+from chekan import argtypes
 from chekan.errors import ChekanError
 from chekan.live import add_live_parser
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m chekan.live")
+    ap = argtypes.Parser(prog="python -m chekan.live")
     sub = ap.add_subparsers(dest="command")
     p = add_live_parser(sub)
     args = p.parse_args(argv)

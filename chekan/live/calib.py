@@ -79,7 +79,7 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
             if not paired.any():
                 return None
             a_fixed = None if paired.any(axis=0).sum() >= 2 else 0.0
-            res = classical.fit_classical(table, a_fixed=a_fixed)
+            res = classical.fit_classical(table, a_fixed=a_fixed, preview=True)
     except (ChekanError, ValueError, IndexError, np.linalg.LinAlgError):
         return None
     rounds_done = sum(1 for r in holds.rounds if r.level_before is not None and r.level_after)

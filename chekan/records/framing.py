@@ -184,6 +184,24 @@ def count_problem(line: bytes, k: int, ncols: int) -> str:
     return f"empty line ({what})" if not line.strip() else what
 
 
+#: Gravity on the Earth's surface, mGal: ≈ 976 000 (equator, high mountains) to 984 000 (poles,
+#: deep mines); a value outside it is a mistaken unit (9.81 m/s²) or a typing error.
+G_EARTH_MGAL = (976_000.0, 984_000.0)
+
+
+def check_gravity_mgal(value: float, path: PathArg | None, line: int | None, what: str) -> float:
+    """``value`` (mGal) if it lies in :data:`G_EARTH_MGAL`, else a :class:`FormatError`."""
+    lo, hi = G_EARTH_MGAL
+    if not lo <= value <= hi:
+        raise FormatError(
+            path,
+            line,
+            f"{what} {value:g} mGal is outside the Earth's gravity ({lo:.0f}–{hi:.0f} mGal); "
+            "the unit is mGal (9.81 m/s² is 981 000 mGal)",
+        )
+    return value
+
+
 def meta_float(
     meta: dict[str, str],
     lines: dict[str, int],

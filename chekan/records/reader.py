@@ -20,7 +20,14 @@ from datetime import datetime
 import numpy as np
 
 from chekan.errors import FormatError
-from chekan.records.framing import PathArg, data_block, meta_float, read_bytes, read_frame
+from chekan.records.framing import (
+    PathArg,
+    check_gravity_mgal,
+    data_block,
+    meta_float,
+    read_bytes,
+    read_frame,
+)
 from chekan.records.parse import parse_data
 
 FORMAT = "chekan-record/1"
@@ -93,7 +100,8 @@ class Record:
         v = self._float("g_local_mgal")
         if v is None:
             raise FormatError(self.path, None, "missing required metadata key 'g_local_mgal'")
-        return v
+        line = self.meta_lines.get("g_local_mgal")
+        return check_gravity_mgal(v, self.path, line, "metadata g_local_mgal")
 
     @property
     def sample_rate_hz(self) -> float:
@@ -175,7 +183,9 @@ def read_record(path: PathArg, *, max_rows: int | None = None) -> Record:
             raise FormatError(path, None, f"missing required metadata key {key!r}")
     if not fr.meta["serial"].strip():
         raise FormatError(path, fr.meta_lines["serial"], "metadata serial is empty")
-    meta_float(fr.meta, fr.meta_lines, path, "g_local_mgal")
+    g = meta_float(fr.meta, fr.meta_lines, path, "g_local_mgal")
+    assert g is not None
+    check_gravity_mgal(g, path, fr.meta_lines.get("g_local_mgal"), "metadata g_local_mgal")
     index = {c: i for i, c in enumerate(fr.columns)}
     for c in REQUIRED_COLUMNS:
         if c not in index:
@@ -183,6 +193,7 @@ def read_record(path: PathArg, *, max_rows: int | None = None) -> Record:
     want = {c: index[c] for c in DEFAULT_COLUMNS if c in index}
     block, final_nl = data_block(fr.data)
     vals, notes = parse_data(block, final_nl, fr.header_line + 1, len(fr.columns), want, path)
+    check_magnitudes(vals, fr.header_line + 1, path)
     return Record(
         meta=fr.meta,
         t_s=vals["t_s"],
@@ -196,6 +207,35 @@ def read_record(path: PathArg, *, max_rows: int | None = None) -> Record:
         warnings=notes,
         meta_lines=fr.meta_lines,
     )
+
+
+#: What a reading of each column can be at most, in magnitude: beyond it a value is no
+#: measurement (the CCD has 2048 pixels, a platform tilts by degrees, a record lasts days).
+MAX_MAGNITUDE = {
+    "t_s": 1e8,
+    "m1_pix": 1e5,
+    "m2_pix": 1e5,
+    "tilt_x_arcsec": 648_000.0,
+    "tilt_y_arcsec": 648_000.0,
+    "temp_c": 1e3,
+}
+
+
+def check_magnitudes(vals: dict[str, np.ndarray], first_line: int, path: PathArg) -> None:
+    """A :class:`FormatError` at the first data line holding a value beyond
+    :data:`MAX_MAGNITUDE` (such as 1e308, which no estimator can use)."""
+    for col, bound in MAX_MAGNITUDE.items():
+        v = vals.get(col)
+        if v is None:
+            continue
+        bad = np.abs(v) > bound  # NaN (an empty field) compares False
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise FormatError(
+                path,
+                first_line + i,
+                f"field {col}: {v[i]:g} is not a possible value (|{col}| ≤ {bound:g})",
+            )
 
 
 def synthetic_record(n: int = 33_000, seed: int = 0) -> Record:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from chekan import argtypes
 from chekan.report.i18n import LANGS
 
 
@@ -58,7 +59,7 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--format", choices=("pdf", "html"), help="output format (default: from --out)")
     p.add_argument(
         "--tolerance-percent",
-        type=float,
+        type=argtypes.positive,
         default=0.05,
         help="verdict tolerance for the reduced error and |instability of b|, %% (default 0.05)",
     )
