@@ -121,8 +121,8 @@ def _cmd_calibrate(args) -> int:
         written.append(render_report(res, args.report, lang=args.lang))
     if not args.quiet:
         print(format_summary(res))
-    for path in written:
-        print(f"wrote {path}")
+        for path in written:
+            print(f"wrote {path}")
     conv = res.get("diagnostics", {}).get("converged", True)
     return 0 if conv or not args.strict else 3
 
@@ -230,7 +230,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=argtypes.seed, default=0, help="sampler seed")
     p.add_argument("--quick", action="store_true", help="bayes: cap the sampler at 6000 steps")
     p.add_argument("--strict", action="store_true", help="exit 3 when the sampler did not converge")
-    p.add_argument("-q", "--quiet", action="store_true", help="print only what was written")
+    p.add_argument(
+        "-q", "--quiet", action="store_true", help="print nothing on success (errors still)"
+    )
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("program", help="show a tilt program (default: the paper's)")

@@ -5,6 +5,12 @@ from __future__ import annotations
 import math
 
 ORDER = ("b1", "b2", "a", "b1_0", "b2_0", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin")
+#: What the parameter table of each method holds.
+ESTIMATES = {
+    "classical": "classical method (Calibr.exe): least squares of eq. (21), all rounds",
+    "map": "joint model, MAP with Laplace sds (hyperparameters at their EM values: no sd)",
+    "bayes": "joint model, posterior (emcee): mean, sd and highest-density interval",
+}
 
 
 def _f(x, fmt: str) -> str:
@@ -36,6 +42,8 @@ def format_summary(res: dict) -> str:
         lv = res["level_reading_pix"]
         lines.append(f"level readings m_h: m1 = {lv['m1']:.3f} pix, m2 = {lv['m2']:.3f} pix")
     lines.append("")
+    method = res.get("method", "classical")
+    lines.append(f"estimates — {ESTIMATES.get(method, method)}:")
     p = res["parameters"]
     hp = round(res["hdi_prob"] * 100)
     head = f"{'parameter':<15}{'mean':>14}{'sd':>12}{f'{hp}% low':>14}{f'{hp}% high':>14}"
@@ -60,6 +68,11 @@ def format_summary(res: dict) -> str:
     if rs and "columns" in rs:
         cols = rs["columns"]
         lines.append("")
+        if method != "classical":
+            lines.append(
+                "classical method (Calibr.exe), shown beside the joint estimate (the tables "
+                "below, to the mean b and the range margin)"
+            )
         lines.append("increments dg and deviations δg = da_ref − dg, mGal")
         lines.append(
             f"{'angle':<9}{'da_ref':>9}"
@@ -80,6 +93,7 @@ def format_summary(res: dict) -> str:
         )
     if res.get("rounds"):
         lines.append("")
+        lines.append("scale factors per round (classical, eq. 21):")
         for r in res["rounds"]:
             b1, b2 = r["b1"], r["b2"]
             lines.append(

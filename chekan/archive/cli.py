@@ -188,6 +188,11 @@ def _cmd_reanalyze(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
     )
     print(rep.summary())
+    if rep.found == 0 and not rep.failed:
+        raise ChekanError(
+            f"{args.dir}: no chekan-record/1 or chekan-protocol/1 file found (searched "
+            "recursively; hidden entries skipped)"
+        )
     return 1 if rep.failed else 0
 
 
@@ -197,7 +202,7 @@ def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
         "reanalyze",
         help="analyse every record/protocol under a folder into the archive",
         epilog="exit status: 0 all done or skipped, 1 some inputs failed (listed; the others "
-        "were archived), 2 an error",
+        "were archived), 2 an error (also: no record or protocol found)",
     )
     p.add_argument("dir", help="folder searched recursively for chekan-record/1 and -protocol/1")
     p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
