@@ -183,3 +183,40 @@ def test_numpy_and_nan_values_are_stored_as_json(tmp_path, result46):
         s = a.get_session(a.add_result(r))
     assert s["result"]["parameters"]["b2"]["sd"] is None and s["parameters"]["b2"]["sd"] is None
     assert s["parameters"]["b1"]["mean"] == float(r["parameters"]["b1"]["mean"])
+
+
+def test_the_platform_is_recorded_per_session(tmp_path, result46):
+    """Each session keeps its own gyro-platform (schema v2); a v1 archive is upgraded with
+    the platforms of its sessions' stored metadata."""
+    db = tmp_path / "a.sqlite"
+    with Archive(db) as a:
+        old = variant(result46, sha="1" * 64)
+        old["metadata"]["platform_serial"] = "P-1"
+        new = variant(result46, sha="2" * 64)
+        new["date"] = "2030-01-01"
+        new["metadata"]["platform_serial"] = "P-2"
+        s_old, s_new = a.add_result(old), a.add_result(new)
+        assert a.get_session(s_old)["platform_serial"] == "P-1"
+        assert a.get_session(s_new)["platform_serial"] == "P-2"
+        assert [r["platform_serial"] for r in a.list_sessions()] == ["P-1", "P-2"]
+        (inst,) = a.instruments()
+        assert inst["platform_serial"] == "P-2"
+    # a version-1 archive: the column is added and filled from the stored metadata
+    v1 = tmp_path / "v1.sqlite"
+    con = sqlite3.connect(v1, isolation_level=None)
+    from chekan.archive.db import MIGRATIONS
+
+    con.execute("CREATE TABLE schema_version (version INTEGER PRIMARY KEY, applied TEXT NOT NULL)")
+    MIGRATIONS[1](con)
+    con.execute("INSERT INTO schema_version VALUES (1, 'then')")
+    con.execute("INSERT INTO instruments (serial) VALUES ('46')")
+    con.execute(
+        "INSERT INTO sessions (instrument_id, input_path, input_sha256, metadata_json, method,"
+        " software_version, added, result_json) VALUES (1, 'x', 'h', ?, 'classical', '0.1',"
+        " 'now', '{}')",
+        (json.dumps({"platform_serial": "P-9"}),),
+    )
+    con.close()
+    with Archive(v1, readonly=True) as a:  # a reading command upgrades it too
+        assert schema_version(a.con) == SCHEMA_VERSION == 2
+        assert a.list_sessions()[0]["platform_serial"] == "P-9"

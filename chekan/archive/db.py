@@ -7,10 +7,12 @@ Posterior NetCDF files named by ``result["posterior_netcdf"]`` are copied beside
 
 Schema (version :data:`SCHEMA_VERSION`, upgraded in place by :func:`migrate`)::
 
-    instruments(id, serial UNIQUE, instrument, model, platform_serial)
+    instruments(id, serial UNIQUE, instrument, model,
+                platform_serial (the newest session's))
     sessions(id, instrument_id → instruments, input_path, input_sha256, input_kind,
              calibrated_on (ISO date), metadata_json, method, software_version,
              created, added, result_path, result_json, netcdf_path,
+             platform_serial (v2: the gyro-platform of this session),
              UNIQUE(input_sha256, method, software_version))
     parameters(session_id → sessions, name, mean, sd, hdi_low, hdi_high, unit,
                r_hat, ess_bulk, fixed, PRIMARY KEY(session_id, name))
@@ -37,7 +39,7 @@ from typing import Any
 from chekan.durable import atomic_output
 from chekan.errors import ChekanError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 PARAM_COLUMNS = ("mean", "sd", "hdi_low", "hdi_high", "unit", "r_hat", "ess_bulk")
 EXPORT_COLUMNS = (
     "session_id",
@@ -113,7 +115,21 @@ def _run_script(script: str) -> Callable[[sqlite3.Connection], None]:
     return apply
 
 
-MIGRATIONS: dict[int, Callable[[sqlite3.Connection], None]] = {1: _run_script(_SCHEMA_V1)}
+def _v2_platform_per_session(con: sqlite3.Connection) -> None:
+    """Version 2: the gyro-platform of each session (``instruments.platform_serial`` keeps the
+    newest session's), filled in from the sessions' stored metadata."""
+    con.execute("ALTER TABLE sessions ADD COLUMN platform_serial TEXT")
+    rows = con.execute("SELECT id, metadata_json FROM sessions").fetchall()
+    for sid, meta in rows:
+        serial = (json.loads(meta) or {}).get("platform_serial")
+        if serial:
+            con.execute("UPDATE sessions SET platform_serial = ? WHERE id = ?", (serial, sid))
+
+
+MIGRATIONS: dict[int, Callable[[sqlite3.Connection], None]] = {
+    1: _run_script(_SCHEMA_V1),
+    2: _v2_platform_per_session,
+}
 
 
 def default_db_path(explicit: str | os.PathLike | None = None) -> Path:
@@ -226,6 +242,10 @@ class Archive:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self.con = self._open(readonly)
+            if readonly and schema_version(self.con) < SCHEMA_VERSION:
+                self.con.close()  # an archive of an older version: upgraded once, in place
+                self._open(readonly=False).close()
+                self.con = self._open(readonly)
         except sqlite3.DatabaseError as e:
             raise ChekanError(f"{self.path}: {_explain(e)}") from e
 
@@ -342,6 +362,7 @@ class Archive:
                     str(Path(result_path).resolve()) if result_path else None,
                     json.dumps(result, ensure_ascii=False, allow_nan=False),
                     str(nc_dst) if nc_dst else None,
+                    str(meta["platform_serial"]) if meta.get("platform_serial") else None,
                 )
                 if existing is None:
                     cur = self.con.execute(
@@ -442,7 +463,8 @@ class Archive:
         """Sessions (without the result JSON), oldest calibration first."""
         sql = (
             "SELECT s.id, i.serial, s.calibrated_on, s.method, s.software_version, s.input_kind,"
-            " s.input_path, s.input_sha256, s.created, s.added, s.result_path, s.netcdf_path"
+            " s.input_path, s.input_sha256, s.created, s.added, s.result_path, s.netcdf_path,"
+            " s.platform_serial"
             " FROM sessions s JOIN instruments i ON i.id = s.instrument_id"
         )
         args: tuple = ()
@@ -522,6 +544,7 @@ _SESSION_COLUMNS = (
     "result_path",
     "result_json",
     "netcdf_path",
+    "platform_serial",
 )
 
 
