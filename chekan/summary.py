@@ -64,6 +64,11 @@ def format_summary(res: dict) -> str:
         lines.append(row + f"  {e.get('unit', '')}")
     for k, v in res.get("fixed", {}).items():
         lines.append(f"{k:<15}{_f(v, _param_fmt(k)):>14}  (fixed)")
+    if "a" in p or "a" in res.get("fixed", {}):
+        lines.append(
+            "(a in the record's convention, Δg = b(m − m_h) + a(m − m_h)² with readings growing "
+            "with gravity; a legacy protocol prints it with the opposite sign)"
+        )
     rs = res.get("residuals_mgal")
     if rs and "columns" in rs:
         cols = rs["columns"]

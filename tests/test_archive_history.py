@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 
 import numpy as np
 import pytest
@@ -145,3 +146,68 @@ def test_single_session_and_selection():
     pts, notes = select_points(rows, ("b1", "a"), method="classical")
     assert [p.session_id for p in pts["b1"]] == [1] and pts["a"] == []
     assert any("no uncertainty" in n for n in notes)
+
+
+# ---------------------------------------------------------------- the decision rule (§7.8.6)
+def test_decision_rule_is_guarded():
+    from chekan.archive.history import decide
+
+    assert decide(600.0, 50.0, 500.0, interval=False) == "ALARM"  # beyond by more than U
+    assert decide(600.0, 200.0, 500.0, interval=False) == "WARNING"  # beyond, within U
+    assert decide(450.0, 200.0, 500.0, interval=False) is None  # a change inside T
+    assert decide(450.0, 200.0, 500.0, interval=True) == "WARNING"  # a prediction's interval
+
+
+def test_no_alarm_for_changes_that_are_not_significant():
+    """A stable instrument measured with 400 ppm sds: changes of several hundred ppm between
+    verifications are noise, and no ALARM may fire on them (they fired on |Δ| > T alone)."""
+    b = 6.98
+    rng = np.random.default_rng(5)
+    vals = b * (1 + 400e-6 * rng.standard_normal(40))
+    pts = points(list(vals), [b * 400e-6] * 40, start=1980)
+    h, _ = param_history("b1", pts, "mGal/pix", at=dt.date(2020, 1, 1), tolerance_ppm=500.0)
+    beyond = [c for c in h.changes if abs(c["delta_ppm"]) > 500.0]
+    assert beyond  # the old rule's alarms
+    assert [a for a in h.alarms if a["level"] == "ALARM"] == []
+    assert {a["level"] for a in h.alarms if a["kind"] == "change"} == {"WARNING"}
+    assert all("inconclusive" in a["message"] for a in h.alarms if a["kind"] == "change")
+
+
+def test_prediction_interval_grows_with_the_distance_in_time():
+    b = 7.0
+    pts = points([b * (1 + 50e-6 * (-1) ** i) for i in range(5)], [b * 100e-6] * 5)
+    sds = [
+        param_history("b1", pts, "mGal/pix", at=dt.date(y, 6, 1), tolerance_ppm=None)[0].prediction[
+            "sd"
+        ]
+        for y in (2014, 2016, 2020, 2025)
+    ]
+    assert all(a < b_ for a, b_ in itertools.pairwise(sds)), sds
+    assert sds[-1] > 2 * sds[0]
+    # one date: the value, with no known uncertainty beyond it, and no alarm on it
+    h, _ = param_history(
+        "b1", points([6.9], [0.001]), "mGal/pix", at=dt.date(2021, 1, 1), tolerance_ppm=100.0
+    )
+    assert h.prediction["mean"] == 6.9 and h.prediction["sd"] == np.inf and h.alarms == []
+    h, _ = param_history(
+        "b1", points([6.9], [0.001]), "mGal/pix", at=dt.date(2010, 6, 1), tolerance_ppm=100.0
+    )
+    assert h.prediction["sd"] == 0.001  # at the session's own date: its own sd
+
+
+def test_the_decision_rule_is_stated(tmp_path, paper_protocol):
+    import copy
+
+    from chekan.archive.db import Archive
+    from chekan.archive.history import DECISION_RULE, format_history, stability_history
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+
+    res = calibrate_file(paper_protocol, CalibrationOptions(method="classical", progress=False))
+    with Archive(tmp_path / "a.sqlite") as a:
+        for i, date in enumerate(("2015-07-09", "2016-07-09")):
+            r = copy.deepcopy(res)
+            r["record_sha256"], r["date"] = str(i) * 64, date
+            a.add_result(r)
+        hist = stability_history(a, "46", at="2017-01-01", tolerance_ppm=500.0)
+    assert hist["decision_rule"] == DECISION_RULE
+    assert f"decision rule: {DECISION_RULE}" in format_history(hist)

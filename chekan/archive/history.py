@@ -49,9 +49,33 @@ software versions the latest archived) and:
   random walk is taken as zero. Fewer than 4 sessions: :math:`q=\sigma_x=0` (weighted
   straight line); one session: no trend, the prediction is that session.
 
-ALARMs (scale factors only, unit mGal/pix): a change between consecutive verifications
-larger than ``tolerance_ppm``, or a predicted mean at the requested date further than that
-from the last verification; a WARNING when only the credible interval leaves that band.
+Decision rule (:data:`DECISION_RULE`; ISO/IEC 17025 §7.8.6, ILAC-G8:09/2019 guarded
+acceptance, guard band w = U): scale factors only (unit mGal/pix), for |Δ| the change between
+consecutive verifications, or the predicted value at the requested date against the last
+verification, with U its expanded uncertainty at ``hdi_prob`` (z·sd):
+
+* ALARM when |Δ| − U > T (``tolerance_ppm``): beyond the tolerance even at the near end of
+  its interval, so the change is also significant;
+* WARNING when |Δ| > T otherwise (beyond the tolerance, but not by more than its U:
+  inconclusive), and for a prediction also when only its interval reaches past T;
+* nothing else.
+
+With sessions on one date only there is no trend, and a prediction at another date is the
+last value with an unknown (infinite) uncertainty, and no alarm: one verification cannot tell
+how the scale changes, and a finite interval would be false. Otherwise the prediction's
+interval grows with the distance from the sessions (the trend's and the random walk's
+variance, :meth:`HistoryFit.predict`).
+
+Sign of a (the quadratic coefficient): every value of ``a`` here is in the record's
+convention (readings grow with gravity, Δg = b(m − m_h) + a(m − m_h)², eq. 8). A legacy
+protocol prints a in its own convention (increments counted positive when gravity decreases,
+``shared/specs/legacy-protocol.md``), which has the opposite sign; its re-analysis reports a
+in the record's convention (:func:`chekan.classical.increments_from_protocol`): protocol
+no. 46's printed +78 nGal/pix² is archived as −7.8e-5 mGal/pix² (its printed δg are
+reproduced only with that reading). Eq. (10), a = g/2K², is positive in the record's
+convention (+1.34e-4 mGal/pix² for K = 60 428, the simulator's value), so histories that mix
+protocols and records can show a change of sign of a: it is the instruments', not a units
+slip.
 """
 
 from __future__ import annotations
@@ -73,6 +97,11 @@ METHOD_PREFERENCE = ("bayes", "map", "classical")
 DEFAULT_PARAMS = ("b1", "b2", "a")
 SCALE_UNIT = "mGal/pix"
 DAYS_PER_YEAR = 365.25
+DECISION_RULE = (
+    "guarded (ILAC-G8, guard band w = U at the interval probability): ALARM when |Δ| − U "
+    "exceeds the tolerance; WARNING when |Δ| does but not by more than U (inconclusive), or "
+    "when a prediction's interval reaches past it"
+)
 _BOUNDS = (1e-6, 1e3)  # hyperparameters, in units of the median s_i²
 _GRID = 15
 _NQ = 64  # prediction dates per compiled call
@@ -348,6 +377,7 @@ def param_history(
     h = ParamHistory(name, unit, [asdict(p) for p in points])
     if not points:
         return h, None
+    z = z_for(hdi_prob)
     y = np.array([p.mean for p in points])
     s = np.array([p.sd for p in points])
     w = 1.0 / s**2
@@ -367,45 +397,59 @@ def param_history(
             "delta_ppm": d / abs(a.mean) * 1e6 if a.mean else None,
         }
         h.changes.append(ch)
-        if alarming and ch["delta_ppm"] is not None and abs(ch["delta_ppm"]) > tolerance_ppm:
-            h.alarms.append(
-                {
-                    "level": "ALARM",
-                    "kind": "change",
-                    "param": name,
-                    "message": f"{name}: change {a.date} → {b.date} of {ch['delta_ppm']:+.0f} ppm "
-                    f"exceeds ±{tolerance_ppm:g} ppm (z = {ch['z']:+.1f})",
-                    **ch,
-                }
-            )
+        if alarming and ch["delta_ppm"] is not None:
+            u_ppm = z * sd / abs(a.mean) * 1e6
+            level = decide(abs(ch["delta_ppm"]), u_ppm, tolerance_ppm, interval=False)
+            if level:
+                h.alarms.append(
+                    {
+                        "level": level,
+                        "kind": "change",
+                        "param": name,
+                        "message": f"{name}: change {a.date} → {b.date} of "
+                        f"{ch['delta_ppm']:+.0f} ± {u_ppm:.0f} ppm (U, {hdi_prob:.0%}) "
+                        + _verdict(level, tolerance_ppm),
+                        "u_ppm": u_ppm,
+                        **ch,
+                    }
+                )
     d0 = _dt.date.fromisoformat(points[0].date)
     tau = np.array([_years(d0, _dt.date.fromisoformat(p.date)) for p in points])
     yp = (y - ref) / scale * 1e6
     sp = s / scale * 1e6
-    z = z_for(hdi_prob)
     tau_at = _years(d0, at)
-    fit = None
-    if np.unique(tau).size >= 2:
-        fit = fit_history(tau, yp, sp, extra_error=extra_error)
-        r, r_sd = fit.rate
-        h.trend = {
-            "ppm_per_year": r,
-            "sd_ppm_per_year": r_sd,
-            "per_year": r * scale * 1e-6,
-            "sd_per_year": r_sd * scale * 1e-6,
-            "z": r / r_sd if r_sd > 0 else None,
+    if np.unique(tau).size < 2:  # one date: its value, and beyond it no known uncertainty
+        last = points[-1]
+        sd_at = last.sd if tau_at == tau[-1] else math.inf
+        h.prediction = {
+            "date": at.isoformat(),
+            "mean": last.mean,
+            "sd": sd_at,
+            "hdi_prob": hdi_prob,
+            "low": last.mean - z * sd_at,
+            "high": last.mean + z * sd_at,
+            "from_last_ppm": 0.0,
+            "last_date": last.date,
         }
-        h.model = {
-            "t0": points[0].date,
-            "random_walk_q_ppm2_per_year": fit.q,
-            "random_walk_ppm_per_sqrt_year": math.sqrt(fit.q),
-            "extra_error_ppm": fit.sigma_x,
-            "hyperparameters_estimated": fit.estimated,
-            "log_marginal_likelihood": fit.log_marginal,
-        }
-        m, sd = (float(v[0]) for v in fit.predict(np.array([tau_at])))
-    else:  # one date: the value itself
-        m, sd = float(yp[-1]), float(sp[-1])
+        return h, None
+    fit = fit_history(tau, yp, sp, extra_error=extra_error)
+    r, r_sd = fit.rate
+    h.trend = {
+        "ppm_per_year": r,
+        "sd_ppm_per_year": r_sd,
+        "per_year": r * scale * 1e-6,
+        "sd_per_year": r_sd * scale * 1e-6,
+        "z": r / r_sd if r_sd > 0 else None,
+    }
+    h.model = {
+        "t0": points[0].date,
+        "random_walk_q_ppm2_per_year": fit.q,
+        "random_walk_ppm_per_sqrt_year": math.sqrt(fit.q),
+        "extra_error_ppm": fit.sigma_x,
+        "hyperparameters_estimated": fit.estimated,
+        "log_marginal_likelihood": fit.log_marginal,
+    }
+    m, sd = (float(v[0]) for v in fit.predict(np.array([tau_at])))
     last = points[-1]
     mean = ref + m * scale * 1e-6
     sd_n = sd * scale * 1e-6
@@ -421,28 +465,43 @@ def param_history(
     }
     if alarming and last.mean:
         pr = h.prediction
-        band = abs(last.mean) * tolerance_ppm * 1e-6
-        lo, hi = last.mean - band, last.mean + band
-        if not lo <= pr["mean"] <= hi:
-            level, what = "ALARM", "the predicted value"
-        elif pr["low"] < lo or pr["high"] > hi:
-            level, what = "WARNING", f"the {hdi_prob:.0%} credible interval"
-        else:
-            level = None
+        u_ppm = z * sd_n / abs(last.mean) * 1e6
+        level = decide(abs(pr["from_last_ppm"]), u_ppm, tolerance_ppm, interval=True)
         if level:
             h.alarms.append(
                 {
                     "level": level,
                     "kind": "prediction",
                     "param": name,
-                    "message": f"{name}: at {at.isoformat()} {what} ({pr['low']:.6g} … "
-                    f"{pr['high']:.6g}, mean {pr['from_last_ppm']:+.0f} ppm) leaves ±"
-                    f"{tolerance_ppm:g} ppm of the last verification ({last.date}): "
-                    "recalibrate",
+                    "message": f"{name}: predicted at {at.isoformat()} "
+                    f"{pr['from_last_ppm']:+.0f} ± {u_ppm:.0f} ppm (U, {hdi_prob:.0%}; "
+                    f"{pr['low']:.6g} … {pr['high']:.6g}) from the last verification "
+                    f"({last.date}) "
+                    + _verdict(level, tolerance_ppm)
+                    + (": recalibrate" if level == "ALARM" else ""),
                     "date": at.isoformat(),
+                    "u_ppm": u_ppm,
                 }
             )
     return h, fit
+
+
+def decide(delta_ppm: float, u_ppm: float, tolerance_ppm: float, *, interval: bool) -> str | None:
+    """:data:`DECISION_RULE` for |Δ| with expanded uncertainty U (ppm): ALARM when |Δ| − U > T;
+    WARNING when |Δ| > T, or (``interval``: a prediction) when only |Δ| + U > T."""
+    if delta_ppm - u_ppm > tolerance_ppm:
+        return "ALARM"
+    if delta_ppm > tolerance_ppm or (interval and delta_ppm + u_ppm > tolerance_ppm):
+        return "WARNING"
+    return None
+
+
+def _verdict(level: str, tolerance_ppm: float) -> str:
+    if level == "ALARM":
+        return f"exceeds ±{tolerance_ppm:g} ppm by more than its U (guarded rule)"
+    return (
+        f"reaches past ±{tolerance_ppm:g} ppm, not by more than its U: inconclusive (guarded rule)"
+    )
 
 
 def stability_history(
@@ -477,6 +536,7 @@ def stability_history(
         "method": method or "preferred: " + " > ".join(METHOD_PREFERENCE),
         "at": at.isoformat(),
         "tolerance_ppm": tolerance_ppm,
+        "decision_rule": DECISION_RULE,
         "hdi_prob": hdi_prob,
         "parameters": {},
         "alarms": [],
@@ -497,7 +557,10 @@ def stability_history(
             extra_error=extra_error,
         )
         if h.trend is None:
-            out["notes"].append(f"{p}: sessions on one date only: no trend, the prediction is it")
+            out["notes"].append(
+                f"{p}: sessions on one date only: no trend, and a prediction beyond that date "
+                "has no known uncertainty (one verification cannot tell how the scale changes)"
+            )
         out["parameters"][p] = asdict(h)
         out["alarms"].extend(h.alarms)
     out["fits"] = fits  # the fitted models, for plots and predictions; not written to JSON
@@ -540,7 +603,12 @@ def format_history(hist: dict) -> str:
                 f"{m['extra_error_ppm']:.3g} ppm"
             )
         pr = h["prediction"]
-        if pr:
+        if pr and not (pr["sd"] is not None and math.isfinite(pr["sd"])):
+            lines.append(
+                f"  predicted at {pr['date']}: {pr['mean']:.7g} ± unknown (one verification "
+                "date: how the value changes cannot be estimated)"
+            )
+        elif pr:
             lines.append(
                 f"  predicted at {pr['date']}: {pr['mean']:.7g} ± {pr['sd']:.2g} "
                 f"({pr['hdi_prob']:.0%}: {pr['low']:.7g} … {pr['high']:.7g}), "
@@ -552,6 +620,8 @@ def format_history(hist: dict) -> str:
     elif hist["tolerance_ppm"] is not None:
         lines.append("")
         lines.append(f"no alarm (tolerance ±{hist['tolerance_ppm']:g} ppm)")
+    if hist["tolerance_ppm"] is not None:
+        lines.append(f"decision rule: {hist.get('decision_rule', DECISION_RULE)}")
     lines += [f"note: {n}" for n in hist["notes"]]
     return "\n".join(lines)
 
@@ -589,7 +659,7 @@ def plot_history(hist: dict, path: str | Path) -> Path:
             lin = ref + (fit.beta[0] + fit.beta[1] * tq) * scale * 1e-6
             ax.plot(grid, lin, "C2--", lw=1, label="trend")
         pr = h["prediction"]
-        if pr:
+        if pr and pr["sd"] is not None and math.isfinite(pr["sd"]):  # else: no interval known
             ax.errorbar(
                 [at],
                 [pr["mean"]],
