@@ -28,6 +28,8 @@ import concurrent.futures as cf
 import contextlib
 import multiprocessing as mp
 import os
+import threading
+import time
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -137,7 +139,9 @@ def find_inputs(root: str | os.PathLike) -> tuple[list[tuple[Path, str]], list[F
 
 # ---------------------------------------------------------------------------- workers
 def configure_worker_env() -> None:
-    """One XLA host device and one compute thread: call before JAX/NumPy initialise."""
+    """One XLA host device and one compute thread: call before JAX/NumPy initialise. The
+    worker also ends when its parent does (:func:`exit_with_parent`)."""
+    exit_with_parent()
     keep = [
         f
         for f in os.environ.get("XLA_FLAGS", "").split()
@@ -146,6 +150,25 @@ def configure_worker_env() -> None:
     os.environ["XLA_FLAGS"] = " ".join([*keep, *_WORKER_XLA_FLAGS])
     for v in _THREAD_VARS:
         os.environ[v] = "1"
+
+
+#: How often a worker looks whether its parent is still alive, s.
+PARENT_CHECK_S = 0.5
+
+
+def exit_with_parent() -> None:
+    """End this process as soon as its parent is gone (``kill -9`` of ``reanalyze``): a
+    daemon thread compares the parent's pid with the one at start-up, so a worker in the
+    middle of a calibration does not run on for minutes holding its memory."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_CHECK_S)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def _options(opts: dict[str, Any]):
