@@ -428,3 +428,46 @@ def test_live_page_in_a_browser_end_to_end(tmp_path):
     finally:
         run.close()
         shutil.rmtree(profile, ignore_errors=True)
+
+
+def test_client_mistakes_get_an_answer_not_a_traceback(tmp_path, capfd):
+    """``/api/rows?from=abc`` is a 400; a client that disconnects mid-request prints
+    nothing (issue 33 §4)."""
+    import socket
+    import threading
+    import urllib.error
+
+    from chekan.live.server import LiveServer
+
+    srv = LiveServer(("127.0.0.1", 0), LiveState(tmp_path / "rec.csv", map_runner=_FakeRunner()))
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        for bad in ("abc", "-1", "1.5", "1e3"):
+            with pytest.raises(urllib.error.HTTPError) as e:
+                urllib.request.urlopen(srv.url + f"api/rows?from={bad}", timeout=5)
+            assert e.value.code == 400 and b"row number" in e.value.read()
+        with urllib.request.urlopen(srv.url + "api/rows?from=0", timeout=5) as resp:
+            assert resp.status == 200
+        host, port = srv.server_address[:2]
+        for _ in range(5):  # half a request, then a reset (SO_LINGER 0)
+            s = socket.create_connection((host, port))
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\x00\x00\x00\x00\x00\x00\x00")
+            s.sendall(b"GET /api/status HTTP/1.1\r\nHost: x\r\n")
+            s.close()
+        time.sleep(0.5)
+    finally:
+        srv.stop()
+        srv.server_close()
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "ConnectionResetError" not in err, err
+
+
+def test_an_all_interfaces_bind_is_announced_with_a_warning(tmp_path):
+    from chekan.live.server import LiveServer
+
+    srv = LiveServer(("0.0.0.0", 0), LiveState(tmp_path / "rec.csv", map_runner=_FakeRunner()))
+    try:
+        assert srv.open_to_network and srv.bound.startswith("0.0.0.0:")
+        assert srv.url.startswith("http://127.0.0.1:")
+    finally:
+        srv.server_close()

@@ -86,8 +86,11 @@ class _Handler(BaseHTTPRequestHandler):
             elif url.path == "/api/status":
                 self._send(200, _dumps(st.status()).encode(), "application/json")
             elif url.path == "/api/rows":
-                start = int(parse_qs(url.query).get("from", ["0"])[0])
-                self._send(200, _dumps(st.rows_since(start)).encode(), "application/json")
+                text = parse_qs(url.query).get("from", ["0"])[0]
+                if not text.isdigit():  # a client's mistake: say so, never a traceback
+                    self._send(400, b"from must be a row number (0, 1, 2, ...)", "text/plain")
+                    return
+                self._send(200, _dumps(st.rows_since(int(text))).encode(), "application/json")
             elif url.path == "/events":
                 self._events()
             else:
@@ -141,11 +144,31 @@ class LiveServer(ThreadingHTTPServer):
             p.name for p in resources.files("chekan.live").joinpath("static").iterdir()
         }
 
+    def handle_error(self, request, client_address) -> None:
+        """A client that goes away mid-request is no error of the server's; anything else is
+        one line on stderr, never a traceback."""
+        err = sys.exc_info()[1]
+        if isinstance(err, ConnectionError | TimeoutError):
+            return
+        print(f"chekan live: request from {client_address[0]}: {err!r}", file=sys.stderr)
+
+    @property
+    def open_to_network(self) -> bool:
+        """Bound to every interface (``0.0.0.0``, ``::``), not to loopback alone."""
+        return self.server_address[0] in ("0.0.0.0", "", "::")
+
     @property
     def url(self) -> str:
+        """Where to open the page on this machine (``127.0.0.1`` for an all-interfaces bind)."""
         host, port = self.server_address[:2]
-        shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
+        shown = "127.0.0.1" if self.open_to_network else host
         return f"http://{shown}:{port}/"
+
+    @property
+    def bound(self) -> str:
+        """The address actually bound, ``HOST:PORT``."""
+        host, port = self.server_address[:2]
+        return f"{host}:{port}"
 
     def follow(self, poll_s: float = POLL_S) -> None:
         """Update the state from the files until :meth:`stop` (runs in its own thread)."""
@@ -183,7 +206,12 @@ def serve(
         srv = LiveServer((host, port), state)
     except OSError as e:
         raise ChekanError(f"--live {address}: cannot listen: {e}") from None
-    announce(f"live page {srv.url} (pid {os.getpid()}, following {record})")
+    announce(f"live page {srv.url} (bound to {srv.bound}, pid {os.getpid()}, following {record})")
+    if srv.open_to_network:
+        announce(
+            f"warning: the live page listens on every interface ({srv.bound}): anyone on "
+            "the network can read it (read-only)"
+        )
     threading.Thread(target=srv.serve_forever, name="live-http", daemon=True).start()
     follower = threading.Thread(target=srv.follow, name="live-follow", daemon=True)
     follower.start()
