@@ -325,8 +325,28 @@ def calibrate_record(record, settle_s: float | None = None, a_fixed: float | Non
     if settle_s is None:
         settle_s = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle_s)
+    check_single_axis(holds, record.path)
     table = increments_from_holds(holds, record.g_local_mgal)
     return _fit_input(table, a_fixed, record.path), holds
+
+
+#: What the calibration supports today: tilts about the platform Y axis (the paper's).
+SUPPORTED_PROGRAMS = 'tilts about the platform Y axis only (program axis = "y")'
+
+
+def check_single_axis(holds: HoldTable, path: str | None) -> None:
+    """Refuse a record with tilts about the platform X axis: a tilt about X turns the
+    pendulums in their own plane and is not described by g(1 − cos θ) (eqs. 11–13), so
+    neither the classical method nor the joint model of this version can use it."""
+    tilts = ~holds.is_level
+    about_x = tilts & (np.abs(holds.tilt_x_rad) > np.abs(holds.tilt_y_rad))
+    if about_x.any():
+        rounds = sorted({int(r) for r in holds.round[about_x]})
+        raise ChekanError(
+            f"{path or '<record>'}: {int(about_x.sum())} hold(s) tilted about the platform X "
+            f"axis (round(s) {', '.join(map(str, rounds))}): this version calibrates "
+            f"{SUPPORTED_PROGRAMS}; rounds about X are not supported yet"
+        )
 
 
 def calibrate_protocol(protocol, a_fixed: float | None = None) -> ClassicalResult:

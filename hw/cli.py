@@ -271,6 +271,14 @@ def cmd_acquire(args: argparse.Namespace) -> int:
                 if v is not None:
                     setattr(opts, k, v)
             print(f"program {program.describe()}", flush=True)
+            if any(st.kind == "tilt" and st.axis == "x" for st in program.steps):
+                print(
+                    "warning: this program tilts about the platform X axis: the record is "
+                    "kept whole, but this version of chekan calibrate supports tilts about Y "
+                    "only and will refuse it",
+                    file=sys.stderr,
+                    flush=True,
+                )
             _start_live(args, args.out)
             summary = acquire(
                 args.out,

@@ -279,3 +279,23 @@ def test_fuzz_numeric_options(command, option, value, fuzz_inputs, monkeypatch, 
     assert status != 1 or command == "reanalyze", (argv, err)
     if status == 2:  # one line that says what is wrong
         assert len(err.strip().splitlines()) == 1, err
+
+
+def test_a_record_tilted_about_x_is_refused_until_supported(tmp_path, capsys):
+    """Until rounds about both axes are supported end to end, calibrate says which programs
+    it supports instead of miscalibrating an X round (issue 33 §3)."""
+    prog = tmp_path / "x.toml"
+    prog.write_text(
+        'name = "x"\nangles = ["2°30\'", "4°10\'", "5°10\'"]\naxis = "x"\n'
+        "dwell_s = 300\nsettle_s = 100\nrounds = 1\n",
+        encoding="utf-8",
+    )
+    rec = tmp_path / "rx.csv"
+    assert main(["simulate", "--out", str(rec), "--program", str(prog)]) == 0
+    capsys.readouterr()
+    for method in ("classical", "map"):
+        status, err = run(["calibrate", str(rec), "-q", "--method", method], capsys)
+        assert status == 2 and "tilted about the platform X axis" in err, err
+        assert "tilts about the platform Y axis only" in err
+    assert main(["design", str(prog)]) == 0
+    assert "supports tilts about Y only" in capsys.readouterr().out

@@ -229,6 +229,10 @@ def run_design_command(args) -> int:
     t0 = time.perf_counter()
     prec = expected_precision(program, values)
     print(f"given program ({args.program or 'the paper’s default'}):")
+    print(
+        "(programs with rounds about X, axis x or xy, are ranked for what they would give; "
+        "this version of chekan calibrate supports tilts about Y only)"
+    )
     if values.angle_bound_arcsec:
         print(
             f"(angle sensors: systematic error bound {values.angle_bound_arcsec:g}″ per axis, "
