@@ -15,6 +15,7 @@ Typical session (two terminals)::
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import signal
 import sys
@@ -220,6 +221,17 @@ def _start_live(args: argparse.Namespace, record) -> None:
     print(line, flush=True)
 
 
+def check_ports(sensor: str | None, platform: str | None) -> None:
+    """A port given as a device path must exist before anything is written: a typo fails at
+    once, naming the port, instead of waiting out the give-up time and leaving a journal.
+    URLs (``socket://``, ``rfc2217://``, ``loop://``) are left to pyserial."""
+    from hw.linkio import url_scheme
+
+    for option, url in (("--sensor", sensor), ("--platform", platform)):
+        if url and not url_scheme(url) and not os.path.exists(url):
+            raise ChekanError(f"{option} {url}: no such port (check the device name)")
+
+
 def cmd_acquire(args: argparse.Namespace) -> int:
     from chekan.program import default_program, load_program
     from hw.acquisition import Options, acquire, resume
@@ -228,6 +240,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
 
     if not args.resume:  # a new record must not replace a measurement (or its program)
         check_outputs([args.program], [args.out])
+    check_ports(args.sensor, args.platform)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _on_sigterm)
     status = None if args.quiet else StatusLine()

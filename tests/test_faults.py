@@ -56,3 +56,23 @@ def test_reanalyze_workers_end_when_their_parent_is_killed(tmp_path):
         assert not _alive(worker), "the worker outlived its parent"
     finally:
         p.kill()
+
+
+def test_acquire_on_a_port_that_does_not_exist_fails_at_once(tmp_path):
+    out = tmp_path / "run" / "rec.csv"
+    t0 = time.monotonic()
+    p = subprocess.run(
+        [
+            *(sys.executable, "-m", "chekan.cli", "acquire", "-o", str(out)),
+            *("--sensor", str(tmp_path / "ttyUSB9"), "--platform", str(tmp_path / "ttyUSB8")),
+            *("--g-local-mgal", "981922.05", "-q"),
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=60,
+    )
+    assert p.returncode == 2 and time.monotonic() - t0 < 30, p.stderr
+    assert f"--sensor {tmp_path / 'ttyUSB9'}: no such port" in p.stderr, p.stderr
+    assert "Traceback" not in p.stderr
+    assert not out.parent.exists() or not any(out.parent.iterdir())  # nothing blocks a retry
