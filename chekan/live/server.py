@@ -206,7 +206,7 @@ def serve(
         srv = LiveServer((host, port), state)
     except OSError as e:
         raise ChekanError(f"--live {address}: cannot listen: {e}") from None
-    announce(f"live page {srv.url} (bound to {srv.bound}, pid {os.getpid()}, following {record})")
+    announce(f"live page {srv.url} (pid {os.getpid()}, bound to {srv.bound}, following {record})")
     if srv.open_to_network:
         announce(
             f"warning: the live page listens on every interface ({srv.bound}): anyone on "
