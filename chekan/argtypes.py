@@ -26,16 +26,6 @@ def _number(text: str) -> float:
     return v
 
 
-def finite() -> Callable[[str], float]:
-    """Any finite number."""
-
-    def parse(text: str) -> float:
-        return _number(text)
-
-    parse.__name__ = "finite number"
-    return parse
-
-
 def real(
     low: float, high: float = math.inf, *, open_low: bool = False, open_high: bool = False
 ) -> Callable[[str], float]:

@@ -207,7 +207,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--settle-s", type=argtypes.non_negative, help="settling time excluded from dwell means"
     )
-    p.add_argument("--a-fixed", type=argtypes.finite(), help="fix a (mGal/pix², record convention)")
+    p.add_argument(
+        "--a-fixed",
+        type=argtypes.real(-0.01, 0.01),
+        help="fix a (mGal/pix², record convention; eq. 10 gives ≈ 1.3e-4)",
+    )
     p.add_argument(
         "--encoder-error",
         action="store_true",

@@ -246,6 +246,8 @@ def _argv(command: str, f: dict[str, Path], out: Path) -> list[str]:
     }[command]
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # overflow: numbers that mean nothing
+@pytest.mark.filterwarnings("error::scipy.linalg.LinAlgWarning")
 @pytest.mark.parametrize("command,option", NUMERIC, ids=[f"{c} {o}" for c, o in NUMERIC])
 @settings(max_examples=12, deadline=None, suppress_health_check=list(HealthCheck))
 @given(value=VALUES)

@@ -13,8 +13,12 @@ from chekan.design.information import ExpectedPrecision, expected_precision
 from chekan.design.layout import DesignValues, program_clock_s
 from chekan.design.search import Candidate, SearchResult, search_programs
 from chekan.durable import atomic_output
+from chekan.errors import ChekanError
 from chekan.program import TiltProgram
 from chekan.units import format_dms
+
+#: The largest bound of an angle sensor's error that a design takes, arcsec (1°).
+MAX_BOUND_ARCSEC = 3600.0
 
 
 def format_precision(prec: ExpectedPrecision, random_only: ExpectedPrecision | None = None) -> str:
@@ -223,6 +227,11 @@ def run_design_command(args) -> int:
 
     program = load_program(args.program) if args.program else default_program()
     bound = getattr(args, "angle_bound_arcsec", None)
+    if bound is not None and not 0.0 <= bound <= MAX_BOUND_ARCSEC:
+        raise ChekanError(
+            f"--angle-bound-arcsec {bound:g}: the bound of an angle sensor's error must lie in "
+            f"[0, {MAX_BOUND_ARCSEC:g}] arcsec"
+        )
     values = DesignValues() if bound is None else DesignValues(angle_bound_arcsec=float(bound))
     _ = values.angle_spec  # a bad bound is an error before any work
     no_sys = dataclasses.replace(values, angle_bound_arcsec=0.0)
