@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from chekan import model as fm
 from chekan.joint import likelihood as lk
@@ -90,9 +91,10 @@ def test_equilibrium_by_system_is_the_transposed_equilibrium():
         )
 
 
-def test_predictive_equilibria_equal_per_draw_evaluation():
+@pytest.mark.parametrize("m0", [1024.0, 900.0])
+def test_predictive_equilibria_equal_per_draw_evaluation(m0):
     """All draws in one vectorised call equal make_params + evaluation per draw (also a
-    draw with a ≤ 0, which takes the design K)."""
+    draw with a ≤ 0, which takes the design K), at the record's CCD centre ``m0``."""
     from types import SimpleNamespace
 
     from chekan.joint.outputs import _equilibria
@@ -114,9 +116,9 @@ def test_predictive_equilibria_equal_per_draw_evaluation():
         tilt_x_rad=np.zeros(5), tilt_y_rad=np.radians([0.0, 1.9, -1.9, 5.1, -5.1])
     )
     take = np.array([2, 0, 1])
-    E, S = _equilibria(g, flat, take, holds)
+    E, S = _equilibria(g, m0, flat, take, holds)
     # through an executable store (as calibrate runs it): the same numbers
-    E2, S2 = _equilibria(g, flat, take, holds, ExecutableStore(None, "test"))
+    E2, S2 = _equilibria(g, m0, flat, take, holds, ExecutableStore(None, "test"))
     np.testing.assert_array_equal(E2, E)
     np.testing.assert_array_equal(S2, S)
     for n, i in enumerate(take):
@@ -128,6 +130,7 @@ def test_predictive_equilibria_equal_per_draw_evaluation():
             m_level_pix=flat["m_level_pix"][i],
             eps_rad=np.array([flat["eps1_arcmin"][i], flat["eps2_arcmin"][i]]) / ARCMIN_PER_RAD,
             gamma_rad=flat["dgamma_arcmin"][i] / ARCMIN_PER_RAD,
+            m0_pix=m0,
         )
         np.testing.assert_allclose(
             E[n], fm.equilibrium_readings(sp, holds.tilt_x_rad, holds.tilt_y_rad), rtol=1e-14
@@ -137,3 +140,55 @@ def test_predictive_equilibria_equal_per_draw_evaluation():
             fm.reading_sensitivity_to_tilt(sp, holds.tilt_x_rad, holds.tilt_y_rad),
             rtol=1e-12,
         )
+
+
+def test_the_posterior_predictive_uses_the_records_ccd_centre():
+    """Replicas of noise-free draws give the classical δg of the model evaluated at the
+    record's ``ccd_center_pix`` (900 here), which the fit uses; it took 1024 before 0.3.9."""
+    from types import SimpleNamespace
+
+    from chekan.classical import fit_classical, increments_from_holds
+    from chekan.demo import demo_program
+    from chekan.holds import segment_record
+    from chekan.joint.outputs import posterior_predictive_delta_g
+    from chekan.simulate import Truth, simulate_session
+    from chekan.units import ARCMIN_PER_RAD
+
+    rec, truth = simulate_session(demo_program(quick=True), Truth(serial="M0"), seed=3)
+    holds = segment_record(rec, settle_s=200.0)
+    g = rec.g_local_mgal
+    t = truth
+    one = {
+        "a": np.array([g / 2 / t.K_pix_per_rad**2]),
+        "b1": np.array([t.b_mgal_per_pix[0]]),
+        "b2": np.array([t.b_mgal_per_pix[1]]),
+        "m_level_pix": np.array([t.m_level_pix]),
+        "eps1_arcmin": np.array([t.eps_arcmin[0]]),
+        "eps2_arcmin": np.array([t.eps_arcmin[1]]),
+        "dgamma_arcmin": np.array([t.dgamma_arcmin]),
+        "drift_coeffs": np.zeros((1, 2, 3)),
+        **{k: np.zeros(1) for k in ("sigma_hold_pix", "sigma_theta_arcsec")},
+        **{k: np.zeros(1) for k in ("sigma1_pix", "sigma2_pix")},
+    }
+    draws = {k: v[None] for k, v in one.items()}  # (chain, draw, ...)
+    model = SimpleNamespace(
+        t_span_s=(float(rec.t_s[0]), float(rec.t_s[-1])),
+        drift_degree=3,
+        data=SimpleNamespace(m0=np.asarray(900.0)),
+        structure=None,
+    )
+    rep = posterior_predictive_delta_g(holds, g, draws, model, np.random.default_rng(0))
+    sp = fm.make_params(
+        g_mgal=g,
+        K_pix_per_rad=t.K_pix_per_rad,
+        b_mgal_per_pix=t.b_mgal_per_pix,
+        m_level_pix=t.m_level_pix,
+        eps_rad=np.array(t.eps_arcmin) / ARCMIN_PER_RAD,
+        gamma_rad=t.dgamma_arcmin / ARCMIN_PER_RAD,
+        m0_pix=900.0,
+    )
+    E = np.asarray(fm.equilibrium_readings(sp, holds.tilt_x_rad, holds.tilt_y_rad))
+    want = fit_classical(
+        increments_from_holds(holds.__class__(**{**holds.__dict__, "m_mean_pix": E}), g)
+    )
+    np.testing.assert_allclose(rep[0], want.delta_g_mgal, atol=1e-9)

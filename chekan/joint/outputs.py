@@ -31,7 +31,8 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     P = np.polynomial.legendre.legvander(np.nan_to_num(s), model.drift_degree)[:, 1:]
     g = float(g_local)
     store = executables(model.structure)
-    E_all, S_all = _equilibria(g, flat, take, holds, store)  # (draws, K, 2) each
+    m0 = float(np.asarray(model.data.m0))  # the record's CCD centre, as the fit uses it
+    E_all, S_all = _equilibria(g, m0, flat, take, holds, store)  # (draws, K, 2) each
     reps = []
     for n_draw, i in enumerate(take):
         E, S = E_all[n_draw], S_all[n_draw]
@@ -46,9 +47,10 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     return np.stack(reps)  # (draws, R, 2, n)
 
 
-def _equilibria(g: float, flat: dict, take, holds, store: ExecutableStore | None = None):
-    """E and ∂E/∂θ at the hold attitudes for the draws ``take``, in one vectorised call
-    (a loop over draws dispatched two jitted calls and built parameters per draw).
+def _equilibria(g: float, m0: float, flat: dict, take, holds, store: ExecutableStore | None = None):
+    """E and ∂E/∂θ at the hold attitudes for the draws ``take`` (CCD centre ``m0`` pix), in one
+    vectorised call (a loop over draws dispatched two jitted calls and built parameters per
+    draw).
     ``store``: keep the compiled function there (a new process then loads it instead of
     tracing the vmapped model, ≈ 1.2 s)."""
     a = flat["a"][take]
@@ -57,7 +59,7 @@ def _equilibria(g: float, flat: dict, take, holds, store: ExecutableStore | None
     fields = {
         "g_mgal": np.full(n, g),
         "K_pix_per_rad": K,
-        "m0_pix": np.full(n, 1024.0),  # make_params' default, as the per-draw loop had
+        "m0_pix": np.full(n, m0),
         "b_mgal_per_pix": np.stack([flat["b1"][take], flat["b2"][take]], axis=1),
         "m_level_pix": flat["m_level_pix"][take],
         "eps_rad": np.stack([flat["eps1_arcmin"][take], flat["eps2_arcmin"][take]], axis=1)
