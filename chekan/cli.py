@@ -32,7 +32,8 @@ EXIT_STATUS = """\
 exit status (every command):
   0    done
   1    some inputs failed, the others were done (reanalyze; archive add, also a result
-       whose numbers differ from its archived session: --replace);
+       whose numbers differ from its archived session: --replace); a full disk or an I/O
+       error while writing (nothing half-written is left);
        a device error (acquire, demo: e.g. TILT,ERR; emulate)
   2    bad input or usage: a malformed file (file:line: problem), a bad option, or an
        output refused (it is an input of the command, an existing chekan-record/1 or

@@ -24,6 +24,7 @@ the target, then renamed into place). Stdlib only: cheap to import from every CL
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import sys
@@ -56,6 +57,10 @@ EXIT_NOT_CONVERGED = 3
 EXIT_ALARM = 4
 EXIT_INTERRUPTED = 130
 EXIT_CLOSED_PIPE = 141
+
+
+#: Failures of the system rather than of the input (a full disk, an I/O error): exit 1.
+_SYSTEM_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO})
 
 
 class OutputError(ChekanError):
@@ -264,7 +269,7 @@ def run_command(func: Callable[..., int | None], *args, prog: str = "chekan") ->
     except OSError as e:  # a missing or unreadable input, a folder one cannot write to
         where = f"{e.filename}: " if e.filename else ""
         print(f"{prog}: error: {where}{e.strerror or e}", file=sys.stderr)
-        return EXIT_USAGE
+        return EXIT_SOME_FAILED if e.errno in _SYSTEM_ERRNOS else EXIT_USAGE
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -12,7 +12,7 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 # isort: split
 
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -117,20 +117,49 @@ def to_inference_data(
     )
 
 
-def save_netcdf(idata: az.InferenceData, path: str | Path) -> Path:
+#: Room a NetCDF needs beyond its arrays (HDF5 structure, attributes), bytes.
+NETCDF_OVERHEAD_BYTES = 1 << 20
+
+
+def netcdf_size_bound(idata: az.InferenceData) -> int:
+    """An upper bound of the NetCDF's size: every array uncompressed, plus the overhead."""
+    total = NETCDF_OVERHEAD_BYTES
+    for group in idata.groups():
+        ds = idata[group]
+        total += sum(int(v.nbytes) for v in ds.variables.values())
+    return total
+
+
+def save_netcdf(
+    idata: az.InferenceData,
+    path: str | Path,
+    *,
+    sync_dir: Callable[[Path], None] | None = None,
+) -> Path:
     """Write ``idata`` to NetCDF (h5netcdf engine, compressed); returns the path.
 
     Written to a temporary file beside ``path`` and renamed into place, so an interrupted
-    run leaves the old file (or none), never half a posterior.
+    run leaves the old file (or none), never half a posterior; the temporary file is removed
+    whatever fails. A disk without room for :func:`netcdf_size_bound` is an ``OSError``
+    (ENOSPC) before anything is written: HDF5 that runs out of space mid-write can crash
+    the process. ``sync_dir(path)``, if given, makes the new name durable (an fsync of the
+    folder; the caller's, so that this package stays free of the domain's file layer).
     """
     import contextlib
+    import errno
     import os
+    import shutil
     import tempfile
-
-    from chekan.durable import fsync_dir
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    need, free = netcdf_size_bound(idata), shutil.disk_usage(path.parent).free
+    if free < need:
+        raise OSError(
+            errno.ENOSPC,
+            f"no room for the posterior ({need / 1e6:.1f} MB needed, {free / 1e6:.1f} MB free)",
+            str(path),
+        )
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     try:
@@ -139,7 +168,8 @@ def save_netcdf(idata: az.InferenceData, path: str | Path) -> Path:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
-        fsync_dir(path)
+        if sync_dir is not None:
+            sync_dir(path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)

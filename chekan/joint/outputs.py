@@ -104,6 +104,7 @@ def drift_curve(draws, model, hp: float, n: int = 60) -> dict:
 
 
 def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
+    from chekan.durable import fsync_dir
     from inference.arviz_io import save_netcdf, to_inference_data
 
     C, Dn = samp.draws.shape[:2]
@@ -133,4 +134,4 @@ def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
         },
         attrs={"model": "chekan.joint", "draws": f"{C}×{Dn}"},
     )
-    return save_netcdf(idata, path)
+    return save_netcdf(idata, path, sync_dir=fsync_dir)

@@ -338,6 +338,7 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     )
     out["diagnostics"] = diag
     if options.netcdf:
+        from chekan.durable import fsync_dir
         from inference.arviz_io import save_netcdf, to_inference_data
 
         idata = to_inference_data(
@@ -346,7 +347,7 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
             observed_data={"x_pix": np.asarray(table.x_pix)},
             attrs={"model": "chekan.joint.protocol"},
         )
-        out["posterior_netcdf"] = str(save_netcdf(idata, options.netcdf))
+        out["posterior_netcdf"] = str(save_netcdf(idata, options.netcdf, sync_dir=fsync_dir))
     return out
 
 

@@ -1,0 +1,30 @@
+"""The layers of the package: ``inference`` is model-agnostic estimation and knows nothing of
+the domain (issue 28)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _imported_modules(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+    return names
+
+
+def test_inference_imports_nothing_from_the_domain():
+    offenders = {
+        str(p.relative_to(ROOT)): sorted(
+            m for m in _imported_modules(p) if m.split(".")[0] in {"chekan", "hw"}
+        )
+        for p in sorted((ROOT / "inference").rglob("*.py"))
+    }
+    assert {k: v for k, v in offenders.items() if v} == {}
