@@ -18,6 +18,7 @@ import warnings
 from pathlib import Path
 
 from chekan import __version__, argtypes
+from chekan.options import ANGLE_ERRORS, METHODS
 from chekan.outputs import (
     PROGRAM,
     RESULT,
@@ -197,7 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(with --strict)",
     )
     p.add_argument("input", help="chekan-record/1 or chekan-protocol/1 file")
-    p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
+    p.add_argument("--method", choices=METHODS, default="classical")
     p.add_argument("-o", "--json", help="write the chekan-result/1 JSON here")
     p.add_argument("--netcdf", help="bayes: ArviZ posterior NetCDF (default: beside the JSON)")
     p.add_argument("--report", help="also render the certificate (PDF, or .html)")
@@ -220,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--angle-errors",
-        choices=("systematic", "independent"),
+        choices=ANGLE_ERRORS,
         default="systematic",
         help="map/bayes: the platform angle sensors' error: a systematic part per commanded "
         "angle and a scale error shared by all rounds plus a random part per hold "

@@ -18,10 +18,10 @@ import numpy as np
 
 import chekan
 from chekan.errors import FormatError
+from chekan.options import METHODS
 from chekan.parameters import PARAMETER_UNITS
 
 FORMAT = "chekan-result/1"
-METHODS = ("classical", "map", "bayes")
 REQUIRED_KEYS = ("format", "serial", "record", "method", "g_local_mgal", "parameters")
 PARAM_FIELDS = ("mean", "sd", "hdi_low", "hdi_high")
 UNITS = PARAMETER_UNITS  # one table: chekan.parameters

@@ -51,14 +51,15 @@ from typing import Any
 
 import numpy as np
 
+from chekan.options import METHODS
+from chekan.parameters import unit_of
 from chekan.validate_scenario import DEFAULT_SCENARIO, Scenario, scenario_line, session_truth
 
 CASES = ("typical", "misaligned", "drift", "slow")
 LEVELS = (0.5, 0.9, 0.95)
 PARAMS = ("b1", "b2", "a")
-METHODS = ("classical", "map", "bayes")
+
 DEFAULT_METHODS = ("classical", "map")
-UNITS = {"b1": "mGal/pix", "b2": "mGal/pix", "a": "mGal/pix²"}
 BAND_PROB = 0.999  # probability mass of the binomial band of an honest interval
 SEED_STRIDE = 100_000  # session i of a study with seed s is simulated with seed s·stride + i
 _INT_COLS = ("session", "seed")
@@ -357,7 +358,7 @@ def markdown_report(summary: dict, settings: dict, figures: Sequence[str] = ()) 
             if with_hdi:
                 cov.append(f"{e['coverage_hdi95']:.3f}" if "coverage_hdi95" in e else "—")
             lines.append(
-                f"| {method} | {p} ({UNITS[p]}) | {e['n']} | {' | '.join(cov)} "
+                f"| {method} | {p} ({unit_of(p)}) | {e['n']} | {' | '.join(cov)} "
                 f"| {e['rms_error']:.3g} | {e['bias']:.3g} | {e['rms_sd']:.3g} "
                 f"| {e['mean_z2']:.3g} |"
             )

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from chekan.parameters import unit_of
 from chekan.plotting import new_figure
-from chekan.validate import BAND_PROB, LEVELS, PARAMS, UNITS, summary_groups
+from chekan.validate import BAND_PROB, LEVELS, PARAMS, summary_groups
 
 _COLORS = {"classical": "tab:orange", "map": "tab:blue", "bayes": "tab:green"}
 _MARKERS = {"typical": "o", "misaligned": "s", "drift": "^", "slow": "v"}
@@ -116,8 +117,8 @@ def plot_errors(rows: Sequence[dict], methods: Sequence[str], path: Path) -> Pat
                     label=f"{m}, {c}",
                 )
         ax.axhline(0.0, color="k", lw=0.8)
-        ax.set_xlabel(f"true {p}, {UNITS[p]}")
-        ax.set_ylabel(f"estimate − truth, {UNITS[p]}")
+        ax.set_xlabel(f"true {p}, {unit_of(p)}")
+        ax.set_ylabel(f"estimate − truth, {unit_of(p)}")
         if pi == 0:
             ax.legend(fontsize=6, ncol=2)
         ax = axes[1, pi]
@@ -132,7 +133,7 @@ def plot_errors(rows: Sequence[dict], methods: Sequence[str], path: Path) -> Pat
             ax.bar(pos, rms, width=width, color=_COLORS[m], label=m)
         ax.set_xticks(np.arange(len(cases)), cases, fontsize=8)
         ax.set_yscale("log")
-        ax.set_ylabel(f"RMS error of {p}, {UNITS[p]}")
+        ax.set_ylabel(f"RMS error of {p}, {unit_of(p)}")
         if pi == 0:
             ax.legend(fontsize=7)
     fig.tight_layout()

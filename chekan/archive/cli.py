@@ -27,6 +27,7 @@ from typing import Any
 
 from chekan import argtypes
 from chekan.errors import ChekanError
+from chekan.options import METHODS
 from chekan.outputs import SQLITE, Output, check_outputs, run_command
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
@@ -205,7 +206,7 @@ def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
         "were archived), 2 an error (also: no record or protocol found)",
     )
     p.add_argument("dir", help="folder searched recursively for chekan-record/1 and -protocol/1")
-    p.add_argument("--method", choices=("classical", "map", "bayes"), default="classical")
+    p.add_argument("--method", choices=METHODS, default="classical")
     p.add_argument(
         "-j",
         "--jobs",
@@ -279,7 +280,7 @@ def add_history_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--param", nargs="+", default=["b1", "b2", "a"], help="parameters (b1 b2 a)")
     p.add_argument(
         "--method",
-        choices=("classical", "map", "bayes"),
+        choices=METHODS,
         help="only this method (default per session: bayes > map > classical)",
     )
     p.add_argument("--at", help="date of the prediction, YYYY-MM-DD (default today)")
