@@ -1,6 +1,8 @@
-"""One calibration end to end: input file → estimator → ``chekan-result/1`` dict.
+"""One calibration end to end: record or protocol → estimator → ``chekan-result/1`` dict.
 
-Used by ``chekan calibrate``, batch re-analysis and the demo, so they agree.
+:func:`calibrate` takes an in-memory :class:`~chekan.records.Record` or
+:class:`~chekan.protocol.Protocol`; :func:`calibrate_file` reads a file and calls it. Used
+by ``chekan calibrate``, re-analysis, validation, the live page and the demo, so they agree.
 """
 
 from __future__ import annotations
@@ -10,13 +12,35 @@ from pathlib import Path
 from chekan.errors import ChekanError
 from chekan.inputs import read_input
 from chekan.options import METHODS, CalibrationOptions
+from chekan.protocol import Protocol
+from chekan.records import Record
 from chekan.result import base_result, classical_result
+
+#: ``result["record"]`` of a calibration of data that came from no file.
+IN_MEMORY = "<memory>"
 
 
 def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) -> dict:
-    """Calibrate a record or a legacy protocol with the chosen method; return the result dict."""
-    opts = options or CalibrationOptions()
-    data, kind, cres, result = classical_stage(path, opts)
+    """Calibrate the record or legacy protocol in ``path``: :func:`calibrate` of what it
+    holds, the result naming the file and its SHA-256."""
+    opts = _checked(options)
+    return calibrate(read_input(path), opts, input_path=path)
+
+
+def calibrate(
+    data: Record | Protocol,
+    options: CalibrationOptions | None = None,
+    *,
+    input_path: str | Path | None = None,
+) -> dict:
+    """Calibrate an in-memory record or protocol with the chosen method; the result dict.
+
+    ``input_path``: the file the data was read from, unchanged (the result names it and its
+    SHA-256); ``None``: the data is the input itself (``record`` is :data:`IN_MEMORY`, no
+    hash), as for a simulated session or a record still being written.
+    """
+    opts = _checked(options)
+    kind, cres, result = classical_of(data, opts, input_path=input_path)
     if opts.method == "classical":
         return result
     # once the input has been read (a bad file fails at once, not after the loads), before
@@ -33,16 +57,37 @@ def calibrate_file(path: str | Path, options: CalibrationOptions | None = None) 
     return out
 
 
+def _checked(options: CalibrationOptions | None) -> CalibrationOptions:
+    opts = options or CalibrationOptions()
+    if opts.method not in METHODS:
+        raise ChekanError(f"unknown method {opts.method!r}; choose one of {', '.join(METHODS)}")
+    return opts
+
+
+def kind_of(data: Record | Protocol) -> str:
+    """``"record"`` or ``"protocol"``; anything else is an error."""
+    if isinstance(data, Record):
+        return "record"
+    if isinstance(data, Protocol):
+        return "protocol"
+    raise ChekanError(f"cannot calibrate a {type(data).__name__}: give a Record or a Protocol")
+
+
 def classical_stage(path: str | Path, opts: CalibrationOptions):
-    """Read the input and run the classical method: ``(data, kind, classical fit, result)``.
+    """Read ``path`` and run the classical method: ``(data, kind, classical fit, result)``."""
+    data = read_input(path)
+    return (data, *classical_of(data, _checked(opts), input_path=path))
+
+
+def classical_of(
+    data: Record | Protocol, opts: CalibrationOptions, *, input_path: str | Path | None = None
+):
+    """The classical method on ``data``: ``(kind, classical fit, result)``.
 
     Every method starts here (the classical fit seeds the MAP and is reported beside it).
     """
-    if opts.method not in METHODS:
-        raise ChekanError(f"unknown method {opts.method!r}; choose one of {', '.join(METHODS)}")
-    data = read_input(path)
-    kind = "protocol" if hasattr(data, "dg_mgal") else "record"
-    if kind == "record":
+    kind = kind_of(data)
+    if isinstance(data, Record):
         g = data.g_local_mgal
         m0 = data.ccd_center_pix
         b_prior = data.b_prior
@@ -55,7 +100,7 @@ def classical_stage(path: str | Path, opts: CalibrationOptions):
     header = base_result(
         method=opts.method,
         serial=data.serial,
-        input_path=path,
+        input_path=input_path,
         input_kind=kind,
         g_local_mgal=g,
         meta=data.meta,
@@ -68,11 +113,11 @@ def classical_stage(path: str | Path, opts: CalibrationOptions):
         header["date"] = data.meta["date"]
     from chekan import classical
 
-    if kind == "record":
+    if isinstance(data, Record):
         cres, _holds = classical.calibrate_record(
             data, settle_s=opts.settle_s, a_fixed=opts.a_fixed
         )
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
-    return data, kind, cres, result
+    return kind, cres, result

@@ -102,20 +102,21 @@ def base_result(
     *,
     method: str,
     serial: str,
-    input_path: str | Path,
+    input_path: str | Path | None,
     input_kind: str,
     g_local_mgal: float,
     meta: dict[str, str],
     hdi_prob: float,
     ccd_center_pix: float,
 ) -> dict:
-    """The header part common to every method."""
-    p = Path(input_path)
+    """The header part common to every method; ``input_path`` None: data that came from no
+    file (``record`` ``"<memory>"``, no SHA-256)."""
+    p = None if input_path is None else Path(input_path)
     return {
         "format": FORMAT,
         "serial": str(serial),
-        "record": str(input_path),
-        "record_sha256": sha256_file(p) if p.is_file() else None,
+        "record": "<memory>" if p is None else str(input_path),
+        "record_sha256": sha256_file(p) if p is not None and p.is_file() else None,
         "input_kind": input_kind,
         "method": method,
         "software": {"name": "chekan", "version": chekan.__version__},

@@ -10,7 +10,7 @@ b₁, b₂ and a:
 
 - ``classical``: Calibr.exe's least squares (:mod:`chekan.classical`), sd from its fit;
 - ``map``: the joint model, MAP + Laplace (the posterior's likelihood), delta-method sds;
-- ``bayes``: the posterior (:func:`chekan.pipeline.calibrate_file` with ``method="bayes"``,
+- ``bayes``: the posterior (:func:`chekan.pipeline.calibrate` with ``method="bayes"``,
   ``quick=True``) of a record written to a temporary file: ~1 min per session, for small
   studies.
 
@@ -43,7 +43,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -130,7 +129,7 @@ def run_session(
             classical_error="",
         )
     joint = (
-        ("map", lambda: _map_columns(rec, cres, settle_s, scenario)),
+        ("map", lambda: _map_columns(rec, settle_s, scenario)),
         ("bayes", lambda: _bayes_columns(rec, settle_s, seed, scenario)),
     )
     for method, columns in joint:
@@ -146,35 +145,28 @@ def run_session(
     return row
 
 
-def _map_columns(rec, cres, settle_s: float, scenario: Scenario) -> dict[str, Any]:
-    """MAP + Laplace on the in-memory record (the steps of ``chekan.joint.estimate``)."""
-    from chekan.joint import fit_map_em, initial_values, prepare, tau_from_transients
-    from chekan.joint.derived import map_derived
+def _map_columns(rec, settle_s: float, scenario: Scenario) -> dict[str, Any]:
+    """MAP + Laplace of the in-memory record through the public pipeline."""
+    from chekan.pipeline import calibrate
 
-    spec = scenario.options().angle_spec(rec.meta)
-    holds, model = prepare(rec, settle_s, angle_spec=spec)
-    init = initial_values(cres, rec.g_local_mgal)
-    fit = fit_map_em(model, init, tau_hint_s=lambda: tau_from_transients(rec, holds))
-    md = map_derived(fit)
+    opts = scenario.options(method="map", progress=False, settle_s=settle_s)
+    result = calibrate(rec, opts)
     out: dict[str, Any] = {}
     for p in PARAMS:
-        out[f"map_{p}"], out[f"map_{p}_sd"] = (float(v) for v in md[p])
-    out["map_converged"] = bool(fit.result.converged)
+        e = result["parameters"][p]
+        out[f"map_{p}"], out[f"map_{p}_sd"] = float(e["mean"]), float(e["sd"])
+    out["map_converged"] = bool(result["diagnostics"]["converged"])
     return out
 
 
 def _bayes_columns(rec, settle_s: float, seed: int, scenario: Scenario) -> dict[str, Any]:
-    """The posterior of a record written to a temporary file, through the public pipeline."""
-    from chekan.pipeline import calibrate_file
-    from chekan.records import write_record
+    """The posterior of the in-memory record through the public pipeline."""
+    from chekan.pipeline import calibrate
 
     opts = scenario.options(
         method="bayes", quick=True, progress=False, settle_s=settle_s, seed=seed
     )
-    with tempfile.TemporaryDirectory(prefix="chekan-validate-") as tmp:
-        path = Path(tmp) / "session.csv"
-        write_record(path, rec)
-        result = calibrate_file(path, opts)
+    result = calibrate(rec, opts)
     out: dict[str, Any] = {}
     for p in PARAMS:
         e = result["parameters"].get(p, {})

@@ -15,13 +15,10 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
-import tempfile
 import threading
 import time
 import warnings
 from concurrent.futures import Future, ProcessPoolExecutor
-from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
@@ -104,16 +101,12 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
 def estimate_map(record: Record) -> dict:
     """MAP b₁, b₂, a (with sd) of a partial record: the one call into the estimator.
 
-    Goes through :func:`chekan.pipeline.calibrate_file` (read → classical → MAP), as
-    ``chekan calibrate --method map`` does, on a temporary copy of the rows so far.
+    Goes through :func:`chekan.pipeline.calibrate` (classical → MAP), as ``chekan calibrate
+    --method map`` does, on the rows so far in memory (an error names the user's record).
     """
-    from chekan.pipeline import CalibrationOptions, calibrate_file
-    from chekan.records import write_record
+    from chekan.pipeline import CalibrationOptions, calibrate
 
-    with tempfile.TemporaryDirectory(prefix="chekan-live-") as tmp:
-        path = Path(tmp) / "partial.csv"
-        write_record(path, replace(record, path=None))
-        result = calibrate_file(path, CalibrationOptions(method="map", progress=False))
+    result = calibrate(record, CalibrationOptions(method="map", progress=False))
     return {k: result["parameters"][k] for k in PARAMS if k in result.get("parameters", {})}
 
 

@@ -1,0 +1,42 @@
+"""``chekan.pipeline.calibrate``: an in-memory record or protocol gives the numbers its file
+gives (issue 28)."""
+
+from __future__ import annotations
+
+import pytest
+
+from chekan.errors import ChekanError
+from chekan.inputs import read_input
+from chekan.pipeline import IN_MEMORY, CalibrationOptions, calibrate, calibrate_file
+
+
+def _numbers(res: dict) -> dict:
+    return {k: (v["mean"], v.get("sd")) for k, v in res["parameters"].items()}
+
+
+@pytest.mark.parametrize("method", ["classical", "map"])
+def test_a_record_in_memory_equals_its_file(short_session, method):
+    path, rec, _ = short_session
+    opts = CalibrationOptions(method=method, progress=False)
+    from_file = calibrate_file(path, opts)
+    in_memory = calibrate(read_input(path), opts)
+    assert _numbers(in_memory) == _numbers(from_file)
+    assert from_file["record"] == str(path) and len(from_file["record_sha256"]) == 64
+    assert in_memory["record"] == IN_MEMORY and in_memory["record_sha256"] is None
+    # the simulator's own Record (not read from a file) calibrates without a file too
+    assert calibrate(rec, opts)["parameters"]["b1"]["mean"] == pytest.approx(
+        from_file["parameters"]["b1"]["mean"], rel=1e-6
+    )
+
+
+def test_a_protocol_in_memory_equals_its_file(paper_protocol):
+    opts = CalibrationOptions(method="classical", progress=False)
+    data = read_input(paper_protocol)
+    assert _numbers(calibrate(data, opts)) == _numbers(calibrate_file(paper_protocol, opts))
+    named = calibrate(data, opts, input_path=paper_protocol)
+    assert named["record"] == str(paper_protocol) and named["record_sha256"]
+
+
+def test_anything_else_is_refused():
+    with pytest.raises(ChekanError, match="give a Record or a Protocol"):
+        calibrate({"t_s": [0.0]})
