@@ -28,3 +28,28 @@ def test_inference_imports_nothing_from_the_domain():
         for p in sorted((ROOT / "inference").rglob("*.py"))
     }
     assert {k: v for k, v in offenders.items() if v} == {}
+
+
+def test_journal_events_are_one_typed_contract():
+    """Writers and readers of the acquisition journal name events by ``hw.events.Event``
+    (no string literals), whose on-disk names stay what old journals hold."""
+    import re
+
+    from hw.events import FIELDS, Event
+
+    assert set(FIELDS) == set(Event)
+    assert [Event.RUN_START, Event.STEP_DONE, Event.RUN_STOP, Event.SYNC] == [
+        "run_start",
+        "step_done",
+        "run_stop",
+        "sync",
+    ]
+    call = re.compile(r"(?:\.event|_journal)\(\s*\"")
+    compare = re.compile(r"(?:kind|\[\"event\"\])\s*==\s*\"")
+    files = [*(ROOT / "hw" / "acquisition").glob("*.py"), ROOT / "chekan" / "live" / "state.py"]
+    literal = [
+        str(p.relative_to(ROOT))
+        for p in files
+        if call.search(p.read_text(encoding="utf-8")) or compare.search(p.read_text("utf-8"))
+    ]
+    assert literal == []

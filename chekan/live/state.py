@@ -19,6 +19,8 @@ import numpy as np
 
 from chekan.live import calib
 from chekan.live.follow import COLUMNS, JournalFollower, RawLogFollower, RecordFollower
+from hw.acquisition.steps import Phase
+from hw.events import Event
 
 STALL_S = 20.0  # wall seconds without a new row (run not stopped) before the stall alarm
 CCD_MARGIN = 0.05  # fraction of the CCD range near either end that raises the alarm
@@ -151,7 +153,7 @@ class LiveState:
         self.events.append(ev)
         kind = ev["event"]
         h = self.health
-        if kind == "run_start":
+        if kind == Event.RUN_START:
             self.run_start = ev
             self.plan = list(ev.get("plan") or [])
             self.rate = float(ev.get("rate_hz") or 1.0)
@@ -159,42 +161,42 @@ class LiveState:
             if self.plan and self.expected is None:
                 prog = calib.program_from_plan(self.plan, ev.get("program") or "recorded")
                 self.expected = calib.expected_sd(prog)
-        elif kind == "resume":
+        elif kind == Event.RESUME:
             self.run_stop = None
-        elif kind == "step_start":
+        elif kind == Event.STEP_START:
             self.current, self.hold = ev, None
-        elif kind == "hold":
+        elif kind == Event.HOLD:
             self.hold = ev
-        elif kind == "step_done":
+        elif kind == Event.STEP_DONE:
             self.done_steps.add(int(ev["step"]))
-        elif kind == "hold_lost":
+        elif kind == Event.HOLD_LOST:
             h["hold_lost"] += 1
             self.hold = None
             self._trouble(ev, f"hold lost ({ev.get('state')})")
-        elif kind == "hold_timeout":
+        elif kind == Event.HOLD_TIMEOUT:
             h["hold_timeouts"] += 1
             self._trouble(ev, "no HOLD within the hold timeout")
-        elif kind == "fault":
+        elif kind == Event.FAULT:
             h["faults"] += 1
             self._trouble(ev, "platform FAULT")
-        elif kind == "link_lost":
+        elif kind == Event.LINK_LOST:
             p = ev.get("port", "?")
             h["link_lost"][p] = h["link_lost"].get(p, 0) + 1
             self.link_down[p] = str(ev.get("reason", ""))
-        elif kind == "reconnect":
+        elif kind == Event.RECONNECT:
             p = ev.get("port", "?")
             h["reconnects"][p] = h["reconnects"].get(p, 0) + 1
             self.link_down.pop(p, None)
-        elif kind == "reply_timeout":
+        elif kind == Event.REPLY_TIMEOUT:
             h["reply_timeouts"] += 1
-        elif kind == "sensor_status":
+        elif kind == Event.SENSOR_STATUS:
             st = ev.get("status") or "OK"
             if st == "THERM":
                 h["therm_episodes"] += 1
             elif st == "SAT":
                 h["sat_episodes"] += 1
             self.sensor_status = st
-        elif kind == "run_stop":
+        elif kind == Event.RUN_STOP:
             self.run_stop = ev
 
     def _trouble(self, ev: dict, what: str) -> None:
@@ -259,24 +261,25 @@ class LiveState:
             if not self.runs:
                 return None
             r = self.runs[-1]
-            return {"index": r[2] if r[2] >= 0 else None, "phase": "moving" if r[2] < 0 else "hold"}
+            phase = Phase.WAIT_HOLD if r[2] < 0 else Phase.HOLD_PENDING
+            return {"index": r[2] if r[2] >= 0 else None, "phase": phase.shown}
         idx = int(cur["step"])
-        phase = "moving"
+        phase = Phase.WAIT_HOLD
         done_n, need = 0, int(cur.get("dwell_samples") or 0)
         if idx in self.done_steps:
-            phase, done_n = "done", need
+            phase, done_n = Phase.DONE, need
         elif self.hold is not None and t_last is not None:
-            phase = "dwell"
+            phase = Phase.DWELL
             done_n = min(need, round((t_last - float(self.hold["t_s"])) * self.rate) + 1)
         moving_s = None
-        if phase == "moving" and t_last is not None and cur.get("t_s") is not None:
+        if phase is Phase.WAIT_HOLD and t_last is not None and cur.get("t_s") is not None:
             moving_s = t_last - float(cur["t_s"])
         return {
             "index": idx,
             "round": cur.get("round"),
             "kind": cur.get("kind"),
             "label": cur.get("label"),
-            "phase": phase,
+            "phase": phase.shown,
             "dwell_done": done_n,
             "dwell_samples": need,
             "progress": done_n / need if need else None,
@@ -294,7 +297,7 @@ class LiveState:
             i = int(s["index"])
             if i in self.done_steps:
                 continue
-            if i == cur and step and step["phase"] == "dwell":
+            if i == cur and step and step["phase"] == Phase.DWELL.shown:
                 left += (step["dwell_samples"] - step["dwell_done"]) / self.rate
             else:
                 left += float(s["dwell_s"])
@@ -322,7 +325,7 @@ class LiveState:
             ms = step.get("moving_s")
             if ms is not None and ms > MOVE_ALARM_S and running:
                 trouble = [*trouble, f"no HOLD after {ms:.0f} s of sample clock"]
-            if trouble and running and step["phase"] != "done":
+            if trouble and running and step["phase"] != Phase.DONE.shown:
                 out.append(
                     {"level": "alarm", "text": f"step {i} cannot hold: " + "; ".join(trouble[-3:])}
                 )

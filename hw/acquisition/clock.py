@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hw.acquisition.recorder import EventLog
+from hw.events import Event
 from hw.nmea import SEQ_MOD
 
 BACKWARDS_WINDOW = 64  # a seq this close behind the last one is a stale line, not a 65 k gap
@@ -75,7 +76,7 @@ class SampleClock:
                 return None
         self.last_seq, self.last_idx = seq, idx
         self._journal(
-            "sync", seq_ref=seq, t_ref=idx / self.rate, resumed=self._resumed_from is not None
+            Event.SYNC, seq_ref=seq, t_ref=idx / self.rate, resumed=self._resumed_from is not None
         )
         return idx
 
@@ -107,7 +108,7 @@ class SampleClock:
             s.lost_samples += d - 1
             resumed = {"resumed": True} if across_resume else {}
             self._journal(
-                "gap",
+                Event.GAP,
                 seq_from=from_seq,
                 seq_to=seq,
                 lost=d - 1,

@@ -16,6 +16,7 @@ from hw.acquisition.recorder import EventLog
 from hw.acquisition.summary import PORTS
 from hw.drivers import LinkDown, PlatformDriver, Received, SensorDriver
 from hw.errors import GaveUp, LinkLost, ReplyTimeout
+from hw.events import Event
 from hw.linkio import Backoff, Link, RawLog, reopen
 
 T = TypeVar("T")
@@ -72,7 +73,7 @@ class LinkSupervisor:
         assert drv is not None
         drv.stop()
         since = drv.last_rx if drv.last_rx is not None else self._started
-        self._journal("link_lost", port=port, reason=reason, t_s=self._t_last())
+        self._journal(Event.LINK_LOST, port=port, reason=reason, t_s=self._t_last())
         if self._clock() - since > self.opts.give_up_s:  # it reopens but stays silent
             raise GaveUp(port, self._clock() - since, drv.link.opens, reason)
         attempts = reopen(
@@ -87,7 +88,7 @@ class LinkSupervisor:
         if not first:
             self.reconnects[port] += 1
         self._journal(
-            "reconnect",
+            Event.RECONNECT,
             port=port,
             attempts=attempts,
             down_s=round(self._clock() - since, 3),
@@ -129,9 +130,9 @@ class LinkSupervisor:
             except LinkLost as e:
                 self.reconnect(port, e.reason)
             except ReplyTimeout as e:
-                self._journal("reply_timeout", port=port, query=what, t_s=self._t_last())
+                self._journal(Event.REPLY_TIMEOUT, port=port, query=what, t_s=self._t_last())
                 if accepted is not None and (got := accepted()) is not None:
-                    self._journal("reply_lost_command_obeyed", port=port, query=what)
+                    self._journal(Event.REPLY_LOST_COMMAND_OBEYED, port=port, query=what)
                     return got
                 if self._clock() - start > self.opts.give_up_s:
                     raise GaveUp(port, self._clock() - start, 0, str(e)) from None

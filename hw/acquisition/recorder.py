@@ -17,6 +17,7 @@ from typing import Protocol
 
 from chekan.records import RecordWriter
 from hw.drivers import PlatformInfo, SensorInfo
+from hw.events import Event
 from hw.journal import Journal, journal_path, raw_log_path
 from hw.linkio import RawLog
 from hw.nmea import Grv
@@ -144,7 +145,7 @@ class Recorder:
         elif g.status == "THERM":
             s.therm += 1
         if g.status != self._sensor_status:
-            self.event("sensor_status", status=g.status, was=self._sensor_status or None, t_s=t)
+            self.event(Event.SENSOR_STATUS, status=g.status, was=self._sensor_status or None, t_s=t)
             self._sensor_status = g.status
 
     def flush(self) -> None:

@@ -24,6 +24,7 @@ from hw.acquisition.plan import Options, PlanStep
 from hw.acquisition.runner import Acquisition
 from hw.acquisition.summary import Summary
 from hw.errors import PortsUnknown
+from hw.events import Event
 from hw.journal import journal_path, read_journal
 from hw.nmea import SEQ_MOD
 from hw.progress import Progress
@@ -79,13 +80,13 @@ def resume_state(
     if not jp.exists():
         raise ChekanError(f"{jp}: no journal: nothing to resume (start a new run instead)")
     events = read_journal(jp)
-    start = next((e for e in events if e["event"] == "run_start"), None)
+    start = next((e for e in events if e["event"] == Event.RUN_START), None)
     if start is None:
         raise ChekanError(f"{jp}: the run never started recording: start a new run instead")
     plan = [PlanStep.from_json(d) for d in start["plan"]]
     rate = float(start["rate_hz"])
-    done = {int(e["step"]) for e in events if e["event"] == "step_done"}
-    stops = [e for e in events if e["event"] == "run_stop"]
+    done = {int(e["step"]) for e in events if e["event"] == Event.STEP_DONE}
+    stops = [e for e in events if e["event"] == Event.RUN_STOP]
     if stops and stops[-1].get("status") == "completed" and len(done) >= len(plan):
         return None, start, plan, {}  # complete and levelled: nothing to do
     with warnings.catch_warnings():
@@ -97,7 +98,7 @@ def resume_state(
     ):
         done.add(first.index)
     pending = [st.index for st in plan if st.index not in done]
-    syncs = [e for e in events if e["event"] == "sync"]
+    syncs = [e for e in events if e["event"] == Event.SYNC]
     last_idx = last_seq = None
     if rec.n and syncs:
         ref = syncs[-1]

@@ -34,6 +34,7 @@ from hw.acquisition.steps import StepMachine
 from hw.acquisition.summary import Summary
 from hw.drivers import LinkDown, PlatformInfo, Received, SensorInfo
 from hw.errors import DeviceError, GaveUp, HwError, LinkLost, ReplyTimeout
+from hw.events import Event
 from hw.nmea import Grv, Plt
 from hw.progress import Progress
 
@@ -193,7 +194,7 @@ class Acquisition:
                 )
             )
             rec.event(
-                "run_start",
+                Event.RUN_START,
                 record=str(self.path),
                 program=self.program_name,
                 plan=[asdict(s) for s in self.plan],
@@ -206,7 +207,7 @@ class Acquisition:
             torn = rec.append()
             self.summary.steps_done = len(rs.done)
             rec.event(
-                "resume",
+                Event.RESUME,
                 from_step=rs.first_step,
                 steps_done=sorted(rs.done),
                 last_t_s=None if rs.last_idx is None else rs.last_idx / self.rate,
@@ -271,20 +272,21 @@ class Acquisition:
             if rx is None:
                 raise ReplyTimeout("platform", "LEVEL", opts.reply_timeout_s)
             self.steps.level_sent(rx)
-            rec.event("level", t_s=self._t_last())
+            rec.event(Event.LEVEL, t_s=self._t_last())
             deadline = self._clock() + opts.level_wait_s
             while not self.steps.levelled and self._clock() < deadline:
                 self._pump(watch=False)
             self.summary.levelled = self.steps.levelled
             rec.event(
-                "levelled" if self.summary.levelled else "level_unconfirmed", t_s=self._t_last()
+                Event.LEVELLED if self.summary.levelled else Event.LEVEL_UNCONFIRMED,
+                t_s=self._t_last(),
             )
         except (HwError, OSError) as e:
-            rec.event("level_failed", error=str(e))
+            rec.event(Event.LEVEL_FAILED, error=str(e))
             if not self.summary.message:
                 self.summary.message = f"could not level the platform: {e}"
         except KeyboardInterrupt:
-            rec.event("level_interrupted")
+            rec.event(Event.LEVEL_INTERRUPTED)
 
     def _collect(self) -> None:
         """Copy the parts' counts into the summary."""
@@ -310,7 +312,7 @@ class Acquisition:
             rec.close_record()
             self._collect()
             rec.event(
-                "run_stop",
+                Event.RUN_STOP,
                 status=s.status,
                 exit_code=s.exit_code,
                 message=s.message,

@@ -20,6 +20,7 @@ from hw.acquisition.clock import SampleClock
 from hw.acquisition.plan import Options, PlanStep
 from hw.acquisition.recorder import EventLog
 from hw.errors import DeviceError
+from hw.events import Event
 from hw.nmea import Plt
 
 
@@ -139,7 +140,7 @@ class StepMachine:
         self._hold_retry = False
         self._last_recommand_idx = None
         self._journal(
-            "step_start",
+            Event.STEP_START,
             step=st.index,
             round=st.round,
             kind=st.kind,
@@ -166,7 +167,12 @@ class StepMachine:
         self._tilt_rx = rx
         self._cmd_idx, self._cmd_mono = None, self._clock()  # hold timeout counts from here
         self._journal(
-            "tilt", step=st.index, x=st.x_arcsec, y=st.y_arcsec, reason=reason, t_s=self._t_last()
+            Event.TILT,
+            step=st.index,
+            x=st.x_arcsec,
+            y=st.y_arcsec,
+            reason=reason,
+            t_s=self._t_last(),
         )
 
     def start_leveling(self) -> None:
@@ -206,7 +212,7 @@ class StepMachine:
         elif self.phase in (Phase.HOLD_PENDING, Phase.DWELL) and p.state != "HOLD":
             self.stats.hold_restarts += 1
             self._journal(
-                "hold_lost",
+                Event.HOLD_LOST,
                 step=st.index,
                 state=p.state,
                 t_s=self._t_last(),
@@ -223,7 +229,7 @@ class StepMachine:
         assert st is not None
         if prev != "FAULT":
             self.stats.faults += 1
-            self._journal("fault", step=st.index, t_s=self._t_last(), angles=[p.x, p.y])
+            self._journal(Event.FAULT, step=st.index, t_s=self._t_last(), angles=[p.x, p.y])
         idx = (self.samples.last_idx if self.samples is not None else None) or 0
         every = self.opts.recommand_s * self._rate
         if self._last_recommand_idx is None or idx - self._last_recommand_idx >= every:
@@ -253,7 +259,9 @@ class StepMachine:
             self.phase = Phase.DWELL
             self.dwell_start = idx
             self.dwell_rows = 0
-            self._journal("hold", step=st.index, t_s=idx / self._rate, angles=self.status.angles)
+            self._journal(
+                Event.HOLD, step=st.index, t_s=idx / self._rate, angles=self.status.angles
+            )
         if self.phase is Phase.DWELL and idx < self.dwell_start + self.dwell_n:
             assert st is not None
             self.dwell_rows += 1
@@ -271,7 +279,7 @@ class StepMachine:
             assert st is not None
             self.phase = Phase.DONE
             self._journal(
-                "step_done",
+                Event.STEP_DONE,
                 step=st.index,
                 t_s_first=self.dwell_start / self._rate,
                 t_s_last=min(idx, self.dwell_start + self.dwell_n - 1) / self._rate,
@@ -291,7 +299,7 @@ class StepMachine:
                     )
                 self._hold_retry = True
                 self.stats.recommands += 1
-                self._journal("hold_timeout", step=st.index, t_s=idx / self._rate)
+                self._journal(Event.HOLD_TIMEOUT, step=st.index, t_s=idx / self._rate)
                 self._send_tilt("hold timeout")
 
     # ------------------------------------------------------------------ progress
