@@ -234,7 +234,9 @@ def build_parser() -> argparse.ArgumentParser:
         "(GUM Type B); default: the record's platform_angle_bound_arcsec, else 3 (the paper)",
     )
     p.add_argument("--seed", type=argtypes.seed, default=0, help="sampler seed")
-    p.add_argument("--quick", action="store_true", help="bayes: cap the sampler at 6000 steps")
+    p.add_argument(
+        "--quick", action="store_true", help="bayes: cap the sampler at 3000 steps (10 000 without)"
+    )
     p.add_argument("--strict", action="store_true", help="exit 3 when the sampler did not converge")
     p.add_argument(
         "-q", "--quiet", action="store_true", help="print nothing on success (errors still)"
@@ -296,14 +298,9 @@ def _add_optional(sub) -> None:
     from chekan.live import add_live_parser
 
     add_live_parser(sub)
-    try:
-        from chekan.archive import cli as archive_cli
-    except ImportError:  # the archive package is optional until it lands
-        return
-    for name in ("add_archive_parser", "add_reanalyze_parser", "add_history_parser"):
-        fn = getattr(archive_cli, name, None)
-        if fn is not None:
-            fn(sub)
+    from chekan.archive import cli as archive_cli
+
+    archive_cli.add_parsers(sub)
 
 
 def _run(argv: list[str] | None) -> int:

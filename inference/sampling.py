@@ -107,7 +107,7 @@ class SamplerConfig:
             )
         return nw
 
-    def validate(self) -> None:
+    def check(self) -> None:
         """Raise ``ValueError`` for settings :func:`sample` cannot honour."""
         if self.n_chains < 1:
             raise ValueError(f"n_chains must be ≥ 1, got {self.n_chains}")
@@ -419,7 +419,7 @@ def sample(
     ``bayes`` takes 27 s with ``"map"`` against 37 s with ``"vmap"``).
     """
     config = SamplerConfig() if config is None else config
-    config.validate()
+    config.check()
     t0 = time.perf_counter()
     z_init = np.asarray(z_init, dtype=float).reshape(-1)
     ndim = z_init.size

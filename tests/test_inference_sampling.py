@@ -247,4 +247,4 @@ def test_concurrent_ensembles_give_the_same_draws() -> None:
         np.testing.assert_array_equal(runs[0].log_prob, runs[1].log_prob)
         assert runs[0].n_steps == runs[1].n_steps
     with pytest.raises(ValueError, match="threads"):
-        SamplerConfig(threads=0).validate()
+        SamplerConfig(threads=0).check()

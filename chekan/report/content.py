@@ -62,7 +62,7 @@ def _need_dict(obj: Any, where: str, src: str) -> dict:
     return obj
 
 
-def validate(result: Mapping[str, Any], src: str) -> None:
+def check_certificate_input(result: Mapping[str, Any], src: str) -> None:
     """Check the optional parts the certificate reads; raise :class:`FormatError` naming them."""
     for name, e in result["parameters"].items():
         if not is_num(e.get("mean")):
@@ -624,7 +624,7 @@ def build_report(
     """The certificate of ``result`` as blocks (figures as PNG unless ``figures=False``)."""
     t = tr(lang)
     src = str(source) if source is not None else "<result>"
-    validate(result, src)
+    check_certificate_input(result, src)
     meta = result.get("metadata") or {}
     inst = value_name(str(meta.get("instrument", "Chekan-AM")), lang)
     serial = str(result["serial"])
