@@ -26,6 +26,7 @@ PARAMETER_UNITS = MappingProxyType(
         "sigma_theta_arcsec": "arcsec",
         "sigma_hold_pix": "pix",
         "slew_error": "",
+        "sigma_e_mgal": "mGal",  # legacy protocols: the error of a pair mean
     }
 )
 """Units of every reported parameter, in the order the joint model reports them."""

@@ -16,7 +16,7 @@ module             what it does
 ``outputs``        posterior predictive, drift curve, NetCDF
 ``estimate``       the ``map`` and ``bayes`` results
 ``batch``          padded, vmapped MAP of many records (re-analysis)
-``protocol``       the same for legacy protocols (per-round characteristic)
+``legacy``         the joint model of a legacy protocol (per-round characteristic)
 =================  ==========================================================
 """
 

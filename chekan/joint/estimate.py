@@ -40,7 +40,7 @@ def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpti
 
 def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOptions) -> dict:
     if kind == "protocol":
-        from chekan.joint.protocol import estimate_protocol
+        from chekan.joint.legacy import estimate_protocol
 
         return estimate_protocol(data, classical=classical, base=base, options=options)
     t_start = time.perf_counter()

@@ -1,4 +1,5 @@
-"""MAP and Bayesian re-analysis of a legacy protocol table (``chekan-protocol/1``).
+"""The joint model of a legacy protocol table (``chekan-protocol/1``): MAP and Bayesian
+re-analysis when only the printed increments survive.
 
 Only the per-angle increments survive, so the model is the characteristic itself
 (eq. 21) in the record's convention, per round r, system j and angle i:
@@ -44,6 +45,8 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -55,6 +58,7 @@ from chekan.classical import increments_from_protocol
 from chekan.errors import ChekanError
 from chekan.joint.angles import AngleSensorSpec, angle_sensor_entry, commanded_groups
 from chekan.joint.budget import budget_entries
+from chekan.parameters import unit_of
 from chekan.result import param_entry, posterior_entry
 from chekan.units import ARCSEC_PER_RAD
 from inference.map import fit_map
@@ -197,13 +201,27 @@ def _budget(table, spec, sigma_theta: float, sigma_e: float, space: ParamSpace) 
     return out
 
 
-def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
-    t0 = time.perf_counter()
+@dataclass(frozen=True)
+class ProtocolModel:
+    """A protocol table laid out for the model: its data, parameter spaces and start."""
+
+    table: Any
+    rounds: int
+    a0: float  # the protocol's a: the centre of a's prior (record convention)
+    theta_space: ParamSpace  # b of each round and system, a
+    full_space: ParamSpace  # and the hyperparameters σ_θ, σ_e (sampled by bayes)
+    data: dict
+    hyp: dict  # the hyperparameters at which the MAP is solved
+    spec: AngleSensorSpec | None
+
+
+def protocol_model(protocol, options) -> ProtocolModel:
+    """:class:`ProtocolModel` of ``protocol`` (the covariance of the systematic angle error
+    and its whitening where ``options`` model it)."""
     table = increments_from_protocol(protocol)
-    R = len(table.rounds)
     if table.a_fixed is None:
         raise ChekanError(f"{protocol.path}: the protocol gives no a (its prior centre)")
-    a0 = float(table.a_fixed)
+    R, a0 = len(table.rounds), float(table.a_fixed)
     theta_space, full_space = _space(R, a0)
     data = _data(table)
     hyp = {"sigma_theta_arcsec": 2.0, "sigma_e_mgal": 0.3}
@@ -213,83 +231,152 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
         data.update(D=jnp.asarray(D), S=jnp.asarray(S), m=jnp.asarray(m))
         L = np.linalg.cholesky(_full_cov(D, S, m, *hyp.values()))
         data["Linv"] = jnp.asarray(np.linalg.solve(L, np.eye(m.size)))
+    return ProtocolModel(table, R, a0, theta_space, full_space, data, hyp, spec)
 
-    def residuals(v, d):
-        """Whitened residuals at fixed hyperparameters: Cholesky of each 2×2 covariance
-        (of the whole covariance with systematic angle errors)."""
-        vv = {**v, **d["hyp"]}
-        if "Linv" in d:
-            return d["Linv"] @ _resid(vv, d).reshape(-1)
-        r = _resid(vv, d)
-        c2 = (d["gs"] * vv["sigma_theta_arcsec"]) ** 2 / 2.0
-        s2 = vv["sigma_e_mgal"] ** 2
-        l11 = jnp.sqrt(s2 + c2)
-        l21 = c2 / l11
-        l22 = jnp.sqrt(s2 + c2 - l21**2)
-        w1 = r[:, 0, :] / l11
-        w2 = (r[:, 1, :] - l21 * w1) / l22
-        return jnp.concatenate([w1.reshape(-1), w2.reshape(-1)])
 
-    lsq = LeastSquaresProblem(theta_space, residuals)
+def _whitened_residuals(v, d):
+    """Whitened residuals at fixed hyperparameters: Cholesky of each 2×2 covariance (of the
+    whole covariance with systematic angle errors)."""
+    vv = {**v, **d["hyp"]}
+    if "Linv" in d:
+        return d["Linv"] @ _resid(vv, d).reshape(-1)
+    r = _resid(vv, d)
+    c2 = (d["gs"] * vv["sigma_theta_arcsec"]) ** 2 / 2.0
+    s2 = vv["sigma_e_mgal"] ** 2
+    l11 = jnp.sqrt(s2 + c2)
+    l21 = c2 / l11
+    l22 = jnp.sqrt(s2 + c2 - l21**2)
+    w1 = r[:, 0, :] / l11
+    w2 = (r[:, 1, :] - l21 * w1) / l22
+    return jnp.concatenate([w1.reshape(-1), w2.reshape(-1)])
+
+
+def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
+    """The ``map`` or ``bayes`` result of a legacy protocol (module docstring)."""
+    t0 = time.perf_counter()
+    pm = protocol_model(protocol, options)
+    lsq = LeastSquaresProblem(pm.theta_space, _whitened_residuals)
     init = {
         p.name: float(classical.b[int(p.name[3]) - 1, int(p.name[6]) - 1])
-        for p in theta_space.params
+        for p in pm.theta_space.params
         if p.name.startswith("b_")
     }
-    init["a"] = a0
-    mdata = {**data, "hyp": {k: jnp.asarray(v) for k, v in hyp.items()}}
+    init["a"] = pm.a0
+    mdata = {**pm.data, "hyp": {k: jnp.asarray(v) for k, v in pm.hyp.items()}}
     res = fit_map(lsq, mdata, init)
     out = dict(base)
     out["method"] = options.method
     out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2")}
     out.pop("fixed", None)
-    hp = options.hdi_prob
     diag = {
         "converged": bool(res.converged),
         "map_steps": int(res.num_steps),
         "problems": [],
         "model": "characteristic per round (eq. 21) with shared angle errors marginalised"
-        + ("" if spec is None else "; systematic angle errors shared by all rounds (Type B)"),
+        + ("" if pm.spec is None else "; systematic angle errors shared by all rounds (Type B)"),
     }
-    out["angle_sensor"] = angle_sensor_entry(spec)
+    out["angle_sensor"] = angle_sensor_entry(pm.spec)
     if options.method == "map":
-        sd = res.sd()
-        cov_b = res.cov_values([f"b_r{r + 1}_s{j + 1}" for r in range(R) for j in range(2)])
-        params = _joint_b(res.values, cov_b, R, hp)
-        params["a"] = param_entry(float(res.values["a"]), float(sd["a"]), hp, "mGal/pix^2")
-        rounds = [
-            {
-                f"b{j + 1}": {
-                    "mean": float(res.values[f"b_r{r + 1}_s{j + 1}"]),
-                    "sd": float(sd[f"b_r{r + 1}_s{j + 1}"]),
-                }
-                for j in range(2)
-            }
-            for r in range(R)
-        ]
-        _merge_rounds(out, rounds)
-        out["parameters"] = params
-        raw = _budget(table, spec, hyp["sigma_theta_arcsec"], hyp["sigma_e_mgal"], theta_space)
-        out["uncertainty_budget"] = budget_entries(raw, params)
+        _map_parameters(out, pm, res, options.hdi_prob)
         diag["seconds"] = time.perf_counter() - t0
         out["diagnostics"] = diag
         return out
+    draws, samp, more = _bayes_parameters(out, pm, res, options)
+    diag.update(more, converged=bool(more["converged"] and res.converged))
+    diag["seconds"] = time.perf_counter() - t0
+    out["diagnostics"] = diag
+    if options.netcdf:
+        out["posterior_netcdf"] = str(_write_netcdf(draws, samp, pm, options.netcdf))
+    return out
 
+
+def _per_round(R: int, entry) -> list[dict]:
+    """``[{"b1": entry(r, 1), "b2": entry(r, 2)} for each round r]`` (per-round b names)."""
+    return [{f"b{j}": entry(f"b_r{r + 1}_s{j}") for j in (1, 2)} for r in range(R)]
+
+
+def _map_parameters(out: dict, pm: ProtocolModel, res, hp: float) -> None:
+    """The MAP's parameters, per-round b and budget into ``out``."""
+    R = pm.rounds
+    sd = res.sd()
+    cov_b = res.cov_values([f"b_r{r + 1}_s{j + 1}" for r in range(R) for j in range(2)])
+    params = _joint_b(res.values, cov_b, R, hp)
+    params["a"] = param_entry(float(res.values["a"]), float(sd["a"]), hp, unit_of("a"))
+    _merge_rounds(out, _per_round(R, lambda n: {"mean": float(res.values[n]), "sd": float(sd[n])}))
+    out["parameters"] = params
+    hyp = pm.hyp
+    raw = _budget(pm.table, pm.spec, hyp["sigma_theta_arcsec"], hyp["sigma_e_mgal"], pm.theta_space)
+    out["uncertainty_budget"] = budget_entries(raw, params)
+
+
+def _bayes_parameters(out: dict, pm: ProtocolModel, res, options) -> tuple[dict, Any, dict]:
+    """The posterior's parameters, per-round b and budget into ``out``; returns the draws,
+    the sampler's result and the diagnostics it adds."""
     from inference.diagnostics import convergence_report, summarize_draws
-    from inference.sampling import SamplerConfig, sample
+    from inference.sampling import sample
+
+    samp = sample(_log_density(pm), pm.data, *_sampler_start(pm, res), _sampler_config(options))
+    draws = {k: np.asarray(v) for k, v in pm.full_space.to_values(samp.draws).items()}
+    for j in range(2):
+        draws[f"b{j + 1}"] = np.mean(
+            [draws[f"b_r{r + 1}_s{j + 1}"] for r in range(pm.rounds)], axis=0
+        )
+    summ = summarize_draws(draws, hdi_prob=options.hdi_prob)
+    ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
+    params = {
+        name: posterior_entry(summ[name], unit_of(name))
+        for name in ("b1", "b2", "a", "sigma_theta_arcsec", "sigma_e_mgal")
+    }
+    keys = ("mean", "sd", "hdi_low", "hdi_high")
+    _merge_rounds(out, _per_round(pm.rounds, lambda n: {k: summ[n][k] for k in keys}))
+    out["parameters"] = params
+    sigma_theta = float(params["sigma_theta_arcsec"]["mean"])
+    raw = _budget(
+        pm.table, pm.spec, sigma_theta, float(params["sigma_e_mgal"]["mean"]), pm.theta_space
+    )
+    out["uncertainty_budget"] = budget_entries(raw, params)
+    return (
+        draws,
+        samp,
+        {
+            "converged": bool(ok),
+            "problems": problems,
+            "r_hat_max": float(max(s["r_hat"] for s in summ.values())),
+            "ess_bulk_min": float(min(s["ess_bulk"] for s in summ.values())),
+            "n_draws": int(samp.draws.shape[0] * samp.draws.shape[1]),
+            "n_steps": int(samp.n_steps),
+        },
+    )
+
+
+def _log_density(pm: ProtocolModel):
+    """log p(b, a, σ_θ, σ_e | table) up to a constant (the angle errors marginalised)."""
+    space, dense = pm.full_space, pm.spec is not None
 
     def log_density(z, d):
-        v = full_space.to_values(z)
-        lp = full_space.log_prior(z) + (_log_lik(v, d) if spec is None else _log_lik_dense(v, d))
+        v = space.to_values(z)
+        lp = space.log_prior(z) + (_log_lik_dense(v, d) if dense else _log_lik(v, d))
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
-    vals: dict[str, Any] = {**res.values, **hyp}
-    z0 = np.asarray(full_space.to_z(vals))
-    n = theta_space.size
-    cov = np.eye(full_space.size) * 0.25
+    return log_density
+
+
+def _sampler_start(pm: ProtocolModel, res) -> tuple[np.ndarray, np.ndarray]:
+    """The sampler's start: the MAP with the hyperparameters, its covariance (Laplace for
+    b and a, 0.25 on the diagonal for the rest)."""
+    vals: dict[str, Any] = {**res.values, **pm.hyp}
+    z0 = np.asarray(pm.full_space.to_z(vals))
+    n = pm.theta_space.size
+    cov = np.eye(pm.full_space.size) * 0.25
     if np.all(np.isfinite(res.cov_z)):
         cov[:n, :n] = res.cov_z
-    cfg = SamplerConfig(
+    return z0, cov
+
+
+def _sampler_config(options):
+    from inference.sampling import SamplerConfig
+
+    return SamplerConfig(
         n_chains=4,
         target_ess=2000.0,
         min_steps=500,
@@ -297,58 +384,19 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
         seed=options.seed,
         progress=options.progress,
     )
-    samp = sample(log_density, data, z0, cov, cfg)
-    draws = {k: np.asarray(v) for k, v in full_space.to_values(samp.draws).items()}
-    for j in range(2):
-        draws[f"b{j + 1}"] = np.mean([draws[f"b_r{r + 1}_s{j + 1}"] for r in range(R)], axis=0)
-    summ = summarize_draws(draws, hdi_prob=hp)
-    ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
-    units = {"a": "mGal/pix^2", "sigma_theta_arcsec": "arcsec", "sigma_e_mgal": "mGal"}
-    params = {
-        name: posterior_entry(summ[name], units.get(name, "mGal/pix"))
-        for name in ("b1", "b2", "a", "sigma_theta_arcsec", "sigma_e_mgal")
-    }
-    rounds = [
-        {
-            f"b{j + 1}": {
-                k: summ[f"b_r{r + 1}_s{j + 1}"][k] for k in ("mean", "sd", "hdi_low", "hdi_high")
-            }
-            for j in range(2)
-        }
-        for r in range(R)
-    ]
-    _merge_rounds(out, rounds)
-    out["parameters"] = params
-    raw = _budget(
-        table,
-        spec,
-        float(params["sigma_theta_arcsec"]["mean"]),
-        float(params["sigma_e_mgal"]["mean"]),
-        theta_space,
-    )
-    out["uncertainty_budget"] = budget_entries(raw, params)
-    diag.update(
-        converged=bool(ok and res.converged),
-        problems=problems,
-        r_hat_max=float(max(s["r_hat"] for s in summ.values())),
-        ess_bulk_min=float(min(s["ess_bulk"] for s in summ.values())),
-        n_draws=int(samp.draws.shape[0] * samp.draws.shape[1]),
-        n_steps=int(samp.n_steps),
-        seconds=time.perf_counter() - t0,
-    )
-    out["diagnostics"] = diag
-    if options.netcdf:
-        from chekan.durable import fsync_dir
-        from inference.arviz_io import save_netcdf, to_inference_data
 
-        idata = to_inference_data(
-            draws,
-            sample_stats={"lp": samp.log_prob},
-            observed_data={"x_pix": np.asarray(table.x_pix)},
-            attrs={"model": "chekan.joint.protocol"},
-        )
-        out["posterior_netcdf"] = str(save_netcdf(idata, options.netcdf, sync_dir=fsync_dir))
-    return out
+
+def _write_netcdf(draws: dict, samp, pm: ProtocolModel, path) -> Path:
+    from chekan.durable import fsync_dir
+    from inference.arviz_io import save_netcdf, to_inference_data
+
+    idata = to_inference_data(
+        draws,
+        sample_stats={"lp": samp.log_prob},
+        observed_data={"x_pix": np.asarray(pm.table.x_pix)},
+        attrs={"model": "chekan.joint.legacy"},
+    )
+    return save_netcdf(idata, path, sync_dir=fsync_dir)
 
 
 def _joint_b(values, cov_b, R, hp) -> dict:
@@ -359,7 +407,7 @@ def _joint_b(values, cov_b, R, hp) -> dict:
         w = np.full(R, 1.0 / R)
         mean = float(sum(values[f"b_r{r + 1}_s{j + 1}"] for r in range(R)) / R)
         sd = float(np.sqrt(w @ cov_b[np.ix_(idx, idx)] @ w))
-        out[f"b{j + 1}"] = param_entry(mean, sd, hp, "mGal/pix")
+        out[f"b{j + 1}"] = param_entry(mean, sd, hp, unit_of(f"b{j + 1}"))
     return out
 
 
