@@ -31,6 +31,21 @@ PARAMETER_UNITS = MappingProxyType(
 )
 """Units of every reported parameter, in the order the joint model reports them."""
 
+#: The reported quantities that are functions of the joint model's (θ, β), in this order.
+PHYSICAL = (
+    "b1",
+    "b2",
+    "a",
+    "b1_0",
+    "b2_0",
+    "eps1_arcmin",
+    "eps2_arcmin",
+    "dgamma_arcmin",
+    "tau_s",
+    "drift1_pix_per_h",
+    "drift2_pix_per_h",
+)
+
 MODEL_UNITS = MappingProxyType({"K": "pix/rad", "noise_scale": ""})
 """Units of the joint model's internal parameters that are not reported as such."""
 

@@ -12,9 +12,15 @@ from __future__ import annotations
 import numpy as np
 
 from chekan.joint.map import MapFit
-from chekan.joint.problem import problem_for
+from chekan.joint.problem import nonlinear_params, problem_for
 
-PRIOR_SD = {"eps1_arcmin": 10.0, "eps2_arcmin": 10.0, "dgamma_arcmin": 10.0}
+#: Prior sds of the angles that a record may not inform (their prior's scale, one source:
+#: :func:`chekan.joint.problem.nonlinear_params`).
+PRIOR_SD = {
+    p.name: p.scale
+    for p in nonlinear_params()
+    if p.name in ("eps1_arcmin", "eps2_arcmin", "dgamma_arcmin")
+}
 
 
 def uncertainty_budget(fit: MapFit) -> dict:

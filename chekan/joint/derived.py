@@ -31,12 +31,10 @@ from chekan.joint.likelihood import (
 )
 from chekan.joint.map import MapFit
 from chekan.joint.problem import executables, prefetch_args, problem_for
-from chekan.parameters import PARAMETER_UNITS
+from chekan.parameters import PHYSICAL
 from inference.normal_eq import draw_beta_normal
 
 MAP_DERIVED = "map_derived"  # the stored executable's name (see prefetch)
-PHYSICAL = tuple(PARAMETER_UNITS)[:11]
-"""Reported quantities that are functions of (θ, β): b1 … drift2_pix_per_h."""
 
 
 def at_level(sp: fm.SensorParams):
