@@ -26,7 +26,6 @@ PARAMETER_UNITS = MappingProxyType(
         "sigma_theta_arcsec": "arcsec",
         "sigma_hold_pix": "pix",
         "slew_error": "",
-        "sigma_e_mgal": "mGal",  # legacy protocols: the error of a pair mean
     }
 )
 """Units of every reported parameter, in the order the joint model reports them."""
@@ -50,6 +49,13 @@ MODEL_UNITS = MappingProxyType({"K": "pix/rad", "noise_scale": ""})
 """Units of the joint model's internal parameters that are not reported as such."""
 
 
+LEGACY_UNITS = MappingProxyType({"sigma_e_mgal": "mGal"})
+"""Units of what only the model of a legacy protocol reports (the error of a pair mean)."""
+
+
 def unit_of(name: str) -> str:
     """The unit of a reported or internal parameter ('' when it has none)."""
-    return PARAMETER_UNITS.get(name, MODEL_UNITS.get(name, ""))
+    for table in (PARAMETER_UNITS, MODEL_UNITS, LEGACY_UNITS):
+        if name in table:
+            return table[name]
+    return ""

@@ -35,6 +35,7 @@ from chekan.parameters import PHYSICAL
 from inference.normal_eq import draw_beta_normal
 
 MAP_DERIVED = "map_derived"  # the stored executable's name (see prefetch)
+DRAWS = "draws"  # the stored executable of the posterior draws
 
 
 def at_level(sp: fm.SensorParams):
@@ -132,12 +133,13 @@ def map_derived(fit: MapFit) -> dict:
 
 
 @functools.cache
-def _draws_jit(structure: ModelStructure, dur_h: float):
-    """(z_bayes, key, data) → named draws of everything reported (β drawn given θ)."""
+def _draws_jit(structure: ModelStructure):
+    """(z_bayes, key, data, duration h) → named draws of everything reported (β drawn given
+    θ); the record's duration is a traced argument, so records of one structure share it."""
     space = problem_for(structure).bayes_space
     blocks = structure.beta_blocks
 
-    def one(z, key, data: RecordData):
+    def one(z, key, data: RecordData, dur_h):
         v = space.to_values(z)
         ne, (_, G, s_ang, r, _, nv, _, P) = normal_equations(v, v, structure, data)
         beta = draw_beta_normal(key, ne, beta_prior_var(v, structure, data))
@@ -165,12 +167,12 @@ def _draws_jit(structure: ModelStructure, dur_h: float):
             "_loglik": loglik,
         }
 
-    def many(zs, keys, data):
+    def many(zs, keys, data, dur_h):
         # lax.map, not vmap: XLA on CPU compiles/executes batched factorisations of this size
         # pathologically slowly (batch 8: 9 ms; batch 16: minutes); a loop is fast and predictable
-        return jax.lax.map(lambda zk: one(zk[0], zk[1], data), (zs, keys))
+        return jax.lax.map(lambda zk: one(zk[0], zk[1], data, dur_h), (zs, keys))
 
-    return executables(structure).jit(f"draws_{dur_h!r}", many)
+    return executables(structure).jit(DRAWS, many)
 
 
 def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict:
@@ -178,14 +180,15 @@ def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict
     with ``keys``; in fixed-size chunks (one compile, bounded memory: each draw assembles
     a p×p normal-equation matrix)."""
     model = fit.model
-    fn = _draws_jit(model.structure, model.duration_h)
+    fn = _draws_jit(model.structure)
+    dur_h = model.duration_h  # traced, as in map_derived
     n = zs.shape[0]
     pad = (-n) % chunk
     zp = np.concatenate([zs, np.repeat(zs[-1:], pad, axis=0)])
     kp = jnp.concatenate([keys, jnp.repeat(keys[-1:], pad, axis=0)])
 
     def part(i: int) -> dict:
-        out = fn(jnp.asarray(zp[i : i + chunk]), kp[i : i + chunk], model.data)
+        out = fn(jnp.asarray(zp[i : i + chunk]), kp[i : i + chunk], model.data, dur_h)
         return jax.block_until_ready(out)
 
     # chunks in threads, one per core (the compiled loop releases the GIL): the same numbers
