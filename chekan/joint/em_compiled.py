@@ -1,23 +1,9 @@
 """What happens between two MAP passes, in one compiled function: the level reference
 moves to its estimate, then the EM updates of the hyperparameters run to their fixed
-point at fixed θ (the same steps as :mod:`chekan.joint.em`, without a host round trip).
-
-The host version makes ~15 ms of Python, SciPy and dispatch per update on a 9 h record
-and up to 200 updates on short ones; here the loop is a ``lax.while_loop`` and the noise
-M-step a projected Newton (:func:`inference.box_newton.minimise_in_box`, converged to
-1e-12 where L-BFGS-B stops at ~1e-5), so the fixed point it reaches differs from the host
-version's by about that much (≪ 0.01 sd). Used by the Gauss–Newton MAP (the default);
-``map_solver="lm"`` keeps the host EM of 0.2.
-
-EM is slow where a variance component's maximum lies at its bound: on a short one-round
-session σ_θ creeps towards its floor by ~0.1 % per update and 200 updates left the
-hyperparameters 0.6–1.1 (in log) short of the fixed point (measured on 4 archive
-sessions; the fixed point was reached after 700–2400 updates). So after
-``EM_UPDATES_BEFORE_NEWTON`` updates without convergence the fixed point is solved for
-directly: optimistix's Newton on h = EM(h) in log h (8–9 steps, its Jacobian by forward
-mode through the update). Records whose EM converges by then (the 3 h and 9 h programs:
-16–29 updates) are unchanged; where Newton fails, EM goes on to ``HYPER_MAX_UPDATES`` as
-before.
+point at fixed θ (a ``lax.while_loop``; the noise M-step a projected Newton,
+:func:`inference.box_newton.minimise_in_box`). After ``EM_UPDATES_BEFORE_NEWTON`` updates
+without convergence the fixed point h = EM(h) is solved for by optimistix's Newton in log h
+(EM creeps where a variance sits at its bound). Measurements: ``docs/tuning.md``.
 
 Every function returns new state; nothing it is handed is changed.
 """
@@ -49,7 +35,7 @@ from inference.box_newton import minimise_in_box
 from inference.map import jacobian_once
 
 EM_PASS = "em_between_passes"  # the stored executable's name (see prefetch)
-EM_UPDATES_BEFORE_NEWTON = 32  # then Newton on the fixed point (module docstring)
+EM_UPDATES_BEFORE_NEWTON = 32  # then Newton on the fixed point (docs/tuning.md)
 NEWTON_TOL = 1e-8  # on the Newton step and on EM(h) − h, in log h
 NEWTON_MAX_STEPS = 32
 _HYPER_KEYS = ("noise_scale", "sigma_theta_arcsec", "sigma_hold_pix", "slew_error")

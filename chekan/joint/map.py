@@ -3,13 +3,12 @@
 ``MAP_PASSES`` Gauss–Newton solves over θ (β projected out; LM where GN fails). Between
 two solves the level reference moves to its estimate and the hyperparameters are
 converged at fixed θ (:func:`chekan.joint.em_compiled.between_passes`, one compiled loop;
-with ``solver="lm"`` the host loop of 0.2, :func:`chekan.joint.em.between_passes`). A fixed
-small number of EM updates is not enough: σ_o creeps up from its start by ~15 % per update,
-and stopping early understates the sd of b by 5–10 % (z² ≈ 1.2–1.6 in the validation study).
+with ``solver="lm"`` the host loop of 0.2, :func:`chekan.joint.em.between_passes`).
 
 One loop serves a single record (:func:`inference.map.fit_map`) and a batch of records
 padded to one structure (:func:`inference.map.fit_map_batch`, vmapped lanes). The solver
-returns new state, :class:`MapFit`, with the model whose level reference has moved.
+returns new state, :class:`MapFit`, with the model whose level reference has moved. How the
+constants below were tuned: ``docs/tuning.md``.
 """
 
 from __future__ import annotations
@@ -29,48 +28,15 @@ from chekan.joint.problem import Hyper, default_hyper, problem_for
 from inference.map import MapResult, SolverName, fit_map, fit_map_batch
 
 MAP_PASSES = 3  # solves; between them the hyperparameters are converged at fixed θ
-# Gauss–Newton: θ has 7 dimensions, the start (the classical fit, then the previous pass)
-# is close and the projected problem is well conditioned, so undamped steps converge in
-# 5–7 steps where LM's trust region took 10–30 (measured on the paper's 9 h program);
-# a pass that does not converge is redone by LM from the same start (_solve_pass)
-SOLVER: SolverName = "gn"
-# steps allowed per solver: a Gauss–Newton pass that has not converged in 32 steps will not
-# (it oscillates on records that hardly identify θ, e.g. one short round) and LM redoes it;
-# 256 GN steps cost ~0.45 s there for nothing
-MAX_STEPS: dict[str, int] = {"gn": 32, "lm": 256}
-# the solver's tolerance on the step and on the residual change (optimistix's Cauchy test,
-# relative and absolute, in working units): Gauss–Newton converges here about 1000-fold
-# per step (9e-3, 5e-6, 5e-9, 2e-12 on the 9 h record) and returns the point after the
-# step that passed the test, so 1e-8 leaves it 3e-11 sd from the 1e-10 answer and saves
-# one linearisation in six (the solve's largest cost)
-MAP_TOL = 1e-8
-# Gauss–Newton also stops when the step it has just computed is below this many posterior
-# sds (the Newton decrement ‖Jδ‖, inference.gauss_newton) and takes it: with the ≈ 1000-fold
-# contraction above, the answer lands ≈ 1e-7 sd from the optimum (≤ 1e-4 sd whatever the
-# contraction) after 3 linearisations where the Cauchy test alone needs 6 on the 9 h
-# record (it must see a step below 1e-8 taken). EM's hyperparameter updates stop at 1e-4.
-MAP_SD_TOL = 1e-4
-# vmapped lanes per solve: the XLA CPU runtime (jax 0.10) deadlocks on this model's
-# vmapped LM at 4 lanes and more (measured; see inference.map.fit_map_batch); on CPU a
-# vmapped solve costs about the sum of its lanes anyway, so pairs lose nothing
-MAX_LANES = 2
-# other starts of the lag time constant τ for a first pass that did not converge or that
-# sits in the prior's tails (|prior z| > PRIOR_TAIL for some θ): from τ₀ = 30 s a record
-# whose τ is much shorter (5 s) with one short round walks into a mode where the holds
-# never settle (τ̂ 400 s … 3e5 s, K̂ 6–18 prior sds out, b̂ 0.002–6.9) and reports it
-# converged; from τ₀ = 5 s the same records give the truth at a cost 25 instead of 200–440
-# (20 simulated archive sessions, 2026-11-23). A restart replaces the first pass only if
-# its cost (the same objective: same data and hyperparameters) is lower by RESTART_GAIN,
-# so a record whose restart finds the same mode keeps its numbers.
-TAU_RESTARTS_S = (5.0, 120.0)
-# a record's own τ (chekan.joint.start.tau_from_transients, the pipeline's hint) is tried
-# before TAU_RESTARTS_S, and if its pass lands in the prior's bulk those are not tried: on
-# the one-round archive sessions (τ = 5 s) the restart from 120 s was the costliest solve
-# of the record (23 steps into NaN). A start within a factor RESTART_APART of one already
-# tried is skipped.
-RESTART_APART = 1.5
-PRIOR_TAIL = 3.0
-RESTART_GAIN = 1.0
+SOLVER: SolverName = "gn"  # undamped steps suit the 7-dim, well-started θ (docs/tuning.md)
+MAX_STEPS: dict[str, int] = {"gn": 32, "lm": 256}  # a GN pass beyond 32 steps will not converge
+MAP_TOL = 1e-8  # the Cauchy test, working units: 3e-11 sd from the 1e-10 answer
+MAP_SD_TOL = 1e-4  # GN stops on a Newton decrement below this many posterior sds
+MAX_LANES = 2  # vmapped lanes per batch solve (XLA CPU deadlocked at 4)
+TAU_RESTARTS_S = (5.0, 120.0)  # other starts of τ for a first pass in the prior's tails
+RESTART_APART = 1.5  # a start within this factor of one already tried is skipped
+PRIOR_TAIL = 3.0  # |prior z| beyond which a first pass counts as in the tails
+RESTART_GAIN = 1.0  # a restart replaces the first pass only if its cost is this much lower
 
 
 #: a record's τ hint (s) for the first restart, a function that reads it (called only if a
