@@ -400,19 +400,11 @@ def param_history(
         if alarming and ch["delta_ppm"] is not None:
             u_ppm = z * sd / abs(a.mean) * 1e6
             level = decide(abs(ch["delta_ppm"]), u_ppm, tolerance_ppm, interval=False)
-            if level:
-                h.alarms.append(
-                    {
-                        "level": level,
-                        "kind": "change",
-                        "param": name,
-                        "message": f"{name}: change {a.date} → {b.date} of "
-                        f"{ch['delta_ppm']:+.0f} ± {u_ppm:.0f} ppm (U, {hdi_prob:.0%}) "
-                        + _verdict(level, tolerance_ppm),
-                        "u_ppm": u_ppm,
-                        **ch,
-                    }
-                )
+            what = (
+                f"change {a.date} → {b.date} of {ch['delta_ppm']:+.0f} ± {u_ppm:.0f} ppm "
+                f"(U, {hdi_prob:.0%})"
+            )
+            h.alarms += _alarm(level, "change", name, what, tolerance_ppm, u_ppm=u_ppm, **ch)
     d0 = _dt.date.fromisoformat(points[0].date)
     tau = np.array([_years(d0, _dt.date.fromisoformat(p.date)) for p in points])
     yp = (y - ref) / scale * 1e6
@@ -467,23 +459,28 @@ def param_history(
         pr = h.prediction
         u_ppm = z * sd_n / abs(last.mean) * 1e6
         level = decide(abs(pr["from_last_ppm"]), u_ppm, tolerance_ppm, interval=True)
-        if level:
-            h.alarms.append(
-                {
-                    "level": level,
-                    "kind": "prediction",
-                    "param": name,
-                    "message": f"{name}: predicted at {at.isoformat()} "
-                    f"{pr['from_last_ppm']:+.0f} ± {u_ppm:.0f} ppm (U, {hdi_prob:.0%}; "
-                    f"{pr['low']:.6g} … {pr['high']:.6g}) from the last verification "
-                    f"({last.date}) "
-                    + _verdict(level, tolerance_ppm)
-                    + (": recalibrate" if level == "ALARM" else ""),
-                    "date": at.isoformat(),
-                    "u_ppm": u_ppm,
-                }
-            )
+        what = (
+            f"predicted at {at.isoformat()} {pr['from_last_ppm']:+.0f} ± {u_ppm:.0f} ppm "
+            f"(U, {hdi_prob:.0%}; {pr['low']:.6g} … {pr['high']:.6g}) from the last "
+            f"verification ({last.date})"
+        )
+        h.alarms += _alarm(
+            level, "prediction", name, what, tolerance_ppm, date=at.isoformat(), u_ppm=u_ppm
+        )
     return h, fit
+
+
+def _alarm(
+    level: str | None, kind: str, name: str, what: str, tolerance_ppm: float, **fields
+) -> list[dict]:
+    """``[]`` or the one alarm of ``level`` on ``what``, in the decision rule's words."""
+    if level is None:
+        return []
+    verdict = _verdict(level, tolerance_ppm)
+    if level == "ALARM" and kind == "prediction":
+        verdict += ": recalibrate"
+    message = f"{name}: {what} {verdict}"
+    return [{"level": level, "kind": kind, "param": name, "message": message, **fields}]
 
 
 def decide(delta_ppm: float, u_ppm: float, tolerance_ppm: float, *, interval: bool) -> str | None:

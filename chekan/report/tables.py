@@ -6,25 +6,12 @@ import re
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from chekan.parameters import PHYSICAL
 from chekan.report.document import Cell, Heading, KeyValue, Para, Report, Table
 from chekan.report.i18n import param_name, unit_name
 from chekan.report.numbers import DASH, fixed, general, is_num, plain, sci, unc, value_unc
 
-PARAM_ORDER = (
-    "b1",
-    "b2",
-    "a",
-    "b1_0",
-    "b2_0",
-    "eps1_arcmin",
-    "eps2_arcmin",
-    "dgamma_arcmin",
-    "tau_s",
-    "drift1_pix_per_h",
-    "drift2_pix_per_h",
-    "sigma_theta_arcsec",
-    "sigma_hold_pix",
-)
+PARAM_ORDER = (*PHYSICAL, "sigma_theta_arcsec", "sigma_hold_pix")
 BUDGET_ORDER = ("angle_systematic", "angle_readout", "noise", "drift", "a")
 # GUM evaluation type of each budget line: A from the scatter of the data, B from other
 # information (the platform's specification, priors)
