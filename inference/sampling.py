@@ -37,12 +37,13 @@ from typing import Any, Literal
 import emcee
 import jax
 import numpy as np
-from emcee.moves.red_blue import RedBlueMove
 from jax import Array
 from numpy.typing import ArrayLike
 
 from .aot import ExecutableStore
+from .autocorr import burn_thin, integrated_time, mean_tau
 from .mode import refine_mode
+from .moves import IndependenceMove, SnookerMove, moves_for
 
 BatchMode = Literal["vmap", "map"]
 
@@ -270,122 +271,6 @@ def _eval_any(lnp: Callable, coords: np.ndarray, batch: int) -> np.ndarray:
     return np.concatenate(out)
 
 
-class SnookerMove(RedBlueMove):
-    r"""Differential-evolution snooker update (ter Braak & Vrugt 2008), corrected and vectorised.
-
-    For walker :math:`x` pick :math:`z, z_1, z_2` from the three other quarters of the ensemble,
-    :math:`e = (x - z)/\lVert x - z\rVert`, propose :math:`x' = x + \gamma\, e\, e^\top(z_1 - z_2)`
-    and accept with the extra factor :math:`(\lVert x' - z\rVert/\lVert x - z\rVert)^{d-1}`.
-
-    emcee 3.1.6's ``DESnookerMove`` normalises ``x − z`` by the *square root* of its norm and
-    uses half the exponent: measured on a 3-D standard normal its draws have variance 0.80
-    (this class: 0.99 ± 0.01); ``moves="de-snooker"`` uses this class instead.
-    """
-
-    def __init__(self, gammas: float = 1.7):
-        self.gammas = gammas
-        super().__init__(nsplits=4)
-
-    def get_proposal(self, s, c, random):
-        ns, ndim = s.shape
-        picks = np.stack([cj[random.randint(len(cj), size=ns)] for cj in c], axis=1)
-        order = np.argsort(random.rand(ns, len(c)), axis=1)  # random roles for z, z1, z2
-        picks = np.take_along_axis(picks, order[:, :, None], axis=1)
-        z, z1, z2 = picks[:, 0], picks[:, 1], picks[:, 2]
-        delta = s - z
-        norm = np.linalg.norm(delta, axis=1)
-        e = delta / norm[:, None]
-        q = s + self.gammas * e * np.sum(e * (z1 - z2), axis=1, keepdims=True)
-        with np.errstate(divide="ignore"):
-            factor = (ndim - 1.0) * (np.log(np.linalg.norm(q - z, axis=1)) - np.log(norm))
-        return q, factor
-
-
-class IndependenceMove(emcee.moves.MHMove):
-    r"""Independence Metropolis–Hastings with a multivariate-t proposal.
-
-    Every walker proposes :math:`x' \sim t_\nu(\mu, \Sigma)` regardless of where it is and
-    accepts with :math:`\min(1, \pi(x')q(x)/\pi(x)q(x'))`,
-    :math:`\log q(x) = -\tfrac{\nu+d}{2}\log(1 + (x-\mu)^\top\Sigma^{-1}(x-\mu)/\nu)`.
-    With :math:`(\mu, \Sigma)` the mode and Laplace covariance of a near-Gaussian posterior
-    (:func:`inference.mode.refine_mode`) most proposals are accepted and successive draws
-    are nearly independent; the t tails keep the weights :math:`\pi/q` bounded where the
-    posterior is heavier than a Gaussian.
-    """
-
-    def __init__(self, mean: ArrayLike, cov: ArrayLike, df: float = 5.0):
-        self.mean = np.asarray(mean, dtype=float)
-        self.chol = np.linalg.cholesky(np.asarray(cov, dtype=float))
-        self.df = float(df)
-        super().__init__(self._propose, ndim=self.mean.size)
-
-    def log_q(self, x: np.ndarray) -> np.ndarray:
-        """log proposal density up to a constant."""
-        u = np.linalg.solve(self.chol, (x - self.mean).T)
-        return -0.5 * (self.df + self.mean.size) * np.log1p(np.sum(u * u, axis=0) / self.df)
-
-    def _propose(self, x0: np.ndarray, random) -> tuple[np.ndarray, np.ndarray]:
-        n, d = x0.shape
-        scale = np.sqrt(self.df / random.chisquare(self.df, size=n))
-        x = self.mean + (random.randn(n, d) @ self.chol.T) * scale[:, None]
-        return x, self.log_q(x0) - self.log_q(x)
-
-
-def _moves(kind: str, proposal: tuple[np.ndarray, np.ndarray] | None = None, df: float = 5.0):
-    if kind == "de-independence":
-        if proposal is None:
-            raise ValueError("the independence move needs a proposal (mean, covariance)")
-        mean, cov = proposal
-        return [(IndependenceMove(mean, cov, df=df), 0.7), (emcee.moves.DEMove(), 0.3)]
-    if kind == "stretch":
-        return emcee.moves.StretchMove()
-    if kind == "de-snooker":
-        return [(emcee.moves.DEMove(), 0.8), (SnookerMove(), 0.2)]
-    return emcee.moves.DEMove()
-
-
-# --------------------------------------------------------------------------- diagnostics
-def integrated_time(x: np.ndarray, c: float = 5.0) -> np.ndarray:
-    """emcee's integrated autocorrelation time of ``x`` (step, walker, dim), vectorised.
-
-    Same estimator as ``emcee.autocorr.integrated_time(x, c, tol=0)``: the normalised
-    autocorrelation of every walker's series is averaged over walkers,
-    τ(M) = 1 + 2 Σ_{t=1..M} ρ(t), and the window is the smallest M with M ≥ c·τ(M) (Sokal).
-    One FFT over all walkers and dimensions instead of one per series. Walkers that never
-    moved are left out of the average (emcee would return NaN); if none moved, τ = n_steps.
-    """
-    x = np.asarray(x, dtype=float)
-    n_t = x.shape[0]
-    if n_t < 2:
-        return np.full(x.shape[2], np.nan)
-    n = 1 << (n_t - 1).bit_length()
-    xc = x - x.mean(axis=0)
-    f = np.fft.rfft(xc, n=2 * n, axis=0)
-    acf = np.fft.irfft(f * np.conj(f), n=2 * n, axis=0)[:n_t]
-    moving = acf[0] > 0  # a walker that never moved has no autocorrelation to measure
-    with np.errstate(invalid="ignore", divide="ignore"):
-        acf = np.where(moving, acf / np.where(moving, acf[0], 1.0), 0.0)
-    n_moving = moving.sum(axis=0)  # (dim,)
-    rho = acf.sum(axis=1) / np.maximum(n_moving, 1)  # (step, dim)
-    taus = 2.0 * np.cumsum(rho, axis=0) - 1.0
-    below = np.arange(n_t)[:, None] < c * taus
-    window = np.where(below.all(axis=0), n_t - 1, np.argmin(below, axis=0))
-    tau = taus[window, np.arange(taus.shape[1])]
-    return np.where(n_moving > 0, tau, float(n_t))  # nothing moved: as bad as it can be
-
-
-def _tau(chains: list[np.ndarray], discard: int) -> np.ndarray:
-    """Integrated autocorrelation time per coordinate, averaged over chains (steps)."""
-    return np.mean([integrated_time(ch[discard:]) for ch in chains], axis=0)
-
-
-def _burn_thin(tau: np.ndarray, n_steps: int) -> tuple[int, int]:
-    burn = math.ceil(2.0 * float(np.max(tau)))
-    burn = min(burn, n_steps // 2)
-    thin = max(1, int(float(np.min(tau)) // 2))
-    return burn, thin
-
-
 def _flatten_walkers(x: np.ndarray) -> np.ndarray:
     """(step, walker, ...) → (walker·step, ...), walker-major."""
     x = np.swapaxes(x, 0, 1)
@@ -426,7 +311,6 @@ def sample(
     if ndim == 0 or not np.all(np.isfinite(z_init)):
         raise ValueError(f"z_init must be a non-empty finite vector, got {z_init}")
     nw = config.walkers(ndim)
-    nc = config.n_chains
     data = jax.device_put(data)  # once, not on every call
     lnp = _host_logp(log_density, data, executables, batch_mode)
     lp0 = _eval_any(lnp, z_init[None, :], nw // 2)[0]
@@ -434,43 +318,57 @@ def sample(
         raise ValueError("log_density(z_init) is not finite: start from a point in the support")
 
     rng = np.random.default_rng(config.seed)
-    start, cov = z_init, _regularised_cov(init_cov, ndim)
-    lnp_sampler, proposal = lnp, None
+    samplers, states = _ensembles(lnp, z_init, _regularised_cov(init_cov, ndim), nw, config, rng)
+    n_steps, tau, ess, converged = _run(samplers, states, config, nw)
+    return _result(samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0)
+
+
+def _ensembles(
+    lnp: Callable, z_init: np.ndarray, cov: np.ndarray, nw: int, config: SamplerConfig, rng
+) -> tuple[list[emcee.EnsembleSampler], list[emcee.State]]:
+    """``config.n_chains`` emcee ensembles and their start (for the independence move, from
+    the refined mode and its covariance)."""
+    ndim = z_init.size
+    start, lnp_sampler, proposal = z_init, lnp, None
     if config.moves == "de-independence":
         # the proposal evaluates all walkers at once: keep to the compiled half-batch size
         lnp_sampler = partial(_eval_any, lnp, batch=nw // 2)
         start, cov, _info = refine_mode(lnp_sampler, z_init, cov)
         proposal = (start, cov * config.proposal_scale**2)
     samplers, states = [], []
-    for _ in range(nc):
+    for _ in range(config.n_chains):
         coords, lp = _initial_walkers(lnp, start, cov, nw, rng)
         rs = np.random.RandomState(rng.integers(2**31 - 1))
-        moves = _moves(config.moves, proposal, config.proposal_df)
+        moves = moves_for(config.moves, proposal, config.proposal_df)
         samplers.append(emcee.EnsembleSampler(nw, ndim, lnp_sampler, moves=moves, vectorize=True))
         states.append(emcee.State(coords, log_prob=lp, random_state=rs.get_state()))
+    return samplers, states
 
+
+def _run(
+    samplers: list[emcee.EnsembleSampler], states: list[emcee.State], config: SamplerConfig, nw: int
+) -> tuple[int, np.ndarray, np.ndarray, bool]:
+    """Advance the ensembles ``check_every`` steps at a time (in threads) until converged
+    or ``max_steps``: ``(steps, τ, ESS, converged)``."""
     from tqdm.auto import tqdm
 
+    nc, ndim = len(samplers), samplers[0].ndim
     show = config.progress and sys.stderr.isatty()
     bar = tqdm(total=config.max_steps, disable=not show, desc="emcee", unit="step")
-    n_steps = 0
-    tau = np.full(ndim, np.nan)
-    ess = np.zeros(ndim)
-    burn = 0
-    converged = False
+    n_steps, burn, converged = 0, 0, False
+    tau, ess = np.full(ndim, np.nan), np.zeros(ndim)
     workers = config.threads or min(nc, os.cpu_count() or 1)
     pool = ThreadPoolExecutor(workers, thread_name_prefix="ensemble") if workers > 1 else None
     try:
         while n_steps < config.max_steps:
             k = min(config.check_every, config.max_steps - n_steps)
-
             work = [(samplers[c], states[c], k, n_steps > 0) for c in range(nc)]
             states = list(pool.map(_advance, work) if pool else map(_advance, work))
             n_steps += k
             bar.update(k)
             chains = [s.get_chain() for s in samplers]
-            tau = _tau(chains, discard=min(burn, n_steps // 2))
-            burn, _ = _burn_thin(tau, n_steps)
+            tau = mean_tau(chains, discard=min(burn, n_steps // 2))
+            burn, _ = burn_thin(tau, n_steps)
             ess = nc * nw * (n_steps - burn) / tau
             bar.set_postfix(tau_max=f"{np.max(tau):.0f}", ess=f"{np.min(ess):.0f}")
             converged = (
@@ -484,8 +382,14 @@ def sample(
         bar.close()
         if pool is not None:
             pool.shutdown()
+    return n_steps, tau, ess, converged
 
-    burn, thin = _burn_thin(tau, n_steps)
+
+def _result(
+    samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0
+) -> SamplingResult:
+    """The retained draws (burn-in cut, thinned), the blobs and the verdict."""
+    burn, thin = burn_thin(tau, n_steps)
     if config.max_draws:
         thin = max(thin, math.ceil(nw * (n_steps - burn) / config.max_draws))
     draws = np.stack([_flatten_walkers(s.get_chain()[burn::thin]) for s in samplers])
@@ -502,10 +406,8 @@ def sample(
             f"and ESS≈{np.min(ess):.0f} (target {config.target_ess:g}); the draws are "
             "unreliable: run longer, reparametrise, or marginalise linear parameters"
         )
-        warnings.warn(message, RuntimeWarning, stacklevel=2)
-    blobs = None
-    if blob_fn is not None:
-        blobs = _eval_blobs(blob_fn, draws, data, nw // 2)
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+    blobs = None if blob_fn is None else _eval_blobs(blob_fn, draws, data, nw // 2)
     return SamplingResult(
         draws=draws,
         log_prob=log_prob,
