@@ -32,7 +32,7 @@ from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import solve_beta
 from chekan.joint.problem import Hyper, executables, prefetch_args, problem_for
 from inference.box_newton import minimise_in_box
-from inference.map import jacobian_once
+from inference.jacobian import jacobian_once
 
 EM_PASS = "em_between_passes"  # the stored executable's name (see prefetch)
 EM_UPDATES_BEFORE_NEWTON = 32  # then Newton on the fixed point (docs/tuning.md)

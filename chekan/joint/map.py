@@ -6,7 +6,7 @@ converged at fixed θ (:func:`chekan.joint.em_compiled.between_passes`, one comp
 with ``solver="lm"`` the host loop of 0.2, :func:`chekan.joint.em.between_passes`).
 
 One loop serves a single record (:func:`inference.map.fit_map`) and a batch of records
-padded to one structure (:func:`inference.map.fit_map_batch`, vmapped lanes). The solver
+padded to one structure (:func:`inference.map_batch.fit_map_batch`, vmapped lanes). The solver
 returns new state, :class:`MapFit`, with the model whose level reference has moved. How the
 constants below were tuned: ``docs/tuning.md``.
 """
@@ -25,7 +25,8 @@ import numpy as np
 from chekan.joint import em, em_compiled
 from chekan.joint.layout import RecordModel
 from chekan.joint.problem import Hyper, default_hyper, problem_for
-from inference.map import MapResult, SolverName, fit_map, fit_map_batch
+from inference.map import MapResult, SolverName, fit_map
+from inference.map_batch import fit_map_batch
 
 MAP_PASSES = 3  # solves; between them the hyperparameters are converged at fixed θ
 SOLVER: SolverName = "gn"  # undamped steps suit the 7-dim, well-started θ (docs/tuning.md)
