@@ -52,6 +52,8 @@ from typing import Any
 import jax
 import numpy as np
 
+from .background import initialise_lapack, loads_in_background
+
 __all__ = ["ExecutableStore", "source_fingerprint"]
 
 _SUFFIX = ".jaxexe"
@@ -111,18 +113,6 @@ def _machine() -> str:
     except OSError:
         parts.append(platform.processor())
     return "\n".join(parts)
-
-
-def _initialise_lapack() -> None:
-    """Bind jaxlib's LAPACK kernels (cholesky, svd, …) to their implementations.
-
-    JAX does this when it *lowers* a linear-algebra operation; an executable loaded from a
-    file skips lowering, and calling its LAPACK kernels unbound crashes the process
-    (segmentation fault, measured on jax 0.10.2). Idempotent.
-    """
-    from jax._src.lib import lapack
-
-    lapack._lapack.initialize()
 
 
 @contextlib.contextmanager
@@ -242,7 +232,7 @@ class ExecutableStore:
         path = self._path(key)
         if key in self.loaded or key in self.pending or path is None or not path.is_file():
             return
-        (self.pending[key],) = _loads_in_background([(self._load, (path, name, key))], 1, name)
+        (self.pending[key],) = loads_in_background([(self._load, (path, name, key))], 1, name)
 
     def remember(self, label: str) -> Path | None:
         """Write the executables this process has run, in order of first use, as the
@@ -290,7 +280,7 @@ class ExecutableStore:
             path = self._path(key)
             if key not in self.pending and path is not None and path.is_file():
                 jobs.append((key, (self._load, (path, name, key))))
-        futures = _loads_in_background([job for _, job in jobs], PRELOAD_THREADS, label)
+        futures = loads_in_background([job for _, job in jobs], PRELOAD_THREADS, label)
         for (key, _), fut in zip(jobs, futures, strict=True):
             self.pending[key] = fut
         return len(jobs)
@@ -397,7 +387,7 @@ class ExecutableStore:
     def _load(self, path: Path, name: str, key: str):
         from jax.experimental import serialize_executable as se
 
-        _initialise_lapack()
+        initialise_lapack()
         try:
             payload, in_tree, out_tree = pickle.loads(path.read_bytes())
             compiled = se.deserialize_and_load(payload, in_tree, out_tree[0])
@@ -423,58 +413,6 @@ class ExecutableStore:
             _write_atomic(path, pickle.dumps((payload, in_tree, (flat_out_tree, out_tree))))
         except Exception as e:
             self.events.append((name, f"not stored: {type(e).__name__}: {e}"[:200]))
-
-
-def _loads_in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) -> list[Any]:
-    """:func:`_in_background` for loads, with LAPACK bound first, in the calling thread.
-
-    Binding imports ``scipy.linalg`` (jaxlib takes the kernels from its Cython capsules).
-    Done by a loading thread it raced the caller's own ``import scipy.linalg`` (threadpoolctl
-    in :func:`chekan.jaxconfig.single_threaded_blas`): the two imports can lock each other's
-    submodules, and Python then raises ``_DeadlockError`` in one of them (seen once in a
-    ``calibrate_file`` loop). Here the import happens once, before any thread starts.
-    """
-    if jobs:
-        from jax.experimental import serialize_executable  # noqa: F401  (the loader, too)
-
-        _initialise_lapack()
-    return _in_background(jobs, threads, label)
-
-
-def _in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) -> list[Any]:
-    """Run ``fn(*args)`` for each job, in order, on ``threads`` threads; one future per job.
-
-    Not daemon threads: a process that ends while one is inside XLA's deserialiser aborts
-    (SIGABRT at exit, measured on jax 0.10.2), so the interpreter waits for them; start
-    loads only once the process is likely to use them (after reading its input). They are
-    named ``aot-<label>-<i>``: a caller that ends its process itself may recognise them
-    (``chekan.outputs.DISPOSABLE_THREAD_PREFIX`` relies on that prefix)."""
-    import queue
-    import threading
-    from concurrent.futures import Future
-
-    todo: queue.SimpleQueue = queue.SimpleQueue()
-    futures: list[Future] = []
-    for fn, args in jobs:
-        fut: Future = Future()
-        futures.append(fut)
-        todo.put((fut, fn, args))
-
-    def work() -> None:
-        while True:
-            try:
-                fut, fn, args = todo.get_nowait()
-            except queue.Empty:
-                return
-            if fut.set_running_or_notify_cancel():
-                try:
-                    fut.set_result(fn(*args))
-                except BaseException as e:  # delivered to whoever waits on it
-                    fut.set_exception(e)
-
-    for i in range(min(threads, len(jobs))):
-        threading.Thread(target=work, name=f"aot-{label}-{i}").start()
-    return futures
 
 
 def _link_or_copy(src: Path, dst: Path) -> None:
