@@ -94,6 +94,49 @@ def _moves(record, holds: HoldTable, dt_s: float):
     return mx, my, lag, mask, t_last
 
 
+def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s) -> list[tuple]:
+    """The bins of every hold: ``(hold, mean (2), count (2), d0, dstep, n_t, t_mid)``, the
+    settling part cut at ``bin_edges_s``, the settled part one bin."""
+    rows = []
+    for k in range(holds.n):
+        a, b = holds.start[k], holds.stop[k]
+        tt = t[a:b]
+        rel = tt - tt[0]
+        edges = sorted({e for e in bin_edges_s if e < holds.settle_s} | {holds.settle_s})
+        edges = [e for e in edges if e <= rel[-1]] + [np.inf]
+        for lo, hi in itertools.pairwise(edges):
+            sel = (rel >= lo) & (rel < hi)
+            if not sel.any():
+                continue
+            mm = m[a:b][sel]
+            cnt = np.sum(np.isfinite(mm), axis=0)
+            with np.errstate(invalid="ignore"):
+                mean = np.where(cnt > 0, np.nansum(mm, axis=0) / np.maximum(cnt, 1), 0.0)
+            ts = tt[sel]
+            d0 = ts[0] - t_last[k]
+            dstep = (ts[-1] - ts[0]) / (ts.size - 1) if ts.size > 1 else 1.0
+            rows.append((k, mean, cnt, d0, dstep, ts.size, ts.mean()))
+    return rows
+
+
+def _angle_bases(theta, mv_theta, mv_mask, L: int, angle_spec: AngleSensorSpec | None):
+    """The shared angle-error columns at the holds and along the slews, their prior
+    variances and how many are systematic: ``L`` legacy encoder terms (N(0, 2″)), then the
+    systematic basis of :mod:`.angles` where ``angle_spec`` is given."""
+    tmax = max(np.max(np.abs(theta)), 1e-9)
+    H = theta.shape[0]
+    enc = np.polynomial.legendre.legvander(theta / tmax, L)[:, 1:] if L else np.zeros((H, 0))
+    basis, prior_var = enc, np.full(L, 4.0)
+    mv_basis = np.zeros((*mv_theta.shape, L))  # the legacy terms act at the holds only
+    if angle_spec is None:
+        return basis, prior_var, mv_basis, 0
+    sb = SystematicBasis.for_holds(theta)
+    basis = np.concatenate([basis, sb.at(theta)], axis=1)
+    prior_var = np.concatenate([prior_var, sb.prior_var(angle_spec)])
+    mv_basis = np.concatenate([mv_basis, sb.at(mv_theta) * mv_mask[..., None]], axis=-1)
+    return basis, prior_var, mv_basis, sb.size
+
+
 def prepare_record(
     record,
     holds: HoldTable,
@@ -112,25 +155,7 @@ def prepare_record(
     mv_tx, mv_ty, mv_lag, mv_mask, t_last = _moves(record, holds, dt_s)
     # time from the end of the slew into hold k to the hold's last sample (lag carried on)
     hold_T = np.array([t[holds.stop[k] - 1] - t_last[k] if k else 0.0 for k in range(H)])
-    rows = []  # (hold, mean(2), count(2), d0, dstep, n_t, t_mid)
-    for k in range(H):
-        a, b = holds.start[k], holds.stop[k]
-        tt = t[a:b]
-        rel = tt - tt[0]
-        edges = sorted({e for e in bin_edges_s if e < holds.settle_s} | {holds.settle_s})
-        edges = [e for e in edges if e <= rel[-1]] + [np.inf]
-        for lo, hi in itertools.pairwise(edges):
-            sel = (rel >= lo) & (rel < hi)
-            if not sel.any():
-                continue
-            mm = m[a:b][sel]
-            cnt = np.sum(np.isfinite(mm), axis=0)
-            with np.errstate(invalid="ignore"):
-                mean = np.where(cnt > 0, np.nansum(mm, axis=0) / np.maximum(cnt, 1), 0.0)
-            ts = tt[sel]
-            d0 = ts[0] - t_last[k]
-            dstep = (ts[-1] - ts[0]) / (ts.size - 1) if ts.size > 1 else 1.0
-            rows.append((k, mean, cnt, d0, dstep, ts.size, ts.mean()))
+    rows = _bin_rows(t, m, holds, t_last, bin_edges_s)
     N = len(rows)
     hold_of = np.array([r[0] for r in rows])
     own = np.zeros((N, H))
@@ -146,20 +171,9 @@ def prepare_record(
     t0, t1 = float(t.min()), float(t.max())
     s = 2.0 * (t_mid - t0) / max(t1 - t0, 1.0) - 1.0
     P = np.polynomial.legendre.legvander(s, drift_degree)[:, 1:]  # no constant
-    theta = holds.theta_rad
-    tmax = max(np.max(np.abs(theta)), 1e-9)
     L = 3 if encoder else 0
-    enc = np.polynomial.legendre.legvander(theta / tmax, L)[:, 1:] if L else np.zeros((H, 0))
-    basis, prior_var = enc, np.full(L, 4.0)  # legacy encoder terms: N(0, 2″)
-    mv_basis = np.zeros((*mv_tx.shape, L))  # the legacy terms act at the holds only
-    S = 0
-    if angle_spec is not None:
-        sb = SystematicBasis.for_holds(theta)
-        basis = np.concatenate([basis, sb.at(theta)], axis=1)
-        prior_var = np.concatenate([prior_var, sb.prior_var(angle_spec)])
-        mv_theta = mv_ty if holds.axis == "y" else mv_tx
-        mv_basis = np.concatenate([mv_basis, sb.at(mv_theta) * mv_mask[..., None]], axis=-1)
-        S = sb.size
+    mv_theta = mv_ty if holds.axis == "y" else mv_tx
+    basis, prior_var, mv_basis, S = _angle_bases(holds.theta_rad, mv_theta, mv_mask, L, angle_spec)
     direction = np.array([0.0, 1.0]) if holds.axis == "y" else np.array([1.0, 0.0])
     # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
     arrays = {

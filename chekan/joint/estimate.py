@@ -171,23 +171,8 @@ def posterior_result(
     rep = posterior_predictive_delta_g(
         holds, record.g_local_mgal, draws, model, rng, options.a_fixed
     )
-    rs = out.get("residuals_mgal", {})
-    cols = rs.get("columns", [])
-    lo, hi = (1 - options.hdi_prob) / 2 * 100, (1 + options.hdi_prob) / 2 * 100
-    out["posterior_predictive_mgal"] = {
-        "columns": cols,
-        "delta_g_mean": {
-            c: list(np.nanmean(rep[:, i // 2, i % 2], axis=0)) for i, c in enumerate(cols)
-        },
-        "delta_g_low": {
-            c: list(np.nanpercentile(rep[:, i // 2, i % 2], lo, axis=0)) for i, c in enumerate(cols)
-        },
-        "delta_g_high": {
-            c: list(np.nanpercentile(rep[:, i // 2, i % 2], hi, axis=0)) for i, c in enumerate(cols)
-        },
-        "rms_mgal_mean": float(np.nanmean(np.sqrt(np.nanmean(rep**2, axis=-1)))),
-        "n_replicates": int(rep.shape[0]),
-    }
+    cols = out.get("residuals_mgal", {}).get("columns", [])
+    out["posterior_predictive_mgal"] = _predictive_summary(rep, cols, options.hdi_prob)
     out["drift_curve"] = drift_curve(draws, model, hp=options.hdi_prob)
     angle = draws["angle_error_arcsec"].reshape(C * Dn, -1)
     out["angle_error_arcsec"] = {
@@ -198,3 +183,20 @@ def posterior_result(
     if options.netcdf:
         out["posterior_netcdf"] = str(write_netcdf(options.netcdf, draws, samp, model, rep, cols))
     return out
+
+
+def _predictive_summary(rep: np.ndarray, cols: list[str], hdi_prob: float) -> dict:
+    """Mean and central interval of the replicated δg (draws, R, 2, angles) per column."""
+    lo, hi = (1 - hdi_prob) / 2 * 100, (1 + hdi_prob) / 2 * 100
+
+    def per_column(f) -> dict:
+        return {c: list(f(rep[:, i // 2, i % 2])) for i, c in enumerate(cols)}
+
+    return {
+        "columns": cols,
+        "delta_g_mean": per_column(lambda x: np.nanmean(x, axis=0)),
+        "delta_g_low": per_column(lambda x: np.nanpercentile(x, lo, axis=0)),
+        "delta_g_high": per_column(lambda x: np.nanpercentile(x, hi, axis=0)),
+        "rms_mgal_mean": float(np.nanmean(np.sqrt(np.nanmean(rep**2, axis=-1)))),
+        "n_replicates": int(rep.shape[0]),
+    }

@@ -271,38 +271,13 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     gx = E.T @ bdt
     P = slew_angle_terms(v, data, slews) if structure.n_systematic else None
     if P is not None:  # the slews' share of the systematic columns (see slew_angle_terms)
-        # Pᵢ = cᵢ U_{k(i)}: every product with P is a sum over bins by hold, then one small
-        # product per hold with U (H, L, 2); P itself (N, L, 2) is never formed
-        U, own = P.per_hold, P.own
-        Wc = W * P.weight[:, None]  # (N, 2)
-        per_bin = jnp.concatenate(
-            [
-                jnp.broadcast_to(x[:, :, None], (x.shape[0], x.shape[1], 2))
-                for x in (Q, jnp.stack([sp.a, sp.b, P.weight], axis=1))
-            ]
-            + [r[:, None, :]],
-            axis=1,
-        )  # (N, nq + 4, 2): Q, a, b, c, r
-        by_hold = jax.ops.segment_sum(Wc[:, None, :] * per_bin, own, num_segments=H)
-        QWc, aWc, bWc = by_hold[:, :nq], by_hold[:, nq], by_hold[:, nq + 1]
-        c2W, rWc = by_hold[:, nq + 2], by_hold[:, nq + 3]
-        # Gᵀ diag(W c) P: own-hold entries aᵢ, previous-hold entries bᵢ (every bin of hold
-        # k has the same previous hold, ``prev_of``)
-        prev_of = jax.ops.segment_max(sp.prev, own, num_segments=H)
-        prev_of = jnp.clip(prev_of, 0, H - 1)  # holds without bins: their sums are 0
-        GtWP = aWc[:, None, :] * U + jax.ops.segment_sum(
-            bWc[:, None, :] * U, prev_of, num_segments=H
-        )  # (H, L, 2)
-        QWP = jnp.einsum("hqj,hlj->jql", QWc, U)
+        QWP, GtWP, sGtWP, ee, gP = _slew_systematic_blocks(P, W, Q, r, s, E, sp, H)
         rows[0][5] = rows[0][5] + QWP[0]
         rows[1][5] = rows[1][5] + QWP[1]
         rows[2][5] = rows[2][5] + GtWP[..., 0]
         rows[3][5] = rows[3][5] + GtWP[..., 1]
-        sGtWP = jnp.einsum("hj,hlj->hl", s, GtWP)
         rows[4][5] = rows[4][5] + sGtWP
-        cross = E.T @ sGtWP  # Σⱼ (G diag(sⱼ) E)ᵀ Wⱼ Pⱼ
-        ee = cross + cross.T + jnp.einsum("hj,hlj,hmj->lm", c2W, U, U)
-        gx = gx + jnp.einsum("hlj,hj->l", U, rWc)
+        gx = gx + gP
     else:
         ee = jnp.zeros((L, L))
     if L:
@@ -315,6 +290,41 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     logdet_n = jnp.sum(jnp.where(mask, jnp.log(nv), 0.0))
     pieces = (f, G, s, r, W, nv, trans, P)
     return NormalEquations(rWr, g, Mg, logdet_n, jnp.sum(mask)), pieces
+
+
+def _slew_systematic_blocks(P, W, Q, r, s, E, sp, H: int):
+    """The slews' share of the systematic columns in the normal equations: Qᵀ W P,
+    Gᵀ W P, Σⱼ diag(sⱼ) Gᵀ Wⱼ Pⱼ, the (E, P) block and Pᵀ W r.
+
+    Pᵢ = cᵢ U_{k(i)}: every product with P is a sum over bins by hold, then one small
+    product per hold with U (H, L, 2); P itself (N, L, 2) is never formed.
+    """
+    nq = Q.shape[1]
+    U, own = P.per_hold, P.own
+    Wc = W * P.weight[:, None]  # (N, 2)
+    per_bin = jnp.concatenate(
+        [
+            jnp.broadcast_to(x[:, :, None], (x.shape[0], x.shape[1], 2))
+            for x in (Q, jnp.stack([sp.a, sp.b, P.weight], axis=1))
+        ]
+        + [r[:, None, :]],
+        axis=1,
+    )  # (N, nq + 4, 2): Q, a, b, c, r
+    by_hold = jax.ops.segment_sum(Wc[:, None, :] * per_bin, own, num_segments=H)
+    QWc, aWc, bWc = by_hold[:, :nq], by_hold[:, nq], by_hold[:, nq + 1]
+    c2W, rWc = by_hold[:, nq + 2], by_hold[:, nq + 3]
+    # Gᵀ diag(W c) P: own-hold entries aᵢ, previous-hold entries bᵢ (every bin of hold k has
+    # the same previous hold, ``prev_of``)
+    prev_of = jax.ops.segment_max(sp.prev, own, num_segments=H)
+    prev_of = jnp.clip(prev_of, 0, H - 1)  # holds without bins: their sums are 0
+    GtWP = aWc[:, None, :] * U + jax.ops.segment_sum(
+        bWc[:, None, :] * U, prev_of, num_segments=H
+    )  # (H, L, 2)
+    QWP = jnp.einsum("hqj,hlj->jql", QWc, U)
+    sGtWP = jnp.einsum("hj,hlj->hl", s, GtWP)
+    cross = E.T @ sGtWP  # Σⱼ (G diag(sⱼ) E)ᵀ Wⱼ Pⱼ
+    ee = cross + cross.T + jnp.einsum("hj,hlj,hmj->lm", c2W, U, U)
+    return QWP, GtWP, sGtWP, ee, jnp.einsum("hlj,hj->l", U, rWc)
 
 
 class _HoldSparse(NamedTuple):
