@@ -53,3 +53,48 @@ def test_journal_events_are_one_typed_contract():
         if call.search(p.read_text(encoding="utf-8")) or compare.search(p.read_text("utf-8"))
     ]
     assert literal == []
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """Module-level imports between the project's modules (``pkg.mod`` → modules)."""
+    files = {}
+    for top in ("chekan", "inference", "hw"):
+        for p in (ROOT / top).rglob("*.py"):
+            name = ".".join(p.relative_to(ROOT).with_suffix("").parts)
+            files[name.removesuffix(".__init__")] = p
+    graph: dict[str, set[str]] = {}
+    for name, p in files.items():
+        pkg = name if p.name == "__init__.py" else name.rsplit(".", 1)[0]
+        deps: set[str] = set()
+        for node in ast.parse(p.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.ImportFrom):
+                parts = pkg.split(".")
+                base = ".".join(parts[: len(parts) - node.level + 1]) if node.level else ""
+                mod = ".".join(x for x in (base, node.module or "") if x)
+                deps.update(
+                    f"{mod}.{a.name}" if f"{mod}.{a.name}" in files else mod for a in node.names
+                )
+            elif isinstance(node, ast.Import):
+                deps.update(a.name for a in node.names)
+        graph[name] = {d for d in deps if d in files and d != name}
+    return graph
+
+
+def test_no_import_cycle():
+    graph, state, path, cycles = _module_graph(), {}, [], []
+
+    def visit(u: str) -> None:
+        state[u] = 1
+        path.append(u)
+        for v in sorted(graph[u]):
+            if state.get(v) == 1:
+                cycles.append([*path[path.index(v) :], v])
+            elif v not in state:
+                visit(v)
+        path.pop()
+        state[u] = 2
+
+    for u in sorted(graph):
+        if u not in state:
+            visit(u)
+    assert "chekan.joint.likelihood" in graph and cycles == []
