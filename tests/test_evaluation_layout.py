@@ -97,7 +97,8 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
     draw with a ≤ 0, which takes the design K), at the record's CCD centre ``m0``."""
     from types import SimpleNamespace
 
-    from chekan.joint.outputs import _equilibria
+    from chekan.joint.engine import PREDICTIVE
+    from chekan.joint.outputs import _equilibria, equilibria_of
     from chekan.joint.problem import K_DESIGN
     from chekan.units import ARCMIN_PER_RAD
     from inference.aot import ExecutableStore
@@ -118,7 +119,8 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
     take = np.array([2, 0, 1])
     E, S = _equilibria(g, m0, flat, take, holds)
     # through an executable store (as calibrate runs it): the same numbers
-    E2, S2 = _equilibria(g, m0, flat, take, holds, ExecutableStore(None, "test"))
+    compiled = ExecutableStore(None, "test").jit(PREDICTIVE, equilibria_of)
+    E2, S2 = _equilibria(g, m0, flat, take, holds, compiled)
     np.testing.assert_array_equal(E2, E)
     np.testing.assert_array_equal(S2, S)
     for n, i in enumerate(take):

@@ -4,6 +4,7 @@
 module             what it does
 =================  ==========================================================
 ``layout``         the static structure (what compiles) and the data pytree
+``engine``         what is compiled for a structure, its one cache, ``clear_caches``
 ``binning``        record → holds → bin means and slews (the data)
 ``likelihood``     f(θ) + A(θ)β, normal equations, β̂ (the physics of the bins)
 ``problem``        parameters and priors; MAP least squares; marginal density
@@ -21,10 +22,11 @@ module             what it does
 """
 
 from chekan.joint.binning import BIN_EDGES_S, prepare, prepare_record
+from chekan.joint.engine import clear_caches, engine_for, problem_for
 from chekan.joint.estimate import estimate, map_result, posterior_result
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel, padded_shape
 from chekan.joint.map import MapFit, fit_map_em, fit_map_em_many
-from chekan.joint.problem import CalibrationProblem, default_hyper, problem_for
+from chekan.joint.problem import CalibrationProblem, default_hyper
 from chekan.joint.start import initial_values, tau_from_transients
 
 __all__ = [
@@ -34,7 +36,9 @@ __all__ = [
     "ModelStructure",
     "RecordData",
     "RecordModel",
+    "clear_caches",
     "default_hyper",
+    "engine_for",
     "estimate",
     "fit_map_em",
     "fit_map_em_many",

@@ -10,8 +10,8 @@ them for every posterior draw, with β drawn given θ.
 
 from __future__ import annotations
 
-import functools
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -30,12 +30,8 @@ from chekan.joint.likelihood import (
     solve_beta,
 )
 from chekan.joint.map import MapFit
-from chekan.joint.problem import executables, prefetch_args, problem_for
 from chekan.parameters import PHYSICAL
 from inference.normal_eq import draw_beta_normal
-
-MAP_DERIVED = "map_derived"  # the stored executable's name (see prefetch)
-DRAWS = "draws"  # the stored executable of the posterior draws
 
 
 def at_level(sp: fm.SensorParams):
@@ -70,11 +66,10 @@ def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordDa
     return out, sp.m_level_pix, dr
 
 
-@functools.cache
-def _map_derived_jit(structure: ModelStructure):
-    """(z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂), jitted once per structure
-    (eager ``jacfwd`` would compile op by op in every new process, uncached)."""
-    space = problem_for(structure).map_space
+def map_derived_fn(structure: ModelStructure, space) -> Callable:
+    """``(z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂)``, traceable; compiled once per
+    structure by :class:`chekan.joint.engine.Engine` (eager ``jacfwd`` would compile op by
+    op in every new process, uncached)."""
 
     def core(z, h, data, dur_h):
         def g(z, beta):
@@ -90,14 +85,15 @@ def _map_derived_jit(structure: ModelStructure):
         Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
         return g(z, beta), Jz, Jb, Linv.T @ Linv, beta
 
-    return executables(structure).jit(MAP_DERIVED, core)
+    return core
 
 
 def prefetch(model: RecordModel) -> None:
     """Start loading the stored executable of :func:`map_derived` for this model's
-    structure in the background (:meth:`inference.aot.ExecutableStore.prefetch`)."""
-    args = prefetch_args(model.structure, model.data)
-    executables(model.structure).prefetch(MAP_DERIVED, *args, model.duration_h)
+    structure in the background."""
+    from chekan.joint.engine import MAP_DERIVED, engine_for
+
+    engine_for(model.structure).prefetch(MAP_DERIVED, model.data, model.duration_h)
 
 
 def map_derived(fit: MapFit) -> dict:
@@ -111,7 +107,9 @@ def map_derived(fit: MapFit) -> dict:
     model, res, h = fit.model, fit.result, fit.hyper
     data = model.data
     blocks = model.structure.beta_blocks
-    jitted = _map_derived_jit(model.structure)
+    from chekan.joint.engine import engine_for
+
+    jitted = engine_for(model.structure).map_derived
     out_j = jitted(device_array(res.z), h, data, model.duration_h)
     val, Jz, Jb, Minv, beta = (np.asarray(x) for x in out_j)
     cov = np.asarray(res.cov_z)
@@ -132,11 +130,10 @@ def map_derived(fit: MapFit) -> dict:
     return out
 
 
-@functools.cache
-def _draws_jit(structure: ModelStructure):
-    """(z_bayes, key, data, duration h) → named draws of everything reported (β drawn given
-    θ); the record's duration is a traced argument, so records of one structure share it."""
-    space = problem_for(structure).bayes_space
+def draws_fn(structure: ModelStructure, space) -> Callable:
+    """``(z_bayes, key, data, duration h) →`` named draws of everything reported (β drawn
+    given θ), traceable; the record's duration is an argument, so records of one structure
+    share the compiled function (:class:`chekan.joint.engine.Engine`)."""
     blocks = structure.beta_blocks
 
     def one(z, key, data: RecordData, dur_h):
@@ -172,7 +169,7 @@ def _draws_jit(structure: ModelStructure):
         # pathologically slowly (batch 8: 9 ms; batch 16: minutes); a loop is fast and predictable
         return jax.lax.map(lambda zk: one(zk[0], zk[1], data, dur_h), (zs, keys))
 
-    return executables(structure).jit(DRAWS, many)
+    return many
 
 
 def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict:
@@ -180,7 +177,9 @@ def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict
     with ``keys``; in fixed-size chunks (one compile, bounded memory: each draw assembles
     a p×p normal-equation matrix)."""
     model = fit.model
-    fn = _draws_jit(model.structure)
+    from chekan.joint.engine import engine_for
+
+    fn = engine_for(model.structure).draws
     dur_h = model.duration_h  # traced, as in map_derived
     n = zs.shape[0]
     pad = (-n) % chunk

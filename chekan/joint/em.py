@@ -6,7 +6,7 @@ Every function returns new state; nothing it is handed is changed.
 
 from __future__ import annotations
 
-import functools
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -15,9 +15,8 @@ import numpy as np
 from chekan.jaxconfig import device_array
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import dense_design, noise_var, solve_beta
-from chekan.joint.problem import Hyper, default_hyper, executables, prefetch_args, problem_for
+from chekan.joint.problem import Hyper, default_hyper
 
-BETA_AT = "beta_at"  # the stored executable's name (see prefetch)
 HYPER_TOL = 1e-4  # EM at fixed θ stops when no log-hyperparameter moves more than this
 HYPER_MAX_UPDATES = 200  # ~8 ms each on a 9 h record
 # the noise M-step: box of (log s₁, log s₂, log κ) and the priors of
@@ -134,26 +133,27 @@ def beta_moments(v: dict, h: Hyper, structure: ModelStructure, data: RecordData)
     return rw, beta, jnp.sum(Linv**2, axis=0), noise_var(h, data), trans, lev
 
 
-@functools.cache
-def _beta_at_jit(structure: ModelStructure):
-    """Jitted :func:`beta_moments` at θ = z (one per structure)."""
-    space = problem_for(structure).map_space
+def beta_moments_fn(structure: ModelStructure, space) -> Callable:
+    """``(z, h, data) →`` :func:`beta_moments` at θ = z, traceable; compiled by
+    :class:`chekan.joint.engine.Engine`."""
 
     def fn(z, h, data: RecordData):
         return beta_moments(space.to_values(z), h, structure, data)
 
-    return executables(structure).jit(BETA_AT, fn)
+    return fn
 
 
 def prefetch(model: RecordModel) -> None:
-    """Start loading the stored β̂ executable of this model's structure in the background
-    (:meth:`inference.aot.ExecutableStore.prefetch`)."""
-    args = prefetch_args(model.structure, model.data)
-    executables(model.structure).prefetch(BETA_AT, *args)
+    """Start loading the stored β̂ executable of this model's structure in the background."""
+    from chekan.joint.engine import BETA_AT, engine_for
+
+    engine_for(model.structure).prefetch(BETA_AT, model.data)
 
 
 def beta_at(structure: ModelStructure, z, h: Hyper, data: RecordData):
     """β̂, its conditional variances diag(M⁻¹), the whitened residuals, the base noise
     variance, the transient amplitudes and the bins' leverages at θ = z."""
-    out = _beta_at_jit(structure)(device_array(z), h, data)
+    from chekan.joint.engine import engine_for
+
+    out = engine_for(structure).beta_at(device_array(z), h, data)
     return tuple(np.asarray(x) for x in out)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -30,11 +31,10 @@ from chekan.joint.em import (
 )
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import solve_beta
-from chekan.joint.problem import Hyper, executables, prefetch_args, problem_for
+from chekan.joint.problem import Hyper
 from inference.box_newton import minimise_in_box
 from inference.jacobian import jacobian_once
 
-EM_PASS = "em_between_passes"  # the stored executable's name (see prefetch)
 EM_UPDATES_BEFORE_NEWTON = 32  # then Newton on the fixed point (docs/tuning.md)
 NEWTON_TOL = 1e-8  # on the Newton step and on EM(h) − h, in log h
 NEWTON_MAX_STEPS = 32
@@ -45,20 +45,24 @@ def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper,
     """:func:`chekan.joint.em.between_passes` compiled: the model with its level moved to
     the estimate (m_ref ← m_ref + ĉ), the hyperparameters at their EM fixed point given θ = z,
     and the number of EM updates."""
-    m_ref, h_new, n = _compiled(model.structure)(device_array(z), h, model.data)
+    from chekan.joint.engine import engine_for
+
+    em_pass = engine_for(model.structure).em_pass
+    m_ref, h_new, n = em_pass(device_array(z), h, model.data)
     return model.with_level(np.asarray(m_ref)), h_new, int(n)
 
 
 def prefetch(model: RecordModel) -> None:
-    """Start loading this structure's stored executable in the background
-    (:meth:`inference.aot.ExecutableStore.prefetch`)."""
-    args = prefetch_args(model.structure, model.data)
-    executables(model.structure).prefetch(EM_PASS, *args)
+    """Start loading this structure's stored EM pass in the background."""
+    from chekan.joint.engine import EM_PASS, engine_for
+
+    engine_for(model.structure).prefetch(EM_PASS, model.data)
 
 
-@functools.cache
-def _compiled(structure: ModelStructure):
-    space = problem_for(structure).map_space
+def em_pass_fn(structure: ModelStructure, space) -> Callable:
+    """``(z, h, data) → (m_ref, h, updates)``: the level moved to its estimate, then EM to
+    its fixed point (Newton after ``EM_UPDATES_BEFORE_NEWTON``), traceable; compiled by
+    :class:`chekan.joint.engine.Engine`."""
 
     def fn(z, h: Hyper, data: RecordData):
         v = space.to_values(z)
@@ -87,7 +91,7 @@ def _compiled(structure: ModelStructure):
         h, n, _ = jax.lax.while_loop(em_until(HYPER_MAX_UPDATES), body, c)
         return m_ref, h, n
 
-    return executables(structure).jit(EM_PASS, fn)
+    return fn
 
 
 def _log_hyper(h: Hyper) -> jax.Array:

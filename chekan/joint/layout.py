@@ -13,7 +13,6 @@ Binning (:func:`chekan.joint.binning.prepare_record`) builds them from a record.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -68,7 +67,6 @@ class ModelStructure:
         )
 
 
-@functools.cache
 def beta_blocks(H: int, D: int, L: int, S: int = 0) -> dict[str, np.ndarray]:
     """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e, ζ): level offsets and drift per system,
     hold offsets, the random angle error of every hold, the legacy encoder terms and the

@@ -23,8 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from chekan.joint import em, em_compiled
+from chekan.joint.engine import problem_for
 from chekan.joint.layout import RecordModel
-from chekan.joint.problem import Hyper, default_hyper, problem_for
+from chekan.joint.problem import Hyper, default_hyper
 from inference.map import MapResult, SolverName, fit_map
 from inference.map_batch import fit_map_batch
 

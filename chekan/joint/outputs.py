@@ -3,6 +3,7 @@ paper's δg table, the drift curve, and the ArviZ NetCDF."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
@@ -11,9 +12,8 @@ import numpy as np
 
 from chekan import model as fm
 from chekan.classical import fit_classical, increments_from_holds
-from chekan.joint.problem import K_DESIGN, executables
+from chekan.joint.problem import K_DESIGN
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
-from inference.aot import ExecutableStore
 
 
 def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixed=None, n_max=200):
@@ -30,9 +30,11 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     s = 2.0 * (holds.t_mid_s - t0) / max(t1 - t0, 1.0) - 1.0
     P = np.polynomial.legendre.legvander(np.nan_to_num(s), model.drift_degree)[:, 1:]
     g = float(g_local)
-    store = executables(model.structure)
+    from chekan.joint.engine import engine_for
+
+    compiled = engine_for(model.structure).predictive
     m0 = float(np.asarray(model.data.m0))  # the record's CCD centre, as the fit uses it
-    E_all, S_all = _equilibria(g, m0, flat, take, holds, store)  # (draws, K, 2) each
+    E_all, S_all = _equilibria(g, m0, flat, take, holds, compiled)  # (draws, K, 2) each
     reps = []
     for n_draw, i in enumerate(take):
         E, S = E_all[n_draw], S_all[n_draw]
@@ -47,12 +49,12 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     return np.stack(reps)  # (draws, R, 2, n)
 
 
-def _equilibria(g: float, m0: float, flat: dict, take, holds, store: ExecutableStore | None = None):
+def _equilibria(g: float, m0: float, flat: dict, take, holds, compiled: Callable | None = None):
     """E and ∂E/∂θ at the hold attitudes for the draws ``take`` (CCD centre ``m0`` pix), in one
     vectorised call (a loop over draws dispatched two jitted calls and built parameters per
     draw).
-    ``store``: keep the compiled function there (a new process then loads it instead of
-    tracing the vmapped model, ≈ 1.2 s)."""
+    ``compiled``: :func:`equilibria_of` as the engine keeps it (a new process then loads it
+    instead of tracing the vmapped model, ≈ 1.2 s); else jitted here."""
     a = flat["a"][take]
     K = np.where(a > 0, np.sqrt(g / 2 / np.where(a > 0, a, 1.0)), K_DESIGN)
     n = len(take)
@@ -68,22 +70,19 @@ def _equilibria(g: float, m0: float, flat: dict, take, holds, store: ExecutableS
     }
     sp = fm.SensorParams(**{k: jnp.asarray(v, dtype=jnp.float64) for k, v in fields.items()})
     tx, ty = np.asarray(holds.tilt_x_rad, float), np.asarray(holds.tilt_y_rad, float)
-    fn = _equilibria_jit if store is None else store.jit(PREDICTIVE, _equilibria_of)
+    fn = _equilibria_jit if compiled is None else compiled
     E, S = fn(sp, tx, ty)
     return np.asarray(E), np.asarray(S)
 
 
-PREDICTIVE = "predictive_equilibria"  # the stored executable's name
-
-
-def _equilibria_of(sp: fm.SensorParams, tx, ty):
+def equilibria_of(sp: fm.SensorParams, tx, ty):
     """E and ∂E/∂θ (draws, K, 2) for parameters batched on their leading axis."""
     E = jax.vmap(fm.equilibrium_readings, in_axes=(0, None, None))(sp, tx, ty)
     S = jax.vmap(fm.reading_sensitivity_to_tilt, in_axes=(0, None, None))(sp, tx, ty)
     return E, S
 
 
-_equilibria_jit = jax.jit(_equilibria_of)
+_equilibria_jit = jax.jit(equilibria_of)
 
 
 def drift_curve(draws, model, hp: float, n: int = 60) -> dict:

@@ -28,7 +28,6 @@ The sampler sees θ = (b₁, b₂, log K, ε₁, ε₂, Δγ, log τ) and the hy
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -36,11 +35,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chekan.jaxconfig import device_array, executable_store
+from chekan.jaxconfig import device_array
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import beta_prior_var, normal_equations, solve_beta
 from chekan.parameters import unit_of
-from inference.aot import ExecutableStore
 from inference.normal_eq import marginal_loglik_normal
 from inference.params import Param, ParamSpace
 from inference.problem import LeastSquaresProblem
@@ -94,7 +92,7 @@ def default_hyper(
 @dataclass(frozen=True, eq=False)
 class CalibrationProblem:
     """The joint model of one structure as a MAP least-squares problem and as a marginal
-    log-density. Built once per structure (:func:`problem_for`)."""
+    log-density. Built once per structure (:func:`chekan.joint.engine.problem_for`)."""
 
     structure: ModelStructure
     theta_space: ParamSpace
@@ -115,22 +113,10 @@ class CalibrationProblem:
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
 
-def executables(structure: ModelStructure) -> ExecutableStore:
-    """The store of compiled functions of this structure (kept across processes)."""
-    return executable_store().scoped(repr(structure))
-
-
-def prefetch_args(structure: ModelStructure, data: RecordData) -> tuple:
-    """``(z, h, data)`` with the shapes the MAP-side executables take, for
-    :meth:`inference.aot.ExecutableStore.prefetch`: z on the host (``jnp.zeros`` would
-    compile a program in a new process, 20 ms)."""
-    return np.zeros(problem_for(structure).map_space.size), default_hyper(), data
-
-
-@functools.cache
-def problem_for(structure: ModelStructure) -> CalibrationProblem:
-    """Both views of the model for one structure, built once (compiled solvers live in the
-    problem, so records of one shape share them: batch re-analysis, validation).
+def build_problem(structure: ModelStructure, store=None) -> CalibrationProblem:
+    """Both views of the model for one structure (built once per structure by
+    :func:`chekan.joint.engine.engine_for`, whose ``store`` keeps the compiled solvers, so
+    records of one shape share them: batch re-analysis, validation).
 
     MAP: LM over θ only; for each θ the linear block β is solved in closed form
     (:func:`chekan.joint.likelihood.solve_beta`), so the residual is the projected one and
@@ -147,5 +133,5 @@ def problem_for(structure: ModelStructure) -> CalibrationProblem:
         rw, beta, _ = solve_beta(v, h, structure, data)
         return jnp.concatenate([rw, beta / jnp.sqrt(beta_prior_var(h, structure, data))])
 
-    lsq = LeastSquaresProblem(theta_space, residuals, executables=executables(structure))
+    lsq = LeastSquaresProblem(theta_space, residuals, executables=store)
     return CalibrationProblem(structure, theta_space, bayes_space, lsq)

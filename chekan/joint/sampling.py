@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from chekan.joint.engine import problem_for
 from chekan.joint.map import MapFit
-from chekan.joint.problem import problem_for
 from chekan.options import CalibrationOptions
 
 
