@@ -1,4 +1,4 @@
-"""What happens between two LM passes of the MAP: the level reference moves to its
+"""What happens between two passes of the MAP: the level reference moves to its
 estimate and the hyperparameters go to their EM fixed point at fixed θ.
 
 Every function returns new state; nothing it is handed is changed.
@@ -15,19 +15,24 @@ import numpy as np
 from chekan.jaxconfig import device_array
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import dense_design, noise_var, solve_beta
-from chekan.joint.problem import Hyper, default_hyper
+from chekan.joint.problem import Hyper, default_hyper, hyper_params
 
 HYPER_TOL = 1e-4  # EM at fixed θ stops when no log-hyperparameter moves more than this
 HYPER_MAX_UPDATES = 200  # ~8 ms each on a 9 h record
-# the noise M-step: box of (log s₁, log s₂, log κ) and the priors of
-# chekan.joint.problem.hyper_params (log s ~ N(0, 0.5), log κ ~ N(log 0.003, 1.5))
+# the noise M-step: box of (log s₁, log s₂, log κ) and the priors of log s and log κ,
+# read from the sampled hyperparameters' definitions (chekan.joint.problem.hyper_params)
 NOISE_LOWER = np.log([0.05, 0.05, 1e-5])
 NOISE_UPPER = np.log([50.0, 50.0, 0.5])
-S_SD, K_LOC, K_SD = 0.5, np.log(0.003), 1.5
+_PRIOR = {p.name: p for p in hyper_params()}
+S_LOC, S_SD = _PRIOR["noise_scale"].loc, _PRIOR["noise_scale"].scale
+K_LOC, K_SD = _PRIOR["slew_error"].loc, _PRIOR["slew_error"].scale
+# where the EM clips σ_θ (arcsec) and σ_o (pix): inside the range a record can inform
+SIGMA_THETA_BOUNDS_ARCSEC = (0.05, 30.0)
+SIGMA_HOLD_BOUNDS_PIX = (1e-3, 5.0)
 
 
 def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:
-    """What follows every LM pass but the last: :func:`recentre_level`, then
+    """What follows every MAP pass but the last: :func:`recentre_level`, then
     :func:`converge_hyper`. Returns the model with its moved level, the new
     hyperparameters and the number of EM updates."""
     model, _ = recentre_level(model, z, h)
@@ -83,8 +88,8 @@ def em_update(model: RecordModel, z, h: Hyper) -> Hyper:
     scale, kappa = noise_m_step(e2, base / np.asarray(h["noise_scale"])[None, :] ** 2, trans, mask)
     return default_hyper(
         noise_scale=scale,
-        sigma_theta_arcsec=float(np.clip(np.sqrt(np.mean(d**2 + vd)), 0.05, 30.0)),
-        sigma_hold_pix=float(np.clip(np.sqrt(np.mean(o**2 + vo)), 1e-3, 5.0)),
+        sigma_theta_arcsec=float(np.clip(np.sqrt(np.mean(d**2 + vd)), *SIGMA_THETA_BOUNDS_ARCSEC)),
+        sigma_hold_pix=float(np.clip(np.sqrt(np.mean(o**2 + vo)), *SIGMA_HOLD_BOUNDS_PIX)),
         slew_error=kappa,
     )
 
@@ -93,8 +98,7 @@ def noise_m_step(e2, b0, trans, mask) -> tuple[np.ndarray, float]:
     """(s₁, s₂, κ) maximising Σ −½(log v + E[e²]/v) + log-priors, v = sⱼ² b₀ + κ² t².
 
     All bins at once: settled bins (t = 0) fix sⱼ, the settling ones then fix κ. Priors
-    as in :func:`chekan.joint.problem.hyper_params` (log s ~ N(0, 0.5),
-    log κ ~ N(log 0.003, 1.5)).
+    of log s and log κ from :func:`chekan.joint.problem.hyper_params`.
     """
     from scipy.optimize import minimize
 
@@ -107,12 +111,12 @@ def noise_m_step(e2, b0, trans, mask) -> tuple[np.ndarray, float]:
         v = np.where(mask, v, 1.0)
         q = m * (1.0 / v - e2 / v**2)  # ∂(log v + e²/v)/∂v
         val = 0.5 * np.sum(m * (np.log(v) + e2 / v))
-        val += 0.5 * np.sum((ls / S_SD) ** 2) + 0.5 * ((lk - K_LOC) / K_SD) ** 2
-        g_s = np.sum(q * np.exp(2 * ls)[None, :] * b0, axis=0) + ls / S_SD**2
+        val += 0.5 * np.sum(((ls - S_LOC) / S_SD) ** 2) + 0.5 * ((lk - K_LOC) / K_SD) ** 2
+        g_s = np.sum(q * np.exp(2 * ls)[None, :] * b0, axis=0) + (ls - S_LOC) / S_SD**2
         g_k = np.sum(q * np.exp(2 * lk) * t2) + (lk - K_LOC) / K_SD**2
         return val, np.concatenate([g_s, [g_k]])
 
-    x0 = np.array([0.0, 0.0, K_LOC])
+    x0 = np.array([S_LOC, S_LOC, K_LOC])
     bounds = list(zip(NOISE_LOWER, NOISE_UPPER, strict=True))
     res = minimize(f, x0, jac=True, method="L-BFGS-B", bounds=bounds)
     return np.exp(res.x[:2]), float(np.exp(res.x[2]))

@@ -26,7 +26,10 @@ from chekan.joint.em import (
     K_SD,
     NOISE_LOWER,
     NOISE_UPPER,
+    S_LOC,
     S_SD,
+    SIGMA_HOLD_BOUNDS_PIX,
+    SIGMA_THETA_BOUNDS_ARCSEC,
     beta_moments,
 )
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
@@ -155,10 +158,11 @@ def em_update(v: dict, h: Hyper, structure: ModelStructure, data: RecordData) ->
     return {
         "noise_scale": scale,
         "sigma_theta_arcsec": jnp.clip(
-            jnp.sqrt(mean_square(blocks["angle_error"], hold)), 0.05, 30.0
+            jnp.sqrt(mean_square(blocks["angle_error"], hold)), *SIGMA_THETA_BOUNDS_ARCSEC
         ),
         "sigma_hold_pix": jnp.clip(
-            jnp.sqrt(mean_square(blocks["hold_offset"], jnp.tile(hold, 2))), 1e-3, 5.0
+            jnp.sqrt(mean_square(blocks["hold_offset"], jnp.tile(hold, 2))),
+            *SIGMA_HOLD_BOUNDS_PIX,
         ),
         "slew_error": kappa,
     }
@@ -176,7 +180,8 @@ def noise_m_step(e2, b0, trans, mask, x0) -> tuple[jax.Array, jax.Array]:
         v = jnp.exp(2 * ls)[None, :] * b0 + jnp.exp(2 * lk) * t2
         v = jnp.where(mask, v, 1.0)
         val = 0.5 * jnp.sum(m * (jnp.log(v) + e2 / v))
-        return val + 0.5 * jnp.sum((ls / S_SD) ** 2) + 0.5 * ((lk - K_LOC) / K_SD) ** 2
+        prior = 0.5 * jnp.sum(((ls - S_LOC) / S_SD) ** 2) + 0.5 * ((lk - K_LOC) / K_SD) ** 2
+        return val + prior
 
     x = minimise_in_box(f, x0, jnp.asarray(NOISE_LOWER), jnp.asarray(NOISE_UPPER)).x
     return jnp.exp(x[:2]), jnp.exp(x[2])
