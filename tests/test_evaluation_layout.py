@@ -98,7 +98,7 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
     from types import SimpleNamespace
 
     from chekan.joint.engine import PREDICTIVE
-    from chekan.joint.outputs import _equilibria, equilibria_of
+    from chekan.joint.predictive import _equilibria, equilibria_of
     from chekan.joint.problem import K_DESIGN
     from chekan.units import ARCMIN_PER_RAD
     from inference.aot import ExecutableStore
@@ -152,7 +152,7 @@ def test_the_posterior_predictive_uses_the_records_ccd_centre():
     from chekan.classical import fit_classical, increments_from_holds
     from chekan.demo import demo_program
     from chekan.holds import segment_record
-    from chekan.joint.outputs import posterior_predictive_delta_g
+    from chekan.joint.predictive import posterior_predictive_delta_g
     from chekan.simulate import Truth, simulate_session
     from chekan.units import ARCMIN_PER_RAD
 

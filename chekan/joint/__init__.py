@@ -8,13 +8,13 @@ module             what it does
 ``binning``        record → holds → bin means and slews (the data)
 ``likelihood``     f(θ) + A(θ)β, normal equations, β̂ (the physics of the bins)
 ``problem``        parameters and priors; MAP least squares; marginal density
-``em``             between LM passes: level re-centring, EM of hyperparameters
+``em``             between MAP passes: level re-centring, EM of hyperparameters
 ``start``          the MAP's start: classical θ; a τ read off the settling transients
 ``map``            MAP + EM for one record or a batch → :class:`MapFit`
 ``derived``        a, b₀, drift slope: one function for map, bayes and design
 ``budget``         the uncertainty budget of b and U (k = 2)
 ``sampling``       emcee on the marginal posterior
-``outputs``        posterior predictive, drift curve, NetCDF
+``predictive``     posterior predictive, drift curve, NetCDF
 ``estimate``       the ``map`` and ``bayes`` results
 ``batch``          padded, vmapped MAP of many records (re-analysis)
 ``legacy``         the joint model of a legacy protocol (per-round characteristic)

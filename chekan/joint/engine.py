@@ -80,7 +80,7 @@ class Engine:
     @functools.cached_property
     def predictive(self) -> Callable:
         """``(sensor params, tx, ty) →`` equilibria: :func:`.outputs.equilibria_of`."""
-        from chekan.joint.outputs import equilibria_of
+        from chekan.joint.predictive import equilibria_of
 
         return self.store.jit(PREDICTIVE, equilibria_of)
 

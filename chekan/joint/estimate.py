@@ -23,7 +23,7 @@ from chekan.joint.derived import map_derived, posterior_draws
 from chekan.joint.derived import prefetch as prefetch_map_derived
 from chekan.joint.layout import padded_shape
 from chekan.joint.map import MapFit, em_steps, fit_map_em
-from chekan.joint.outputs import drift_curve, posterior_predictive_delta_g, write_netcdf
+from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.sampling import sample_posterior
 from chekan.joint.start import initial_values, tau_from_transients
 from chekan.options import CalibrationOptions

@@ -48,7 +48,7 @@ TauHint = float | Callable[[], float] | None
 
 @dataclass(frozen=True)
 class MapFit:
-    """The MAP of one record: the LM result at θ̂, the hyperparameters at their EM fixed
+    """The MAP of one record: the solver's result at θ̂, the hyperparameters at their EM fixed
     point, the passes made, and the model with its level reference at the estimate (what
     the derived quantities and the sampler must use)."""
 
@@ -262,7 +262,7 @@ def _solve(lsq, args: list, zs: list, solver: SolverName) -> list[MapResult]:
 
 
 def pass_entry(it: int, converged, steps, cost, progress: bool, hyper_updates: int) -> dict:
-    """One LM pass as the result's ``diagnostics.map_passes`` lists it (printed on request)."""
+    """One MAP pass as the result's ``diagnostics.map_passes`` lists it (printed on request)."""
     if progress:
         tail = f", then {hyper_updates} EM updates of the hyperparameters" if hyper_updates else ""
         print(
