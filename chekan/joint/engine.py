@@ -9,7 +9,7 @@ stored name                 what it computes                            maths in
 ``beta_at``                 β̂ and the EM moments (host EM of ``lm``)    :mod:`.em`
 ``map_derived``             derived quantities and their Jacobians      :mod:`.derived`
 ``draws``                   every reported quantity per posterior draw  :mod:`.derived`
-``predictive_equilibria``   equilibria of the posterior predictive      :mod:`.outputs`
+``predictive_equilibria``   equilibria of the posterior predictive      :mod:`.predictive`
 ==========================  ==========================================  =======================
 
 An :class:`Engine` per structure (:func:`engine_for`, the one cache of the joint model)
@@ -79,7 +79,7 @@ class Engine:
 
     @functools.cached_property
     def predictive(self) -> Callable:
-        """``(sensor params, tx, ty) →`` equilibria: :func:`.outputs.equilibria_of`."""
+        """``(sensor params, tx, ty) →`` equilibria: :func:`.predictive.equilibria_of`."""
         from chekan.joint.predictive import equilibria_of
 
         return self.store.jit(PREDICTIVE, equilibria_of)
