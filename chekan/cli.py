@@ -99,6 +99,7 @@ def _cmd_calibrate(args) -> int:
         encoder_error=args.encoder_error,
         angle_errors=args.angle_errors,
         angle_bound_arcsec=args.angle_bound_arcsec,
+        angle_calibration=args.angle_calibration,
         quick=args.quick,
     )
     json_path = Path(args.json) if args.json else None
@@ -106,7 +107,7 @@ def _cmd_calibrate(args) -> int:
         nc = args.netcdf or (json_path.with_suffix(".nc") if json_path else None)
         opts = dataclasses.replace(opts, netcdf=nc)
     result_out = Output(json_path, writes=RESULT) if json_path else None
-    check_outputs([args.input], [result_out, opts.netcdf, args.report])
+    check_outputs([args.input, args.angle_calibration], [result_out, opts.netcdf, args.report])
     if args.report:
         from chekan.report import output_format
 
@@ -230,8 +231,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--angle-bound-arcsec",
         type=argtypes.real(0.0, 3600.0, open_low=True),
-        help="map/bayes: bound of the angle sensors' systematic error, read as rectangular "
-        "(GUM Type B); default: the record's platform_angle_bound_arcsec, else 3 (the paper)",
+        help="map/bayes: bound U of the angle sensors' systematic error, read as rectangular, "
+        "u = U/√3 (GUM 4.3.7, Type B); default: the record's platform_angle_bound_y_arcsec or "
+        "platform_angle_bound_arcsec, else 3 (the paper)",
+    )
+    p.add_argument(
+        "--angle-calibration",
+        metavar="FILE",
+        help="the platform's own angle calibration (chekan-angle-calibration/1: per axis, "
+        "angle → correction and U at k = 2): the corrections are applied to the measured "
+        "angles and its U replaces the bound; default: the record's angle_calibration header",
     )
     p.add_argument("--seed", type=argtypes.seed, default=0, help="sampler seed")
     p.add_argument(

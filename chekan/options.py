@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 METHODS = ("classical", "map", "bayes")
 ANGLE_ERRORS = ("systematic", "independent")
@@ -28,17 +28,30 @@ class CalibrationOptions:
     # random part per hold; "independent": every hold's error independent (before 0.2).
     angle_errors: str = "systematic"
     angle_bound_arcsec: float | None = None  # None: the record's header, else 3″ (the paper)
+    # how the bound is read: "rectangular" (GUM 4.3.7, the default: only a bound is known)
+    # or "triangular" (GUM 4.3.9; for comparisons in validation studies)
+    angle_bound_reading: str = "rectangular"
+    # the platform's own angle calibration (chekan.anglecal): a file, or the table read from
+    # one; None: the record header's angle_calibration, if any
+    angle_calibration: str | Path | Any = None
     # map/bayes on records: the MAP's numerics. "gn": Gauss–Newton passes, with
     # Levenberg–Marquardt where one fails, and the EM between passes compiled (0.3.1,
     # fast); "lm": LM passes and the host EM with SciPy's M-step (0.2; the MAP moves by
     # < 0.01 sd between the two: the regression snapshot keeps "lm")
     map_solver: Literal["gn", "lm"] = "gn"
 
-    def angle_spec(self, meta: dict, source: str = "record"):
-        """The angle-sensor specification for a record with header ``meta`` (None for
-        independent angle errors)."""
+    def angle_spec(self, meta: dict, source: str = "record", calibration=None, axis: str = "y"):
+        """What is known of the ``axis`` angle sensor of a record with header ``meta`` and
+        the angle calibration applied to it (None for independent angle errors)."""
         from chekan.joint.angles import spec_for
 
         if self.angle_errors == "independent":
             return None
-        return spec_for(meta, self.angle_bound_arcsec, source)
+        return spec_for(
+            meta,
+            self.angle_bound_arcsec,
+            source,
+            axis=axis,
+            calibration=calibration,
+            reading=self.angle_bound_reading,
+        )

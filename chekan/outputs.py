@@ -39,7 +39,7 @@ from chekan.errors import ChekanError
 PathArg = str | os.PathLike[str]
 
 #: Formats of irreplaceable measurement files that no output option may overwrite.
-PROTECTED_FORMATS = ("chekan-record/1", "chekan-protocol/1")
+PROTECTED_FORMATS = ("chekan-record/1", "chekan-protocol/1", "chekan-angle-calibration/1")
 #: :func:`sniff_kind` of an SQLite database (the archive), which no output option overwrites.
 SQLITE = "SQLite database"
 #: :func:`sniff_kind` of the inputs that an output may replace only with a file of its kind.

@@ -40,6 +40,7 @@ def calibrate(
     hash), as for a simulated session or a record still being written.
     """
     opts = _checked(options)
+    data = with_angle_calibration(data, opts, input_path)
     kind, cres, result = classical_of(data, opts, input_path=input_path)
     if opts.method == "classical":
         return result
@@ -75,8 +76,30 @@ def kind_of(data: Record | Protocol) -> str:
 
 def classical_stage(path: str | Path, opts: CalibrationOptions):
     """Read ``path`` and run the classical method: ``(data, kind, classical fit, result)``."""
-    data = read_input(path)
-    return (data, *classical_of(data, _checked(opts), input_path=path))
+    opts = _checked(opts)
+    data = with_angle_calibration(read_input(path), opts, path)
+    return (data, *classical_of(data, opts, input_path=path))
+
+
+def with_angle_calibration(
+    data: Record | Protocol, opts: CalibrationOptions, input_path: str | Path | None = None
+) -> Record | Protocol:
+    """``data`` with the platform's angle calibration applied (:mod:`chekan.anglecal`: the
+    option's table, else the one the record's header names), or unchanged without one."""
+    from chekan.anglecal import calibration_for, corrected
+
+    if kind_of(data) == "protocol":
+        if opts.angle_calibration is not None:
+            raise ChekanError(
+                f"{input_path or 'protocol'}: an angle calibration corrects a record's measured"
+                " angles; a legacy protocol holds only its commanded angles"
+            )
+        return data
+    assert isinstance(data, Record)
+    if data.angle_calibration is not None:
+        return data  # already applied
+    cal = calibration_for(data, opts.angle_calibration, input_path)
+    return data if cal is None else corrected(data, cal)
 
 
 def classical_of(
@@ -120,4 +143,6 @@ def classical_of(
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
+    if isinstance(data, Record) and data.angle_calibration is not None:
+        result["angle_calibration"] = data.angle_calibration.entry()
     return kind, cres, result

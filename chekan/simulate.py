@@ -48,6 +48,7 @@ class Truth:
     angle_error_sd_arcsec: float = 2.0  # random part, per hold
     angle_systematic_arcsec: float = 1.5  # bound of the systematic part (0: none)
     angle_systematic_shape: str = "mixed"  # see SYSTEMATIC_SHAPES
+    angle_systematic_peak: tuple[float, float] = (0.4, 1.0)  # max |δ| / bound, drawn in
     tilt_jitter_arcsec: float = 0.3
     slew_deg_per_s: float = 0.5
     platform_settle_s: float = 3.0
@@ -104,7 +105,11 @@ SYSTEMATIC_SHAPES = ("mixed", "periodic", "scale", "graduation", "offset", "none
 
 
 def systematic_angle_error(
-    shape: str, bound_arcsec: float, theta_max_rad: float, rng: np.random.Generator
+    shape: str,
+    bound_arcsec: float,
+    theta_max_rad: float,
+    rng: np.random.Generator,
+    peak: tuple[float, float] = (0.4, 1.0),
 ):
     """A systematic angle-sensor error δ(θ) (reported − true, arcsec), fixed for a session.
 
@@ -112,7 +117,8 @@ def systematic_angle_error(
     periods 0.5°–4°), ``scale`` (s·θ), ``graduation`` (independent errors at 20′ nodes,
     linearly interpolated: no smooth shape), ``offset`` (a zero offset), ``mixed`` (a
     random combination of all), ``none``. Scaled so that max |δ| over ±θ_max is
-    ``bound_arcsec``·U(0.4, 1) (the specification bounds it).
+    ``bound_arcsec``·U(``peak``) (the specification bounds it; (0.83, 1) at a 3″ bound is
+    a platform at the edge of its specification).
     """
     if shape not in SYSTEMATIC_SHAPES:
         raise ValueError(f"unknown systematic shape {shape!r}; one of {SYSTEMATIC_SHAPES}")
@@ -147,10 +153,24 @@ def systematic_angle_error(
             out = out + w * comp
         return out
 
+    peak_range = peak
     grid = np.linspace(-tmax, tmax, 2001)
     peak = max(float(np.max(np.abs(raw(grid)))), 1e-12)
-    gain = bound_arcsec * rng.uniform(0.4, 1.0) / peak
+    gain = bound_arcsec * rng.uniform(*peak_range) / peak
     return lambda theta: gain * raw(theta)
+
+
+def session_systematic(truth: Truth, program: TiltProgram, seed: int):
+    """The systematic angle error δ(θ) (arcsec) of the session ``seed`` of ``truth`` on
+    ``program``: drawn from its own stream, so the other draws do not move."""
+    theta = np.array([s.tilt_y_rad if program.axis == "y" else s.tilt_x_rad for s in program.steps])
+    return systematic_angle_error(
+        truth.angle_systematic_shape,
+        truth.angle_systematic_arcsec,
+        float(np.max(np.abs(theta))),
+        np.random.default_rng([seed, 0x5157]),
+        truth.angle_systematic_peak,
+    )
 
 
 def random_truth(rng: np.random.Generator, serial: str = "SIM-1", **overrides) -> Truth:
@@ -273,16 +293,9 @@ def simulate_session(
     truth = truth or Truth()
     systematic = None
     if not truth.angle_error_arcsec:
-        # the platform's systematic error: its own stream, so the other draws do not move
-        sys_rng = np.random.default_rng([seed, 0x5157])
+        fn = session_systematic(truth, program, seed)
         theta = np.array(
             [s.tilt_y_rad if program.axis == "y" else s.tilt_x_rad for s in program.steps]
-        )
-        fn = systematic_angle_error(
-            truth.angle_systematic_shape,
-            truth.angle_systematic_arcsec,
-            float(np.max(np.abs(theta))),
-            sys_rng,
         )
         systematic = fn(theta)
         truth.angle_systematic_per_step_arcsec = [float(e) for e in systematic]

@@ -1,7 +1,7 @@
 """Coverage and accuracy study on simulated sessions: ``python -m chekan.validate``.
 
     python -m chekan.validate --sessions 200 --out validation [--quick] [--jobs N]
-                              [--cases typical misaligned drift slow]
+                              [--cases typical misaligned drift slow edge]
                               [--methods classical map bayes] [--seed S] [--resume]
 
 For each session an instrument is drawn at random (:func:`chekan.simulate.random_truth`,
@@ -23,7 +23,10 @@ is flagged ``!``). Also: the RMS error against truth, the RMS of the stated sds 
 mean z² = mean((estimate − truth)/sd)², which is 1 when the stated uncertainty is honest.
 
 Hard cases (``--cases``): ``misaligned`` (|ε| ≈ 8–10′, |Δγ| ≈ 15–20′), ``drift``
-(±0.3 pix/h), ``slow`` (τ = 90 s damping lag).
+(±0.3 pix/h), ``slow`` (τ = 90 s damping lag), ``edge`` (a platform at the edge of its 3″
+specification: the systematic angle error reaches 2.5–3″, periodic, scale, graduation or
+mixed, with a random part of 0.3–0.8″). ``--calibration-u-arcsec U``: every platform has
+its own angle calibration (a table every 5′ whose residual error has U at k = 2).
 
 Written into ``--out``: ``validation.csv`` (one row per session, appended as sessions
 finish, so that ``--resume`` continues an interrupted study), ``validation.json`` (the
@@ -52,9 +55,15 @@ import numpy as np
 
 from chekan.options import METHODS
 from chekan.parameters import unit_of
-from chekan.validate_scenario import DEFAULT_SCENARIO, Scenario, scenario_line, session_truth
+from chekan.validate_scenario import (
+    DEFAULT_SCENARIO,
+    Scenario,
+    scenario_line,
+    session_calibration,
+    session_truth,
+)
 
-CASES = ("typical", "misaligned", "drift", "slow")
+CASES = ("typical", "misaligned", "drift", "slow", "edge")
 LEVELS = (0.5, 0.9, 0.95)
 PARAMS = ("b1", "b2", "a")
 
@@ -112,6 +121,12 @@ def run_session(
     rng = np.random.default_rng(seed)
     truth = session_truth(case, rng, i, scenario)
     rec, truth = simulate_session(program, truth, seed=seed)
+    if scenario.calibration_u_arcsec is not None:  # corrected as the pipeline would
+        from chekan.anglecal import corrected
+
+        rec = corrected(
+            rec, session_calibration(truth, program, seed, scenario.calibration_u_arcsec)
+        )
     t = truth.derived()
     row: dict[str, Any] = {"session": i, "case": case, "seed": seed, "program": program.name}
     row.update({f"true_{p}": float(t[p]) for p in PARAMS})
@@ -594,6 +609,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="the model's angle errors (default systematic)",
     )
     ap.add_argument("--angle-bound-arcsec", type=float, help="the model's sensor bound (3″)")
+    ap.add_argument(
+        "--angle-bound-reading",
+        choices=("rectangular", "triangular"),
+        default="rectangular",
+        help="how the model reads the bound (default rectangular, GUM 4.3.7)",
+    )
+    ap.add_argument(
+        "--calibration-u-arcsec",
+        type=float,
+        metavar="U",
+        help="the platforms have their own angle calibration, residual U (k = 2) in arcsec",
+    )
     ap.add_argument("--program", help="a tilt program file (TOML) instead of the paper's")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("-j", "--jobs", type=int, default=1, help="worker processes (default 1)")
@@ -646,6 +673,8 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
             random_arcsec=tuple(args.random_arcsec) if args.random_arcsec else None,
             angle_errors=args.angle_errors,
             angle_bound_arcsec=args.angle_bound_arcsec,
+            calibration_u_arcsec=args.calibration_u_arcsec,
+            angle_bound_reading=args.angle_bound_reading,
         ),
     )
     for key in summary_groups(s):

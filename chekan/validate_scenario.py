@@ -18,7 +18,9 @@ class Scenario:
     :func:`chekan.simulate.systematic_angle_error`), ``shape`` its shape;
     ``random_arcsec``: (low, high) of the random angle error's sd, drawn per session
     (None: the simulator's 2″); ``angle_errors`` and ``angle_bound_arcsec``: the model's
-    (:class:`chekan.options.CalibrationOptions`).
+    (:class:`chekan.options.CalibrationOptions`); ``calibration_u_arcsec``: the platform has
+    its own angle calibration whose residual error has expanded uncertainty U (k = 2)
+    (:func:`session_calibration`; None: only the bound is known).
     """
 
     systematic_arcsec: float = 1.5
@@ -26,13 +28,27 @@ class Scenario:
     random_arcsec: tuple[float, float] | None = None
     angle_errors: str = "systematic"
     angle_bound_arcsec: float | None = None
+    calibration_u_arcsec: float | None = None
+    angle_bound_reading: str = "rectangular"
 
     def options(self, **kw):
         from chekan.options import CalibrationOptions
 
         return CalibrationOptions(
-            angle_errors=self.angle_errors, angle_bound_arcsec=self.angle_bound_arcsec, **kw
+            angle_errors=self.angle_errors,
+            angle_bound_arcsec=self.angle_bound_arcsec,
+            angle_bound_reading=self.angle_bound_reading,
+            **kw,
         )
+
+
+# the edge of the specification: the systematic error reaches 0.83–1 of the 3″ bound, in
+# one of these shapes, with a small random part (the issue-29 study)
+EDGE_BOUND_ARCSEC = 3.0
+EDGE_PEAK = (2.5 / 3.0, 1.0)
+EDGE_SHAPES = ("periodic", "scale", "graduation", "mixed")
+EDGE_RANDOM_ARCSEC = (0.3, 0.8)
+CALIBRATION_STEP_ARCSEC = 300.0  # a lab's table: one angle every 5′
 
 
 DEFAULT_SCENARIO = Scenario()
@@ -54,11 +70,37 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
         kw.update(drift_pix_per_h=tuple(rng.choice([-1, 1], 2) * 0.3))
     elif case == "slow":
         kw.update(tau_s=90.0)
+    elif case == "edge":  # its own stream: the rest of the session stays
+        edge = np.random.default_rng([i, 0xED6E])
+        kw.update(
+            angle_systematic_arcsec=EDGE_BOUND_ARCSEC,
+            angle_systematic_peak=EDGE_PEAK,
+            angle_systematic_shape=str(edge.choice(EDGE_SHAPES)),
+            angle_error_sd_arcsec=float(edge.uniform(*EDGE_RANDOM_ARCSEC)),
+        )
     truth = random_truth(rng, serial=f"V{i}", **kw)
-    if scenario.random_arcsec is not None:  # its own stream: the rest of the session stays
+    if scenario.random_arcsec is not None and case != "edge":
         lo, hi = scenario.random_arcsec
         truth.angle_error_sd_arcsec = float(np.random.default_rng([i, 0xA]).uniform(lo, hi))
     return truth
+
+
+def session_calibration(truth, program, seed: int, u_expanded_arcsec: float):
+    """The platform's own angle calibration as a lab would give it: the correction −δ(θ)
+    of the session's systematic error every 5′ over the program's range (and 10′ beyond),
+    each with an independent residual error N(0, (U/2)²), stated as U at k = 2."""
+    from chekan.anglecal import AngleCalibration, AxisTable
+    from chekan.simulate import session_systematic
+    from chekan.units import ARCSEC_PER_RAD
+
+    fn = session_systematic(truth, program, seed)
+    theta = np.array([s.tilt_y_rad if program.axis == "y" else s.tilt_x_rad for s in program.steps])
+    t_max = float(np.max(np.abs(theta))) * ARCSEC_PER_RAD
+    grid = np.arange(-t_max - 600.0, t_max + 600.0 + 1.0, CALIBRATION_STEP_ARCSEC)
+    residual = np.random.default_rng([seed, 0xCA1]).normal(0.0, u_expanded_arcsec / 2, grid.size)
+    corr = -fn(grid / ARCSEC_PER_RAD) + residual
+    table = AxisTable(program.axis, grid, corr, np.full(grid.size, u_expanded_arcsec))
+    return AngleCalibration(f"SIM-AC-{seed}", "2026-01-01", {program.axis: table})
 
 
 def scenario_line(sc: dict | None) -> str:
@@ -76,6 +118,10 @@ def scenario_line(sc: dict | None) -> str:
     )
     bound = sc["angle_bound_arcsec"]
     model = sc["angle_errors"] + (
-        "" if sc["angle_errors"] != "systematic" else f", bound {bound if bound else 3:g}″"
+        ""
+        if sc["angle_errors"] != "systematic"
+        else f", bound {bound if bound else 3:g}″ ({sc.get('angle_bound_reading', 'rectangular')})"
     )
+    if sc.get("calibration_u_arcsec") is not None:
+        model += f", angle calibration U = {sc['calibration_u_arcsec']:g}″ (k = 2)"
     return f"{sim}, {rnd}; model: {model}"

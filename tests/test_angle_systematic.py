@@ -32,15 +32,22 @@ def _sd_b(rec, settle_s, spec):
     return md["b1"], md["b2"]
 
 
-def test_spec_reads_the_bound_as_triangular_or_rectangular_and_from_the_header():
-    spec = AngleSensorSpec(3.0)  # triangular: u = U/√6 (GUM 4.3.9)
-    assert spec.u_arcsec == pytest.approx(3.0 / math.sqrt(6.0))
-    assert spec.per_angle_var + spec.scale_var == pytest.approx(1.5)
-    rect = AngleSensorSpec(3.0, distribution="rectangular")  # u = U/√3 (GUM 4.3.7)
-    assert rect.per_angle_var + rect.scale_var == pytest.approx(3.0)
+def test_spec_reads_the_bound_as_rectangular_by_default_and_from_the_header():
+    spec = AngleSensorSpec(3.0)  # rectangular: u = U/√3 (GUM 4.3.7, only a bound known)
+    assert spec.u_arcsec == pytest.approx(3.0 / math.sqrt(3.0))
+    assert spec.per_angle_var + spec.scale_var == pytest.approx(3.0)
+    assert "GUM 4.3.7" in spec.reading
+    tri = AngleSensorSpec(3.0, distribution="triangular")  # u = U/√6 (GUM 4.3.9)
+    assert tri.per_angle_var + tri.scale_var == pytest.approx(1.5)
     assert spec_for({}, None) == AngleSensorSpec()
+    assert "paper" in spec_for({}, None).source
     assert spec_for({"platform_angle_bound_arcsec": "2"}, None).bound_arcsec == 2.0
     assert spec_for({"platform_angle_bound_arcsec": "2"}, 1.0).bound_arcsec == 1.0
+    # a bound per axis: the axis's own key before the common one
+    meta = {"platform_angle_bound_arcsec": "2", "platform_angle_bound_y_arcsec": "1.5"}
+    assert spec_for(meta, None, axis="y").bound_arcsec == 1.5
+    assert spec_for(meta, None, axis="x").bound_arcsec == 2.0
+    assert "platform_angle_bound_y_arcsec" in spec_for(meta, None, "r.csv", axis="y").source
     with pytest.raises(ChekanError, match=r"rec\.csv: platform_angle_bound_arcsec"):
         spec_for({"platform_angle_bound_arcsec": "two"}, None, "rec.csv")
     with pytest.raises(ChekanError, match="≥ 0"):
@@ -56,7 +63,7 @@ def test_commanded_angles_are_grouped_across_rounds():
     basis, var = systematic_basis(deg, AngleSensorSpec(3.0))
     assert basis.shape == (11, 6)
     np.testing.assert_allclose(basis[:, -1], deg / deg.max())  # the scale column
-    np.testing.assert_allclose(var, [0.75] * 5 + [0.75])
+    np.testing.assert_allclose(var, [1.5] * 5 + [1.5])  # u² = 3²/3, half each
 
 
 @pytest.mark.slow

@@ -11,23 +11,29 @@ smaller random part. The model carries both:
   cannot reveal them; their uncertainty reaches b through the prior (GUM Type B).
 
 **Prior from the specification.** The platform's specification bounds the sensor error by
-U (the paper: 3″). The error at an angle is the sum of several independent contributions
-(graduation, interpolation, scale, zero offset), so values near the bound are less likely
-than values near zero: we read the bound as a **triangular** distribution on [−U, U],
-u = U/√6 (GUM 4.3.9); ``distribution="rectangular"`` gives the more conservative U/√3
-(GUM 4.3.7). u is split equally between the per-angle part and the scale part at the
-largest angle, ζ_a ~ N(0, u²/2) and ξ ~ N(0, u²/2), so that the systematic error at θ_max
-has standard uncertainty u. Validated in ``docs/figures/validation_systematic.md``: with
-the rectangular reading the intervals were 12–15 % too wide (mean z² 0.73–0.80) on
-simulated platforms whose systematic error stays within 1.5–2″; with the triangular one
-mean z² is near 1. A scale error of the sensor acts on b one to one (b ∝ 1/θ²: δb/b = −2ξ/θ_max),
-which is why it is kept as its own term.
+U per axis (the paper: 3″). With only a bound known, GUM 4.3.7 reads it as a
+**rectangular** distribution on [−U, U], u = U/√3: a certificate must hold for every
+platform that the specification admits, including one whose error reaches the bound
+(validation: with the triangular reading, U/√6, 95 % intervals covered 0.80 of such
+platforms; ``docs/figures/validation_edge.md``). ``distribution="triangular"`` remains for
+a platform whose maker shows that its error sums several independent contributions.
+u is split equally between the per-angle part and the scale part at the largest angle,
+ζ_a ~ N(0, u²/2) and ξ ~ N(0, u²/2), so that the systematic error at θ_max has standard
+uncertainty u. A scale error of the sensor acts on b one to one (b ∝ 1/θ²:
+δb/b = −2ξ/θ_max), which is why it is kept as its own term.
+
+**Prior from the platform's own calibration** (:mod:`chekan.anglecal`). The corrections
+are applied to the measured angles; what is left is the calibration's uncertainty,
+u(θ) = U(θ)/2 (k = 2, normal), which replaces the bound. The table does not state how the
+errors of its angles correlate, so both extremes are carried: ζ_a ~ N(0, u(θ_a)²)
+(independent) and ξ ~ N(0, u(θ_max)²) (fully correlated, the scale).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -35,23 +41,31 @@ from chekan.errors import ChekanError
 from chekan.units import ARCSEC_PER_RAD
 
 DEFAULT_BOUND_ARCSEC = 3.0  # the paper: the platform reads its angles with an error ≤ 3″
-HEADER_KEY = "platform_angle_bound_arcsec"
-GROUP_ARCSEC = 30.0
-DIVISORS = {
-    "triangular": math.sqrt(6.0),
-    "rectangular": math.sqrt(3.0),
-}  # commanded angles closer than this are the same angle
+HEADER_KEY = "platform_angle_bound_arcsec"  # both sensors
+AXIS_KEYS = {"x": "platform_angle_bound_x_arcsec", "y": "platform_angle_bound_y_arcsec"}
+GROUP_ARCSEC = 30.0  # commanded angles closer than this are the same angle
+DIVISORS = {"rectangular": math.sqrt(3.0), "triangular": math.sqrt(6.0)}
+READING = {
+    "rectangular": "rectangular, u = U/√3 (GUM 4.3.7: only a bound is known)",
+    "triangular": "triangular, u = U/√6 (GUM 4.3.9)",
+    "calibration": "the platform's angle calibration, u = U/2 (k = 2, normal)",
+}
+DEFAULT_SOURCE = "the paper's specification of the platform (3″)"
 
 
 @dataclass(frozen=True)
 class AngleSensorSpec:
-    """The platform angle sensors' specification: bound U of the systematic error (arcsec),
-    how it is read (triangular or rectangular) and the share of its variance given to
-    the scale error at the largest angle."""
+    """What is known of one angle sensor's systematic error: the specification's bound U
+    (arcsec) and how it is read, or the platform's own calibration table of that axis
+    (which then replaces the bound); the share of the variance given to the scale error at
+    the largest angle; where the knowledge comes from (stated in the result)."""
 
     bound_arcsec: float = DEFAULT_BOUND_ARCSEC
     scale_share: float = 0.5
-    distribution: str = "triangular"  # or "rectangular" (GUM 4.3.9, 4.3.7)
+    distribution: str = "rectangular"  # or "triangular" (GUM 4.3.7, 4.3.9)
+    axis: str = "y"
+    source: str = DEFAULT_SOURCE
+    calibration: Any = None  # chekan.anglecal.AngleCalibration of this sensor, if any
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.bound_arcsec) and self.bound_arcsec >= 0):
@@ -62,38 +76,89 @@ class AngleSensorSpec:
             raise ChekanError(f"distribution must be one of {sorted(DIVISORS)}")
 
     @property
+    def table(self):
+        """The calibration table of this sensor's axis (None: the bound is used)."""
+        return None if self.calibration is None else self.calibration.table(self.axis)
+
+    @property
     def u_arcsec(self) -> float:
-        """Standard uncertainty of the systematic error at θ_max: U/√6 (triangular) or
-        U/√3 (rectangular)."""
+        """Standard uncertainty of the systematic error at θ_max: U/√3 (rectangular) or
+        U/√6 (triangular); with a calibration table, the largest U/2 of its rows."""
+        if self.table is not None:
+            return float(np.max(self.table.U_arcsec)) / 2.0
         return self.bound_arcsec / DIVISORS[self.distribution]
+
+    @property
+    def reading(self) -> str:
+        """How the knowledge is read, in words (the result and the certificate state it)."""
+        return READING["calibration" if self.table is not None else self.distribution]
+
+    def u_at(self, theta_rad: np.ndarray) -> np.ndarray:
+        """Standard uncertainty of the systematic error at angles ``theta_rad``, arcsec."""
+        theta = np.asarray(theta_rad, dtype=float)
+        if self.table is None:
+            return np.full(theta.shape, self.u_arcsec)
+        return self.table.u_at(theta * ARCSEC_PER_RAD)
 
     @property
     def per_angle_var(self) -> float:
         """Prior variance of ζ_a, arcsec²."""
-        return self.u_arcsec**2 * (1.0 - self.scale_share)
+        return self.u_arcsec**2 * self.shares[0]
 
     @property
     def scale_var(self) -> float:
         """Prior variance of ξ (the scale error expressed at θ_max), arcsec²."""
-        return self.u_arcsec**2 * self.scale_share
+        return self.u_arcsec**2 * self.shares[1]
+
+    @property
+    def shares(self) -> tuple[float, float]:
+        """Fractions of u² given to the per-angle part and to the scale part. A bound: split
+        (1 − share, share), so that the error at θ_max has u. A calibration table states u at
+        every angle but not the correlation between angles: both extremes are taken, an
+        independent part and a fully correlated scale part, each with the full u² (1, 1)."""
+        if self.table is not None:
+            return (1.0, 1.0)
+        return (1.0 - self.scale_share, self.scale_share)
 
 
-def spec_for(meta: dict, bound_arcsec: float | None, source: str = "record") -> AngleSensorSpec:
-    """The specification to use: ``bound_arcsec`` if given (CLI), else the header key
-    ``platform_angle_bound_arcsec``, else the paper's 3″."""
+def spec_for(
+    meta: dict,
+    bound_arcsec: float | None,
+    source: str = "record",
+    *,
+    axis: str = "y",
+    calibration=None,
+    reading: str = "rectangular",
+) -> AngleSensorSpec:
+    """The knowledge of the ``axis`` sensor: its table in ``calibration`` if it has one;
+    else the bound ``bound_arcsec`` if given (CLI), else the header key
+    ``platform_angle_bound_{axis}_arcsec``, else ``platform_angle_bound_arcsec``, else the
+    paper's 3″ — read as ``reading`` (rectangular by default)."""
+    if calibration is not None and calibration.table(axis) is not None:
+        return AngleSensorSpec(
+            axis=axis,
+            calibration=calibration,
+            source=f"angle calibration {calibration.id} of {calibration.date}",
+        )
     if bound_arcsec is not None:
-        return AngleSensorSpec(float(bound_arcsec))
-    raw = meta.get(HEADER_KEY)
-    if raw is None:
-        return AngleSensorSpec()
-    try:
-        value = float(raw)
-    except ValueError:
-        raise ChekanError(f"{source}: {HEADER_KEY}: not a number: {raw!r}") from None
-    try:
-        return AngleSensorSpec(value)
-    except ChekanError as e:
-        raise ChekanError(f"{source}: {HEADER_KEY}: {e}") from None
+        return AngleSensorSpec(
+            float(bound_arcsec), distribution=reading, axis=axis, source="--angle-bound-arcsec"
+        )
+    for key in (AXIS_KEYS[axis], HEADER_KEY):
+        raw = meta.get(key)
+        if raw is None:
+            continue
+        try:
+            value = float(raw)
+        except ValueError:
+            raise ChekanError(f"{source}: {key}: not a number: {raw!r}") from None
+        try:
+            return AngleSensorSpec(
+                value, distribution=reading, axis=axis, source=f"header {key} of {source}"
+            )
+        except ChekanError as e:
+            raise ChekanError(f"{source}: {key}: {e}") from None
+    return AngleSensorSpec(distribution=reading, axis=axis)
 
 
 def commanded_groups(theta_rad: np.ndarray) -> np.ndarray:
@@ -135,10 +200,14 @@ class SystematicBasis:
         return np.concatenate([np.stack(hats, -1), (theta / self.theta_max_rad)[..., None]], -1)
 
     def prior_var(self, spec: AngleSensorSpec) -> np.ndarray:
-        """Prior variances of (ζ, ξ), arcsec² (a zero bound: a tiny variance keeps the
-        normal equations regular)."""
-        A = self.nodes_rad.size
-        return np.maximum(np.concatenate([np.full(A, spec.per_angle_var), [spec.scale_var]]), 1e-12)
+        """Prior variances of (ζ, ξ), arcsec²: the per-angle share of u(θ_a)² at every
+        commanded angle, the scale share of u(θ_max)² (:attr:`AngleSensorSpec.shares`; a zero
+        bound: a tiny variance keeps the normal equations regular)."""
+        u_nodes = spec.u_at(self.nodes_rad)
+        u_max = float(np.max(spec.u_at(np.array([-self.theta_max_rad, self.theta_max_rad]))))
+        angle_share, scale_share = spec.shares
+        var = np.concatenate([u_nodes**2 * angle_share, [u_max**2 * scale_share]])
+        return np.maximum(var, 1e-12)
 
 
 def systematic_basis(theta_rad: np.ndarray, spec: AngleSensorSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -152,10 +221,16 @@ def angle_sensor_entry(spec: AngleSensorSpec | None) -> dict:
     """The result's ``angle_sensor``: how the platform's angle errors were modelled."""
     if spec is None:
         return {"model": "independent"}
-    return {
+    out = {
         "model": "systematic",
-        "bound_arcsec": spec.bound_arcsec,
-        "distribution": spec.distribution,
+        "axis": spec.axis,
+        "reading": spec.reading,
+        "source": spec.source,
         "u_per_angle_arcsec": math.sqrt(spec.per_angle_var),
         "u_scale_arcsec": math.sqrt(spec.scale_var),
     }
+    if spec.table is None:
+        out.update(bound_arcsec=spec.bound_arcsec, distribution=spec.distribution)
+    else:
+        out.update(distribution="normal", calibration=spec.calibration.entry())
+    return out

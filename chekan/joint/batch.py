@@ -48,7 +48,7 @@ def _estimate_map_many(
                 record,
                 options.settle_s,
                 encoder=options.encoder_error,
-                angle_spec=options.angle_spec(record.meta),
+                angle_spec=options.angle_spec(record.meta, calibration=record.angle_calibration),
             )
             ready.append(
                 (

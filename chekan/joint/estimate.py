@@ -49,7 +49,9 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         record,
         options.settle_s,
         encoder=options.encoder_error,
-        angle_spec=options.angle_spec(record.meta, str(base.get("record", "record"))),
+        angle_spec=options.angle_spec(
+            record.meta, str(base.get("record", "record")), record.angle_calibration
+        ),
     )
     init = initial_values(classical, record.g_local_mgal)
     if options.progress:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from datetime import datetime
+from typing import Any
 
 import numpy as np
 
@@ -59,6 +60,8 @@ class Record:
     path: str | None = None
     warnings: list[str] = field(default_factory=list)
     meta_lines: dict[str, int] = field(default_factory=dict, repr=False, compare=False)
+    # the platform angle calibration applied to the tilt columns (chekan.anglecal), if any
+    angle_calibration: Any = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         """Coerce the arrays (float64, step int64) and check they have one length."""
