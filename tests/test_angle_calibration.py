@@ -4,6 +4,7 @@ bound's prior (the sd of b falls as the budget says), the result and CLI naming 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -152,9 +153,8 @@ def test_cli_takes_the_table_from_the_option_or_the_header(session, tmp_path, ca
     r1 = json.loads(out.read_text())
     assert r1["angle_calibration"]["file"] == str(cal_path)
     # named in the record header, relative to the record's folder
-    rec.meta["angle_calibration"] = "cal.csv"
     rec2 = tmp_path / "rec2.csv"
-    write_record(rec2, rec)
+    write_record(rec2, dataclasses.replace(rec, meta={**rec.meta, "angle_calibration": "cal.csv"}))
     out2 = tmp_path / "r2.json"
     assert main(["calibrate", str(rec2), "--method", "map", "-q", "--json", str(out2)]) == 0
     r2 = json.loads(out2.read_text())
@@ -163,8 +163,8 @@ def test_cli_takes_the_table_from_the_option_or_the_header(session, tmp_path, ca
         r1["parameters"]["b1"]["mean"], rel=1e-12
     )
     # a header naming a missing file, a table not covering: exit 2, one line naming the file
-    rec.meta["angle_calibration"] = "missing.csv"
-    write_record(rec2, rec)
+    missing = {**rec.meta, "angle_calibration": "missing.csv"}
+    write_record(rec2, dataclasses.replace(rec, meta=missing))
     capsys.readouterr()
     assert main(["calibrate", str(rec2), "--method", "classical", "-q"]) == 2
     err = capsys.readouterr().err
@@ -173,3 +173,16 @@ def test_cli_takes_the_table_from_the_option_or_the_header(session, tmp_path, ca
     assert main(["calibrate", str(rec_path), "--angle-calibration", str(narrow), "-q"]) == 2
     assert "narrow.csv: axis y covers" in capsys.readouterr().err
     assert math.isfinite(r1["parameters"]["b1"]["sd"])
+
+
+def test_the_certificate_states_the_reading_its_source_and_the_angle_calibration(session):
+    from chekan.report.content import build_report
+
+    rec, _truth, cal = session
+    bound = calibrate(rec, CalibrationOptions(method="map", progress=False))
+    table = calibrate(rec, CalibrationOptions(method="map", progress=False, angle_calibration=cal))
+    text0 = repr(build_report(bound, lang="en", figures=False))
+    assert "GUM 4.3.7" in text0 and "the paper's specification" in text0
+    text1 = repr(build_report(table, lang="en", figures=False))
+    assert f"{cal.id} of {cal.date}" in text1 and "angle calibration " + cal.id in text1
+    assert "GUM 4.3.7" not in text1

@@ -357,8 +357,9 @@ def bayes_systematic(bayes) -> tuple[dict, Path]:
             (
                 "angle sensor, systematic (Type B, platform specification ±3″) B 0.00012",
                 "angle readout, random (Type A) A 0.000091",
-                "Platform angle sensor bound ±3″ (rectangular), per-angle u = 1.22″, "
-                "scale u = 1.22″ at the largest angle",
+                "Platform angle sensor bound ±3″ read as rectangular (u = U/√3, GUM 4.3.7: "
+                "only a bound is known), per-angle u = 1.22″, scale u = 1.22″ at the largest "
+                "angle",
                 "U includes the systematic error of the platform's angle sensor (Type B, "
                 "platform specification ±3″).",
                 "b₁ = 6.98041 mGal/pix, U = 0.00032 mGal/pix (k = 2)",
@@ -369,7 +370,8 @@ def bayes_systematic(bayes) -> tuple[dict, Path]:
             (
                 "датчик угла, систематическая (тип В, паспорт платформы ±3″) В 0.00012",
                 "отсчёт угла, случайная (тип А) А 0.000091",
-                "Датчик угла платформы граница ±3″ (равномерное распределение)",
+                "Датчик угла платформы граница ±3″, равномерное распределение (u = U/√3, "
+                "GUM 4.3.7: известна лишь граница)",
                 "U включает систематическую погрешность датчика угла платформы (тип В, "
                 "паспорт платформы ±3″).",
             ),

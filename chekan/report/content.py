@@ -16,7 +16,7 @@ from typing import Any
 from chekan.errors import ChekanError, FormatError
 from chekan.report import figures as figs
 from chekan.report.document import Cell, Figure, Heading, KeyValue, Para, Report, Table
-from chekan.report.i18n import param_name, tr, unit_name, value_name
+from chekan.report.i18n import LABELS, param_name, tr, unit_name, value_name
 from chekan.report.numbers import (
     DASH,
     fixed,
@@ -220,6 +220,9 @@ def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) ->
     sensor = _angle_sensor_text(result, t)
     if sensor:
         rows.append((t("angle_sensor"), sensor, False))
+    cal = _angle_calibration_text(result, t)
+    if cal:
+        rows.append((t("angle_calibration"), cal, False))
     kind = result.get("input_kind")
     rec = str(result["record"])
     rows.append(
@@ -297,15 +300,34 @@ def _angle_sensor_text(result: Mapping[str, Any], t: Translator) -> str | None:
         return None
     if a.get("model") == "independent":
         return t("angle_sensor_independent")
+    source = f"; {t('angle_source', src=a['source'])}" if a.get("source") else ""
+    if isinstance(a.get("calibration"), Mapping):
+        return t(
+            "angle_sensor_calibrated",
+            ua=fixed(a.get("u_per_angle_arcsec"), 2),
+            us=fixed(a.get("u_scale_arcsec"), 2),
+        )
     if not is_num(a.get("bound_arcsec")):
         return None
-    return t(
+    dist = str(a.get("distribution", "rectangular"))
+    key = f"dist_{dist}_gum" if f"dist_{dist}_gum" in LABELS else f"dist_{dist}"
+    text = t(
         "angle_sensor_systematic",
         u=plain(a["bound_arcsec"]),
-        dist=t("dist_" + str(a.get("distribution", "rectangular"))),
+        dist=t(key),
         ua=fixed(a.get("u_per_angle_arcsec"), 2),
         us=fixed(a.get("u_scale_arcsec"), 2),
     )
+    return text + source
+
+
+def _angle_calibration_text(result: Mapping[str, Any], t: Translator) -> str | None:
+    """The platform's angle calibration the result used (traceability of the angle)."""
+    c = result.get("angle_calibration")
+    if not isinstance(c, Mapping) or not c.get("id"):
+        return None
+    lab = f", {c['laboratory']}" if c.get("laboratory") else ""
+    return t("angle_calibration_text", id=c["id"], date=c.get("date", "?"), lab=lab)
 
 
 def _verdict(

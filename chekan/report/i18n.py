@@ -274,12 +274,37 @@ LABELS: dict[str, dict[str, str]] = {
         "en": "angle sensor, systematic (Type B, platform specification{bound})",
         "ru": "датчик угла, систематическая (тип В, паспорт платформы{bound})",
     },
+    "src_angle_systematic_cal": {
+        "en": "angle sensor, systematic (Type B, angle calibration {id})",
+        "ru": "датчик угла, систематическая (тип В, калибровка углов {id})",
+    },
     "angle_sensor": {"en": "Platform angle sensor", "ru": "Датчик угла платформы"},
+    "angle_calibration": {"en": "Angle calibration", "ru": "Калибровка углов платформы"},
+    "angle_calibration_text": {
+        "en": "{id} of {date}{lab}: corrections applied to the measured angles, "
+        "their U (k = 2) replaces the specification",
+        "ru": "{id} от {date}{lab}: поправки внесены в измеренные углы, "
+        "их U (k = 2) заменяет паспортную границу",
+    },
+    "angle_sensor_calibrated": {
+        "en": "from its calibration: u per angle up to {ua}″, scale u = {us}″ at the largest angle",
+        "ru": "по калибровке: u по углу до {ua}″, u масштаба = {us}″ на наибольшем угле",
+    },
+    "angle_source": {"en": "source: {src}", "ru": "источник: {src}"},
     "dist_triangular": {"en": "triangular", "ru": "треугольное распределение"},
     "dist_rectangular": {"en": "rectangular", "ru": "равномерное распределение"},
     "angle_sensor_systematic": {
-        "en": "bound ±{u}″ ({dist}), per-angle u = {ua}″, scale u = {us}″ at the largest angle",
-        "ru": "граница ±{u}″ ({dist}), u по углу = {ua}″, u масштаба = {us}″ на наибольшем угле",
+        "en": "bound ±{u}″ read as {dist}, per-angle u = {ua}″, scale u = {us}″ at the largest "
+        "angle",
+        "ru": "граница ±{u}″, {dist}, u по углу = {ua}″, u масштаба = {us}″ на наибольшем угле",
+    },
+    "dist_rectangular_gum": {
+        "en": "rectangular (u = U/√3, GUM 4.3.7: only a bound is known)",
+        "ru": "равномерное распределение (u = U/√3, GUM 4.3.7: известна лишь граница)",
+    },
+    "dist_triangular_gum": {
+        "en": "triangular (u = U/√6, GUM 4.3.9)",
+        "ru": "треугольное распределение (u = U/√6, GUM 4.3.9)",
     },
     "angle_sensor_independent": {
         "en": "errors independent from hold to hold (no systematic term)",

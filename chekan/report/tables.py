@@ -111,7 +111,9 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
         head += [Cell(f"u({param_name(s, lang)})", bold=True), Cell(t("ppm"), bold=True)]
     rows = []
     for k in order:
-        if k == "angle_systematic":
+        if k == "angle_systematic" and isinstance(result.get("angle_calibration"), Mapping):
+            label = t("src_angle_systematic_cal", id=result["angle_calibration"].get("id", "?"))
+        elif k == "angle_systematic":
             label = t("src_angle_systematic", bound=angle_bound_text(result))
         else:
             label = t(f"src_{k}") if f"src_{k}" in _known_sources() else k
