@@ -37,7 +37,7 @@ def _db_arg(p: argparse.ArgumentParser) -> None:
 def _cmd_add(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
     from chekan.errors import ChekanError
-    from chekan.result import read_result
+    from chekan.report.dcc_read import read_result_or_dcc as read_result  # JSON or DCC
 
     check_outputs(args.results, [args.db])
     bad = 0
