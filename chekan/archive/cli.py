@@ -49,7 +49,7 @@ def _db(args: argparse.Namespace) -> Output:
 # ----------------------------------------------------------------------------- archive
 def _cmd_add(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
-    from chekan.result import read_result
+    from chekan.report.dcc_read import read_result_or_dcc as read_result  # JSON or DCC
 
     db = _db(args)
     check_outputs(args.results, [db])

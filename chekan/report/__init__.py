@@ -32,21 +32,21 @@ __all__ = [
     "verdict_of",
 ]
 
-FORMATS = {".pdf": "pdf", ".html": "html", ".htm": "html"}
+FORMATS = {".pdf": "pdf", ".html": "html", ".htm": "html", ".xml": "dcc"}
 
 
 def output_format(out: Path, fmt: str | None) -> str:
     """``fmt`` if given (checked), else from the suffix of ``out``."""
     if fmt is not None:
-        if fmt not in ("pdf", "html"):
-            raise ChekanError(f"unknown report format {fmt!r}; choose pdf or html")
+        if fmt not in ("pdf", "html", "dcc"):
+            raise ChekanError(f"unknown report format {fmt!r}; choose pdf, html or dcc")
         return fmt
     try:
         return FORMATS[out.suffix.lower()]
     except KeyError:
         raise ChekanError(
             f"{out}: cannot tell the report format from the suffix {out.suffix!r}; "
-            "use .pdf or .html, or give the format (--format pdf|html)"
+            "use .pdf, .html or .xml (DCC), or give the format (--format pdf|html|dcc)"
         ) from None
 
 
@@ -61,6 +61,8 @@ def render_report(
     netcdf_path: str | Path | None = None,
     source: str | Path | None = None,
     keep_figures: str | Path | None = None,
+    lab: str | Path | None = None,
+    customer: str | None = None,
 ) -> Path:
     """Render the certificate of ``result`` (a result dict, or the path of its JSON) to ``out``.
 
@@ -69,6 +71,8 @@ def render_report(
     ``record_path`` / ``netcdf_path``: the record and posterior NetCDF, when not where the
     result says (relative paths are also tried beside ``source``, the result file).
     ``keep_figures``: also write the figure PNGs into this folder.
+    ``lab`` / ``customer``: for ``fmt="dcc"`` (PTB Digital Calibration Certificate, XML): the
+    lab file (TOML; default ``$CHEKAN_LAB``) and the customer's name (default: the lab file's).
     Returns the path written. Bad input raises :class:`~chekan.errors.ChekanError`.
     """
     from chekan.result import check_result, read_result
@@ -93,6 +97,10 @@ def render_report(
         raise FormatError(source, None, "a result must be a JSON object (dict)")
     from chekan.durable import atomic_output
 
+    if kind == "dcc":
+        return _write_dcc(result, out, lab, customer, tolerance_percent)
+    lab_data = _optional_lab(lab)
+
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         # the temporary file is opened before the work, so that a folder one cannot write
@@ -105,6 +113,8 @@ def render_report(
                 record_path=record_path,
                 netcdf_path=netcdf_path,
                 source=source,
+                lab=lab_data,
+                customer=customer,
             )
             if kind == "pdf":
                 from chekan.report.typst_pdf import render_pdf
@@ -124,3 +134,43 @@ def render_report(
     except OSError as e:
         raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
     return out
+
+
+def _write_dcc(
+    result: Mapping[str, Any],
+    out: Path,
+    lab_path: str | Path | None,
+    customer: str | None,
+    tolerance_percent: float,
+) -> Path:
+    """The DCC of ``result`` at ``out``; the lab file is read before anything is written."""
+    from chekan.durable import atomic_output
+    from chekan.report.dcc import build_dcc, dcc_bytes, decision_rule_text, load_lab
+
+    lab = load_lab(lab_path)
+    data = dcc_bytes(
+        build_dcc(
+            result,
+            lab,
+            customer=customer,
+            decision_rule=decision_rule_text(result, float(tolerance_percent)),
+        )
+    )
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_output(out, "wb") as f:
+            f.write(data)
+    except OSError as e:
+        raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
+    return out
+
+
+def _optional_lab(lab_path: str | Path | None) -> dict[str, Any] | None:
+    """The lab file for a PDF/HTML certificate: ``lab_path`` or ``$CHEKAN_LAB`` if set."""
+    import os
+
+    from chekan.report.dcc import LAB_ENV, load_lab
+
+    if lab_path is None and not os.environ.get(LAB_ENV):
+        return None
+    return load_lab(lab_path)

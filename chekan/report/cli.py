@@ -1,4 +1,5 @@
-"""``chekan report RESULT.json --out calibr_<serial>.pdf [--lang ru|en] [--format pdf|html]``."""
+"""``chekan report RESULT.json --out calibr_<serial>.pdf [--lang ru|en] [--format pdf|html|dcc]``
+(dcc: PTB Digital Calibration Certificate, XML; needs ``--lab`` or ``$CHEKAN_LAB``)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     res = read_result(args.result)
     out = args.out
     if out is None:
-        suffix = ".html" if args.format == "html" else ".pdf"
+        suffix = {"html": ".html", "dcc": ".xml"}.get(args.format or "pdf", ".pdf")
         out = Path(args.result).with_name(f"calibr_{_safe(str(res['serial']))}{suffix}")
     check_outputs([args.result, args.record, args.netcdf], [out])
     written = render_report(
@@ -30,6 +31,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         netcdf_path=args.netcdf,
         source=args.result,
         keep_figures=args.figures,
+        lab=args.lab,
+        customer=args.customer,
     )
     print(f"wrote {written}")
     return 0
@@ -53,10 +56,22 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "-o",
         "--out",
-        help="certificate to write, .pdf or .html (default: calibr_<serial>.pdf beside the result)",
+        help="certificate to write, .pdf, .html or .xml (DCC) "
+        "(default: calibr_<serial>.pdf beside the result)",
     )
     p.add_argument("--lang", choices=LANGS, default="en", help="language (default en)")
-    p.add_argument("--format", choices=("pdf", "html"), help="output format (default: from --out)")
+    p.add_argument(
+        "--format",
+        choices=("pdf", "html", "dcc"),
+        help="output format (default: from --out; dcc = PTB Digital Calibration Certificate, .xml)",
+    )
+    p.add_argument(
+        "--lab",
+        help="lab file (TOML: [lab] name, email, street, city, post_code, country_code, "
+        "accreditation; [responsible] name; optional [customer]); default $CHEKAN_LAB; "
+        "required for --format dcc",
+    )
+    p.add_argument("--customer", help="the customer's name (default: the lab file's [customer])")
     p.add_argument(
         "--tolerance-percent",
         type=argtypes.positive,

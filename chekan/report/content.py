@@ -372,6 +372,7 @@ def _verdict(
     paras.append(
         Para(t("verdict_criteria", conv=t("verdict_conv_clause") if is_bayes else ""), "note")
     )
+    paras.append(Para(t("decision_rule"), "note"))
     if not have_inst:
         paras.append(Para(t("verdict_no_instab"), "note"))
     return ok, paras
@@ -642,8 +643,13 @@ def build_report(
     netcdf_path: str | Path | None = None,
     source: str | Path | None = None,
     figures: bool = True,
+    lab: Mapping[str, Any] | None = None,
+    customer: str | None = None,
 ) -> Report:
-    """The certificate of ``result`` as blocks (figures as PNG unless ``figures=False``)."""
+    """The certificate of ``result`` as blocks (figures as PNG unless ``figures=False``);
+    ``lab``: a :func:`chekan.report.dcc.load_lab` dict (issuer, authoriser, customer)."""
+    from chekan.report.issue import add_end, add_issue_block
+
     t = tr(lang)
     src = str(source) if source is not None else "<result>"
     check_certificate_input(result, src)
@@ -658,6 +664,7 @@ def build_report(
     )
     try:
         _header(rep, result, t, lang)
+        add_issue_block(rep, result, t, lab=lab, customer=customer)
         rec_figs, cos_fig, notes = (
             _record_figures(result, record_path, source, t) if figures else ([], None, [])
         )
@@ -685,6 +692,7 @@ def build_report(
                 "note",
             )
         )
+        add_end(rep, t)
     except (KeyError, TypeError, IndexError, AttributeError) as e:
         raise FormatError(src, None, f"malformed result ({type(e).__name__}: {e})") from e
     return rep

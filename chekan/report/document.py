@@ -72,6 +72,7 @@ class Report:
     subtitle: str
     running_head: str
     blocks: list[Block] = field(default_factory=list)
+    certificate_id: str = ""  # printed on every page (ISO/IEC 17025 7.8.2.1 b)
 
     @property
     def figures(self) -> list[Figure]:

@@ -363,6 +363,35 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "Критерии: приведённая погрешность (п. в) и, при известных исходных значениях, "
         "нестабильность b₁ и b₂ (п. д) не должны превышать допуск{conv}.",
     },
+    "not_stated": {"en": "not stated", "ru": "не указано"},
+    "cert_id": {"en": "Certificate no.", "ru": "Номер сертификата"},
+    "issue_date": {"en": "Date of issue", "ru": "Дата выдачи"},
+    "issuer": {"en": "Calibration laboratory", "ru": "Калибровочная лаборатория"},
+    "accreditation": {"en": "Accreditation", "ru": "Аккредитация"},
+    "customer": {"en": "Customer", "ru": "Заказчик"},
+    "item_condition": {"en": "Condition of the item", "ru": "Состояние объекта калибровки"},
+    "environment": {"en": "Environmental conditions", "ru": "Условия окружающей среды"},
+    "env_conditions": {
+        "en": "sensor temperature: {temp}; site gravity as stated above",
+        "ru": "температура датчика: {temp}; ускорение силы тяжести — см. выше",
+    },
+    "authoriser": {"en": "Authorised by", "ru": "Утвердил"},
+    "decision_rule": {
+        "en": "Decision rule: simple acceptance (ILAC-G8:09/2019, 4.2.1): a criterion is met "
+        "when its measured value does not exceed the tolerance; no guard band, so for a value "
+        "at the limit the risk of a false acceptance is up to 50 %.",
+        "ru": "Правило принятия решения: простое принятие (ILAC-G8:09/2019, 4.2.1): критерий "
+        "выполнен, если измеренное значение не превышает допуск; без защитной полосы, поэтому "
+        "для значения на границе риск ложного принятия достигает 50 %.",
+    },
+    "only_item": {
+        "en": "The results relate only to the calibrated item.",
+        "ru": "Результаты относятся только к калибруемому средству измерений.",
+    },
+    "cert_end": {
+        "en": "End of certificate {id}.",
+        "ru": "Конец сертификата {id}.",
+    },
     "verdict_conv_clause": {
         "en": "; the Bayesian sampler must have converged",
         "ru": "; выборка должна сойтись",

@@ -114,7 +114,8 @@ def typst_source(rep: Report, fig_files: dict[int, str]) -> str:
         f"    set text(size: 8pt, fill: luma(100)); {tstr(rep.running_head)}; h(1fr)",
         "  } },",
         "  footer: context align(center, text(size: 8pt, fill: luma(100),",
-        '    counter(page).display("1 / 1", both: true))))',
+        f"    {tstr(rep.certificate_id + ' — ' if rep.certificate_id else '')} + "
+        'counter(page).display("1 / 1", both: true))))',
         "#show heading.where(level: 1): set text(size: 12pt)",
         "#show heading: set block(above: 1.3em, below: 0.7em)",
         "#show figure: set block(breakable: false)",

@@ -1,0 +1,81 @@
+"""What ISO/IEC 17025 7.8 asks of a certificate beyond the measurement: its identifier, the
+issuing lab and the customer, the item's condition, the date of issue, the environmental
+conditions, the authoriser, and that the results relate only to the item."""
+
+from __future__ import annotations
+
+import datetime as _dt
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from chekan.report.document import KeyValue, Para, Report
+
+Translator = Callable[..., str]
+
+
+def certificate_id(
+    result: Mapping[str, Any], lab: Mapping[str, Any] | None, issued: _dt.date
+) -> str:
+    """Unique per lab, input (SHA-256), method, software version and date of issue."""
+    code = str(((lab or {}).get("lab") or {}).get("code") or "LAB")
+    sha = str(result.get("record_sha256") or "nohash")[:16]
+    version = str((result.get("software") or {}).get("version") or "unknown")
+    return f"{code}-{result['serial']}-{sha}-{result['method']}-{version}-{issued.isoformat()}"
+
+
+def _address(c: Mapping[str, Any]) -> str:
+    parts = [c.get(k) for k in ("street", "post_code", "city", "country_code")]
+    return ", ".join([str(c["name"])] + [str(p) for p in parts if p])
+
+
+def issue_rows(
+    result: Mapping[str, Any],
+    t: Translator,
+    *,
+    lab: Mapping[str, Any] | None,
+    customer: str | None,
+    issued: _dt.date,
+) -> list[tuple[str, str, bool]]:
+    """The key–value rows of the certificate's issue block."""
+    meta = result.get("metadata") or {}
+    not_stated = t("not_stated")
+    rows = [
+        (t("cert_id"), certificate_id(result, lab, issued), True),
+        (t("issue_date"), issued.isoformat(), False),
+    ]
+    labt = (lab or {}).get("lab")
+    rows.append((t("issuer"), _address(labt) if labt else not_stated, False))
+    if labt:
+        rows.append((t("accreditation"), str(labt.get("accreditation")), False))
+    cust = (lab or {}).get("customer")
+    cust_text = customer or (_address(cust) if cust else not_stated)
+    rows.append((t("customer"), cust_text, False))
+    rows.append((t("item_condition"), str(meta.get("item_condition") or not_stated), False))
+    temp = meta.get("sensor_temperature_c")
+    env = t("env_conditions", temp=f"{temp} °C" if temp is not None else not_stated)
+    rows.append((t("environment"), env, False))
+    resp = (lab or {}).get("responsible")
+    who = f"{resp['name']}" + (f", {resp['role']}" if resp.get("role") else "") if resp else None
+    rows.append((t("authoriser"), who or not_stated, False))
+    return rows
+
+
+def add_issue_block(
+    rep: Report,
+    result: Mapping[str, Any],
+    t: Translator,
+    *,
+    lab: Mapping[str, Any] | None = None,
+    customer: str | None = None,
+    issued: _dt.date | None = None,
+) -> None:
+    """Set ``rep.certificate_id`` and add the issue rows and the item-only statement."""
+    issued = issued or _dt.datetime.now(_dt.UTC).date()
+    rows = issue_rows(result, t, lab=lab, customer=customer, issued=issued)
+    rep.certificate_id = rows[0][1]
+    rep.add(KeyValue(rows), Para(t("only_item"), "note"))
+
+
+def add_end(rep: Report, t: Translator) -> None:
+    """The certificate's clear end."""
+    rep.add(Para(t("cert_end", id=rep.certificate_id), "strong"))
