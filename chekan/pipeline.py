@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from chekan.errors import ChekanError
 from chekan.inputs import read_input
 from chekan.options import METHODS, CalibrationOptions
@@ -145,4 +147,11 @@ def classical_of(
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
     if isinstance(data, Record) and data.angle_calibration is not None:
         result["angle_calibration"] = data.angle_calibration.entry()
+    if isinstance(data, Record) and data.temp_c is not None and np.isfinite(data.temp_c).any():
+        temp = data.temp_c[np.isfinite(data.temp_c)]
+        result["sensor_temperature_c"] = {
+            "mean": round(float(temp.mean()), 3),
+            "min": round(float(temp.min()), 3),
+            "max": round(float(temp.max()), 3),
+        }
     return kind, cres, result

@@ -105,6 +105,10 @@ def test_dcc_of_a_simulated_bayes_session_validates_and_carries_b1_and_u(
     for name in ("b2", "a", "b1_0", "b2_0"):
         assert float(reals[name].findtext(f"{{{SI_NS}}}value")) == res["parameters"][name]["mean"]
     assert read_dcc(out) == res
+    # the sensor temperature comes from the record's temp_c column (the simulator's 45 °C)
+    temp = res["sensor_temperature_c"]
+    assert 44.9 < temp["min"] <= temp["mean"] <= temp["max"] < 45.1
+    assert f"{temp['mean']:.2f} °C" in out.read_text(encoding="utf-8")
 
 
 def test_dcc_header_is_escaped_and_complete(bayes_json, lab, tmp_path):

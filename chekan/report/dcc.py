@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from chekan.errors import ChekanError
-from chekan.report.issue import certificate_id
+from chekan.report.issue import certificate_id, temperature_text
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
@@ -360,8 +360,7 @@ def _influence(mr: ET.Element, result: Mapping[str, Any]) -> None:
     _real(h, "g_local", g * MGAL_TO_SI, r"\metre\second\tothe{-2}", None)
     ic = _sub(ics, _d("influenceCondition"), refType="chekan_sensorTemperature")
     _text(ic, "name", "sensor temperature")
-    temp = meta.get("sensor_temperature_c")
-    text = f"{temp} °C" if temp is not None else "not recorded in the result"
+    text = temperature_text(result, meta) or "not recorded in the result"
     _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
     ic = _sub(ics, _d("influenceCondition"), refType="chekan_angleSensors")
     _text(ic, "name", "platform angle sensors")

@@ -51,8 +51,8 @@ def issue_rows(
     cust_text = customer or (_address(cust) if cust else not_stated)
     rows.append((t("customer"), cust_text, False))
     rows.append((t("item_condition"), str(meta.get("item_condition") or not_stated), False))
-    temp = meta.get("sensor_temperature_c")
-    env = t("env_conditions", temp=f"{temp} °C" if temp is not None else not_stated)
+    temp = temperature_text(result, meta)
+    env = t("env_conditions", temp=temp or not_stated)
     rows.append((t("environment"), env, False))
     resp = (lab or {}).get("responsible")
     who = f"{resp['name']}" + (f", {resp['role']}" if resp.get("role") else "") if resp else None
@@ -79,3 +79,14 @@ def add_issue_block(
 def add_end(rep: Report, t: Translator) -> None:
     """The certificate's clear end."""
     rep.add(Para(t("cert_end", id=rep.certificate_id), "strong"))
+
+
+def temperature_text(result: Mapping[str, Any], meta: Mapping[str, Any]) -> str | None:
+    """The sensor temperature during the calibration: the record's ``temp_c`` column
+    (``result["sensor_temperature_c"]``: mean, min, max), else the header's
+    ``sensor_temperature_c``; None when neither says."""
+    rec = result.get("sensor_temperature_c")
+    if isinstance(rec, Mapping) and all(k in rec for k in ("mean", "min", "max")):
+        return f"{rec['mean']:.2f} °C ({rec['min']:.2f}…{rec['max']:.2f} °C)"
+    temp = meta.get("sensor_temperature_c")
+    return f"{temp} °C" if temp is not None else None
