@@ -40,7 +40,8 @@ exit status (every command):
        output refused (it is an input of the command, an existing chekan-record/1 or
        chekan-protocol/1 file or SQLite database (the archive), which no output option
        overwrites, or a result JSON or program TOML that only its own kind replaces)
-  3    calibrate --strict: the estimate did not converge;
+  3    calibrate --strict: the estimate did not converge or was flagged (a hyperparameter
+       ended at a bound: diagnostics.problems);
        acquire, demo: a serial link stayed down, acquisition gave up (resume with --resume)
   4    history: an ALARM (a scale-factor change beyond --tolerance-ppm)
   130  interrupted (Ctrl-C; SIGTERM for acquire and emulate)
@@ -126,8 +127,9 @@ def _cmd_calibrate(args) -> int:
         print(format_summary(res))
         for path in written:
             print(f"wrote {path}")
-    conv = res.get("diagnostics", {}).get("converged", True)
-    return 0 if conv or not args.strict else 3
+    diag = res.get("diagnostics", {})
+    flagged = not diag.get("converged", True) or bool(diag.get("problems"))
+    return 3 if flagged and args.strict else 0
 
 
 def _cmd_program(args) -> int:
@@ -195,8 +197,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "calibrate",
         help="estimate b1, b2, a, … from a record or legacy protocol",
-        epilog="exit status: 0 done, 2 bad input or a refused output, 3 not converged "
-        "(with --strict)",
+        epilog="exit status: 0 done, 2 bad input or a refused output, 3 not converged or "
+        "flagged (with --strict)",
     )
     p.add_argument("input", help="chekan-record/1 or chekan-protocol/1 file")
     p.add_argument("--method", choices=METHODS, default="classical")
@@ -246,7 +248,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--quick", action="store_true", help="bayes: cap the sampler at 3000 steps (10 000 without)"
     )
-    p.add_argument("--strict", action="store_true", help="exit 3 when the sampler did not converge")
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 3 when the estimate did not converge or is flagged (diagnostics.problems)",
+    )
     p.add_argument(
         "-q", "--quiet", action="store_true", help="print nothing on success (errors still)"
     )

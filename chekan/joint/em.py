@@ -29,6 +29,32 @@ K_LOC, K_SD = _PRIOR["slew_error"].loc, _PRIOR["slew_error"].scale
 # where the EM clips σ_θ (arcsec) and σ_o (pix): inside the range a record can inform
 SIGMA_THETA_BOUNDS_ARCSEC = (0.05, 30.0)
 SIGMA_HOLD_BOUNDS_PIX = (1e-3, 5.0)
+AT_BOUND_LOG = 1e-3  # a hyperparameter within this (in log) of an EM bound is "at the bound"
+
+
+def hyper_at_bounds(h: Hyper) -> list[str]:
+    """The hyperparameters that the EM left at one of its clip bounds, in words: there the
+    data did not determine them, and the uncertainty that rests on them may be wrong."""
+    s = np.asarray(h["noise_scale"], dtype=float).reshape(-1)
+    values = [
+        ("noise scale s₁", float(s[0]), np.exp(NOISE_LOWER[0]), np.exp(NOISE_UPPER[0]), ""),
+        ("noise scale s₂", float(s[1]), np.exp(NOISE_LOWER[1]), np.exp(NOISE_UPPER[1]), ""),
+        (
+            "slew error κ",
+            float(h["slew_error"]),
+            np.exp(NOISE_LOWER[2]),
+            np.exp(NOISE_UPPER[2]),
+            "",
+        ),
+        ("σ_θ", float(h["sigma_theta_arcsec"]), *SIGMA_THETA_BOUNDS_ARCSEC, "″"),
+        ("σ_o", float(h["sigma_hold_pix"]), *SIGMA_HOLD_BOUNDS_PIX, " pix"),
+    ]
+    out = []
+    for name, v, low, high, unit in values:
+        for edge, which in ((low, "lower"), (high, "upper")):
+            if abs(np.log(v) - np.log(edge)) < AT_BOUND_LOG:
+                out.append(f"hyperparameter {name} = {v:.4g}{unit} ended at its {which} bound")
+    return out
 
 
 def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:

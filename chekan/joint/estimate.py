@@ -21,6 +21,7 @@ from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
 from chekan.joint.derived import map_derived, posterior_draws
 from chekan.joint.derived import prefetch as prefetch_map_derived
+from chekan.joint.em import hyper_at_bounds
 from chekan.joint.layout import padded_shape
 from chekan.joint.map import MapFit, em_steps, fit_map_em
 from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
@@ -94,7 +95,8 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         "jacobian_cond": float(res.jacobian_cond),
         "not_identified": list(res.degenerate),
         "data": "bin means inside holds (lag modelled), β marginalised",
-        "problems": [] if res.converged else [f"MAP did not converge: {res.message}"],
+        "problems": ([] if res.converged else [f"MAP did not converge: {res.message}"])
+        + hyper_at_bounds(fit.hyper),
     }
     return out, diag
 
