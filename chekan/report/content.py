@@ -669,8 +669,10 @@ def build_report(
             _record_figures(result, record_path, source, t) if figures else ([], None, [])
         )
         rep.add(*rec_figs, *notes)
-        _ok, verdict = _verdict(result, t, tolerance_percent)
+        ok, verdict = _verdict(result, t, tolerance_percent)
         rep.add(Heading(t("sec_summary")), *_statements(result, t, lang), verdict[0])
+        if ok is not None:  # a pass/fail said here states its decision rule (17025 7.8.6)
+            rep.add(Para(t("decision_rule_ref"), "note"))
         _items(rep, result, t, lang, tolerance_percent, cos_fig, figures)
         budget_table(rep, result, t, lang)
         if figures and (

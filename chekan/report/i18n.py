@@ -384,6 +384,12 @@ LABELS: dict[str, dict[str, str]] = {
         "выполнен, если измеренное значение не превышает допуск; без защитной полосы, поэтому "
         "для значения на границе риск ложного принятия достигает 50 %.",
     },
+    "decision_rule_ref": {
+        "en": "Decision rule: simple acceptance (ILAC-G8:09/2019, 4.2.1), no guard band; "
+        "stated in full under «Conclusion».",
+        "ru": "Правило принятия решения: простое принятие (ILAC-G8:09/2019, 4.2.1), без "
+        "защитной полосы; полностью — в разделе «Заключение».",
+    },
     "only_item": {
         "en": "The results relate only to the calibrated item.",
         "ru": "Результаты относятся только к калибруемому средству измерений.",
