@@ -33,3 +33,58 @@ def test_every_pass_or_fail_states_its_decision_rule(lang, tolerance):
     for i in verdicts:
         after = [b.text for b in blocks[i + 1 : i + 4] if isinstance(b, Para)]
         assert any("ILAC-G8:09/2019, 4.2.1" in text for text in after), blocks[i].text
+
+
+@pytest.fixture(scope="module")
+def sim_map(tmp_path_factory) -> tuple[dict, Path]:
+    """A MAP result of the short simulated session (seed 7) and its record."""
+    from chekan.demo import demo_program
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.records import write_record
+    from chekan.simulate import Truth, simulate_session
+
+    d = tmp_path_factory.mktemp("simmap")
+    rec, _ = simulate_session(demo_program(quick=True), Truth(serial="T-1"), seed=7)
+    write_record(d / "rec.csv", rec)
+    opts = CalibrationOptions(method="map", settle_s=200, progress=False)
+    return calibrate_file(d / "rec.csv", opts), d / "rec.csv"
+
+
+def _holds(record: Path):
+    from chekan.holds import segment_record
+    from chekan.inputs import read_input
+
+    rec = read_input(record)
+    return segment_record(rec, settle_s=float(rec.meta.get("program_settle_s", 300.0)))
+
+
+def test_figure2_residuals_are_about_the_fitted_model_within_its_band(sim_map):
+    import numpy as np
+
+    from chekan.report import figures as figs
+
+    res, record = sim_map
+    holds = _holds(record)
+    tilt = ~holds.is_level
+    params = figs.fitted_model(res)
+    resid = holds.m_mean_pix - figs.model_at_holds(params, holds)
+    # about the model with the axes' inclinations ε the residuals are the noise (< 1 pix);
+    # the characteristic without them (the panel before) left ±15 pix of ε·g·sin θ
+    assert np.abs(resid[tilt]).max() < 1.0
+    no_eps = params._replace(eps_rad=params.eps_rad * 0.0, gamma_rad=params.gamma_rad * 0.0)
+    assert np.abs(holds.m_mean_pix - figs.model_at_holds(no_eps, holds))[tilt].max() > 5.0
+    band = figs.residual_band_pix(res, params, holds, resid)
+    assert band.shape == resid.shape and np.all(band[tilt] > 0)
+    assert np.mean(np.abs(resid[tilt]) <= band[tilt]) >= 0.85  # a 95 % band
+    rep = build_report(res, lang="en", source=record)
+    (cos,) = [f for f in rep.figures if f.name == "cosinusoid"]
+    for words in ("minus the model's reading", "against θ", "95 % band", "σ_hold", "σ_θ"):
+        assert words in cos.caption, words
+
+
+def test_figure2_without_a_pendulum_model_is_omitted_with_a_note(sim_map):
+    res, record = sim_map
+    flat = dict(res, parameters={**res["parameters"], "a": {**res["parameters"]["a"], "mean": 0.0}})
+    rep = build_report(flat, lang="en", source=record)
+    assert [f.name for f in rep.figures if f.name == "cosinusoid"] == []
+    assert any("defines no pendulum model" in getattr(b, "text", "") for b in rep.blocks)

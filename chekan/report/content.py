@@ -20,6 +20,7 @@ from chekan.report.i18n import LABELS, param_name, tr, unit_name, value_name
 from chekan.report.numbers import (
     DASH,
     fixed,
+    general,
     is_num,
     plain,
     sci,
@@ -598,8 +599,13 @@ def _record_figures(
     except (ChekanError, OSError, ValueError) as e:
         return [], None, [Para(t("record_unreadable", path=str(path), err=str(e)), "warn")]
     fig_rec = Figure("record", figs.record_figure(rec, holds, t), t("fig_record"))
-    fig_cos = Figure("cosinusoid", figs.cosinusoid_figure(holds, result, t), t("fig_cos"))
-    return [fig_rec], fig_cos, []
+    png = figs.cosinusoid_figure(holds, result, t)
+    if png is None:
+        a, _ = _a_value(result)
+        return [fig_rec], None, [Para(t("no_cos_model", a=general(a)), "note")]
+    gamma = t("fig_cos_gamma") if "dgamma_arcmin" in result["parameters"] else ""
+    band = t("fig_cos_band_model" if figs.has_noise_model(result) else "fig_cos_band_rms")
+    return [fig_rec], Figure("cosinusoid", png, t("fig_cos", gamma=gamma, band=band)), []
 
 
 def _posterior_figures(

@@ -80,79 +80,134 @@ def record_figure(record: Any, holds: Any, t: Translator) -> bytes:
         ax1.set_ylabel(t("ax_reading"))
         ax2.set_ylabel(t("ax_tilt"))
         ax2.set_xlabel(t("ax_time_h"))
-        ax1.legend(loc="lower left", ncols=2)
-        ax2.legend(loc="lower left", ncols=2)
+        ax1.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=2, frameon=False)
+        ax2.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=2, frameon=False)
         ax2.set_xlim(th[0], th[-1])
         return _png(fig)
 
 
-def _characteristic_x(theta_c: np.ndarray, b: float, a: float) -> np.ndarray:
-    """m − m_h solving b x + a x² = −c (record convention), c = g(1 − cos θ) ≥ 0."""
-    disc = np.maximum(b * b - 4.0 * a * theta_c, 0.0)
-    return -2.0 * theta_c / (b + np.sqrt(disc))
+ARCMIN_RAD = np.pi / 10800.0
+ARCSEC_RAD = np.pi / 648000.0
 
 
-def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> bytes:
-    """Hold means against the signed tilt angle (Fig. 3 of the paper) and their residuals."""
+def fitted_model(result: Mapping[str, Any]):  # -> chekan.model.SensorParams | None
+    """The result's forward model (chekan.model: eqs. 6, 10 with ε₁, ε₂, Δγ) for its
+    readings at any attitude; None where a ≤ 0 (a = g/(2K²) > 0 for a real pendulum)."""
+    from chekan import model
+
+    p = result["parameters"]
+    a = p["a"]["mean"] if "a" in p else (result.get("fixed") or {}).get("a")
+    if not (isinstance(a, int | float) and a > 0):
+        return None
     g = float(result["g_local_mgal"])
-    params = result["parameters"]
-    a = params["a"]["mean"] if "a" in params else (result.get("fixed") or {}).get("a", 0.0)
     lv = result.get("level_reading_pix") or {}
-    theta = np.rad2deg(np.asarray(holds.theta_rad, dtype=float))
-    one_minus_uz = 1.0 - np.cos(holds.tilt_x_rad) * np.cos(holds.tilt_y_rad)
-    lim = float(np.nanmax(np.abs(theta))) * 1.05 if theta.size else 6.0
+
+    def mean(name: str) -> float:
+        return float(p.get(name, {}).get("mean", 0.0))
+
+    return model.make_params(
+        g_mgal=g,
+        K_pix_per_rad=float(model.K_from_a(float(a), g)),
+        b_mgal_per_pix=[mean("b1"), mean("b2")],
+        m_level_pix=[float(lv["m1"]), float(lv["m2"])],
+        eps_rad=[mean("eps1_arcmin") * ARCMIN_RAD, mean("eps2_arcmin") * ARCMIN_RAD],
+        gamma_rad=mean("dgamma_arcmin") * ARCMIN_RAD,
+        m0_pix=float(result.get("ccd_center_pix", 1024.0)),
+    )
+
+
+def _readings(params, axis: str, theta_rad: np.ndarray, other_rad: np.ndarray) -> np.ndarray:
+    """The model's readings (n, 2) at the signed angle θ about ``axis`` (the other axis at
+    ``other_rad``)."""
+    from chekan import model
+
+    tx, ty = (other_rad, theta_rad) if axis == "y" else (theta_rad, other_rad)
+    return np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
+
+
+def has_noise_model(result: Mapping[str, Any]) -> bool:
+    """True when the result states σ_hold and σ_θ (the joint model's noise of a hold mean)."""
+    p = result["parameters"]
+    return "sigma_hold_pix" in p and "sigma_theta_arcsec" in p
+
+
+def residual_band_pix(
+    result: Mapping[str, Any], params, holds: Any, resid: np.ndarray
+) -> np.ndarray:
+    """Half-width (n, 2) of the 95 % band of a hold mean about the model, pix.
+
+    Joint results: 2·√(σ_hold² + (∂m/∂θ·σ_θ)²), the model's scatter of a hold mean (a hold
+    offset and the angle's random readout); classical: 2·RMS of the residuals per system.
+    """
+    if not has_noise_model(result):
+        rms = np.sqrt(np.nanmean(resid[~holds.is_level] ** 2, axis=0))
+        return np.broadcast_to(2.0 * rms, resid.shape).copy()
+    p = result["parameters"]
+    s_hold = float(p["sigma_hold_pix"]["mean"])
+    s_theta = float(p["sigma_theta_arcsec"]["mean"]) * ARCSEC_RAD
+    theta = np.asarray(holds.theta_rad, dtype=float)
+    other = np.asarray(holds.tilt_x_rad if holds.axis == "y" else holds.tilt_y_rad, dtype=float)
+    h = 1e-5
+    slope = (
+        _readings(params, holds.axis, theta + h, other)
+        - _readings(params, holds.axis, theta - h, other)
+    ) / (2 * h)
+    return 2.0 * np.sqrt(s_hold**2 + (slope * s_theta) ** 2)
+
+
+def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> bytes | None:
+    """Hold means against the signed tilt angle θ (Fig. 3 of the paper) with the fitted
+    model's readings; below, each hold mean minus the model's reading at the angles measured
+    in that hold, with the model's 95 % band. None when the result has no model (a ≤ 0)."""
+    params = fitted_model(result)
+    if params is None:
+        return None
+    theta = np.asarray(holds.theta_rad, dtype=float)
+    resid = np.asarray(holds.m_mean_pix, dtype=float) - model_at_holds(params, holds)
+    band = residual_band_pix(result, params, holds, resid)
+    theta_deg = np.rad2deg(theta)
+    lim = float(np.nanmax(np.abs(theta_deg))) * 1.05 if theta.size else 6.0
     grid = np.linspace(-lim, lim, 401)
+    curve = _readings(params, holds.axis, np.deg2rad(grid), np.zeros_like(grid))
+    order = np.argsort(theta_deg, kind="stable")
     rounds = np.asarray(holds.round)
     with _rc():
-        fig = new_figure((7.0, 4.6), constrained=True)
-        ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1]})
+        fig = new_figure((7.0, 4.8), constrained=True)
+        ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.0, 1.2]})
         for s in range(2):
-            m = np.asarray(holds.m_mean_pix[:, s], dtype=float)
-            mh = float(lv.get(f"m{s + 1}", np.nanmedian(m[holds.is_level])))
-            b = float(params[f"b{s + 1}"]["mean"])
             col = SYS_COLORS[s]
-            ax1.plot(
-                grid,
-                mh + _characteristic_x(g * (1 - np.cos(np.deg2rad(grid))), b, a),
-                color=col,
-                lw=0.8,
-                alpha=0.7,
+            ax1.plot(grid, curve[:, s], color=col, lw=0.8, alpha=0.7)
+            ax2.fill_between(
+                theta_deg[order], -band[order, s], band[order, s], color=col, alpha=0.12, lw=0
             )
-            resid = m - (mh + _characteristic_x(g * one_minus_uz, b, a))
             for r in np.unique(rounds):
                 sel = rounds == r
                 mk = "x" if r == 0 else ROUND_MARKERS[(r - 1) % len(ROUND_MARKERS)]
                 label = (
                     t("lg_level") if r == 0 else t("lg_round", n=r)
                 ) + f", {t('lg_s', n=s + 1)}"
-                ax1.plot(
-                    theta[sel],
-                    m[sel],
-                    ls="none",
-                    marker=mk,
-                    ms=3.5,
-                    mfc="none",
-                    mew=0.8,
-                    color=col,
-                    label=label,
-                )
-                ax2.plot(
-                    theta[sel],
-                    resid[sel],
-                    ls="none",
-                    marker=mk,
-                    ms=3.5,
-                    mfc="none",
-                    mew=0.8,
-                    color=col,
-                )
-        ax1.plot([], [], color="0.3", lw=0.8, label=t("lg_fit"))
+                style = dict(ls="none", marker=mk, ms=3.5, mfc="none", mew=0.8, color=col)
+                ax1.plot(theta_deg[sel], holds.m_mean_pix[sel, s], label=label, **style)
+                ax2.plot(theta_deg[sel], resid[sel, s], **style)
+        ax1.plot([], [], color="0.3", lw=0.8, label=t("lg_model"))
+        band_label = t("lg_model_band" if has_noise_model(result) else "lg_rms_band")
+        ax2.fill_between([], [], [], color="0.5", alpha=0.3, label=band_label)
         ax1.set_ylabel(t("ax_reading"))
         ax2.set_ylabel(t("ax_resid_pix"))
         ax2.set_xlabel(t("ax_angle"))
         ax2.axhline(0.0, color="0.3", lw=0.6)
-        ax1.legend(loc="lower center", ncols=3, fontsize=6.5)
+        ax1.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=6.5)
+        ax2.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=6.5)
         return _png(fig)
+
+
+def model_at_holds(params, holds: Any) -> np.ndarray:
+    """The model's readings (n, 2) at the attitude measured in each hold (both axes)."""
+    from chekan import model
+
+    tx = np.asarray(holds.tilt_x_rad, dtype=float)
+    ty = np.asarray(holds.tilt_y_rad, dtype=float)
+    return np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
 
 
 def residual_figure(

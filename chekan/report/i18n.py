@@ -420,10 +420,31 @@ LABELS: dict[str, dict[str, str]] = {
         "удержания закрашены (синие — горизонт, оранжевые — наклон), время успокоения светлее.",
     },
     "fig_cos": {
-        "en": "Readings against the tilt angle (the «cosinusoid», Fig. 3 of the paper): hold "
-        "means and the fitted characteristic; below, the hold means minus the characteristic.",
-        "ru": "Зависимость отсчётов от угла наклона («косинусоида», рис. 3 статьи): средние "
-        "удержаний и подобранная характеристика; внизу — разность средних и характеристики.",
+        "en": "Readings against the tilt angle θ (the «cosinusoid», Fig. 3 of the paper): hold "
+        "means and the fitted model's readings (the characteristic with the inclinations ε₁, "
+        "ε₂{gamma} of the systems' axes). Below: each hold mean minus the model's reading at "
+        "the angles measured in that hold, pix, against θ; shaded: {band}.",
+        "ru": "Зависимость отсчётов от угла наклона θ («косинусоида», рис. 3 статьи): средние "
+        "удержаний и отсчёты подобранной модели (характеристика с наклонами ε₁, ε₂{gamma} осей "
+        "систем). Внизу: среднее каждого удержания минус отсчёт модели при углах, измеренных "
+        "в этом удержании, пикс, в зависимости от θ; закрашено: {band}.",
+    },
+    "fig_cos_gamma": {"en": " and the azimuth Δγ", "ru": " и азимутом Δγ"},
+    "fig_cos_band_model": {
+        "en": "the model's 95 % band of a hold mean, ±2√(σ_hold² + (∂m/∂θ · σ_θ)²), with the "
+        "fitted per-hold offset σ_hold and random angle readout σ_θ",
+        "ru": "95 %-я полоса модели для среднего удержания, ±2√(σ_hold² + (∂m/∂θ · σ_θ)²), с "
+        "оценёнными смещением удержания σ_hold и случайной ошибкой отсчёта угла σ_θ",
+    },
+    "fig_cos_band_rms": {
+        "en": "±2 RMS of these residuals per system (the classical fit has no noise model)",
+        "ru": "±2 СКП этих остатков по системам (у классической подгонки нет модели шума)",
+    },
+    "no_cos_model": {
+        "en": "The figure of the readings against the angle is omitted: the result's a = {a} "
+        "mGal/pix² is not positive, so it defines no pendulum model (a = g/(2K²)).",
+        "ru": "Рисунок отсчётов в зависимости от угла не приводится: a = {a} мГал/пикс² в "
+        "результате не положителен и не задаёт модели маятника (a = g/(2K²)).",
     },
     "fig_resid": {
         "en": "Deviations δg per angle for every round and system, their mean, and the "
@@ -486,11 +507,13 @@ LABELS: dict[str, dict[str, str]] = {
     "ax_reading": {"en": "reading m, pix", "ru": "отсчёт m, пикс"},
     "ax_tilt": {"en": "tilt, °", "ru": "наклон, °"},
     "ax_angle": {"en": "tilt angle θ, °", "ru": "угол наклона θ, °"},
-    "ax_resid_pix": {"en": "m − fit, pix", "ru": "m − хар-ка, пикс"},
+    "ax_resid_pix": {"en": "hold mean − model, pix", "ru": "среднее − модель, пикс"},
     "ax_dg": {"en": "δg, mGal", "ru": "δg, мГал"},
     "ax_drift": {"en": "drift, pix", "ru": "дрейф, пикс"},
     "lg_s": {"en": "system {n}", "ru": "система {n}"},
-    "lg_fit": {"en": "characteristic", "ru": "характеристика"},
+    "lg_model": {"en": "fitted model", "ru": "модель"},
+    "lg_model_band": {"en": "95 % band", "ru": "95 %-я полоса"},
+    "lg_rms_band": {"en": "±2 RMS", "ru": "±2 СКП"},
     "lg_mean": {"en": "mean Δg", "ru": "среднее Δg"},
     "lg_tol": {"en": "tolerance", "ru": "допуск"},
     "lg_level": {"en": "level", "ru": "горизонт"},
