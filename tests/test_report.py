@@ -315,7 +315,9 @@ def test_bayes_certificate(bayes, outdir):
     d = res["diagnostics"]
     assert_in(f"Largest R-hat (should be < 1.01) {d['r_hat_max']:.3f}", text)
     assert_in(f"Smallest bulk ESS (should be ≥ 400) {d['ess_bulk_min']:.0f}", text)
-    assert_in(d["problems"][0], text)
+    # the fit's message as written, its parameter key by its name (issue 33 §6)
+    assert_in(d["problems"][0].replace("tau_s", "τ (time constant)"), text)
+    assert "tau_s" not in text
     assert_in("the sampler converged", text)
     # an archived result: the record is gone, the posterior is there
     assert_in("archive/missing_record.csv is not available", text)

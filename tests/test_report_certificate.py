@@ -88,3 +88,48 @@ def test_figure2_without_a_pendulum_model_is_omitted_with_a_note(sim_map):
     rep = build_report(flat, lang="en", source=record)
     assert [f.name for f in rep.figures if f.name == "cosinusoid"] == []
     assert any("defines no pendulum model" in getattr(b, "text", "") for b in rep.blocks)
+
+
+def _every_parameter_result() -> dict:
+    """The hand-made bayes result with every parameter a result may report, and messages
+    of the fit that name parameters by their keys."""
+    from chekan.parameters import LEGACY_UNITS, PARAMETER_UNITS
+
+    res = _bayes()
+    params = dict(res["parameters"])
+    for name, unit in {**PARAMETER_UNITS, **LEGACY_UNITS}.items():
+        params.setdefault(name, {"mean": 0.1234, "sd": 0.0123, "unit": unit})
+    res["parameters"] = params
+    res["diagnostics"] = {
+        **res["diagnostics"],
+        "problems": ["r_hat of sigma1_pix 1.02 > 1.01", "slew_error at its bound"],
+        "notes": ["dgamma_arcmin is prior-dominated (sd 2.1 vs prior sd 3)"],
+    }
+    return res
+
+
+@pytest.mark.parametrize("lang", ["en", "ru"])
+def test_no_raw_parameter_names_in_pdf_or_html(lang):
+    """Names and symbols as in the budget table, never keys such as b1_0 or sigma1_pix."""
+    import re
+
+    pytest.importorskip("typst")
+    from pdfread import normalize
+    from pypdf import PdfReader
+
+    from chekan.parameters import LEGACY_UNITS, MODEL_UNITS, PARAMETER_UNITS
+    from chekan.report.html_page import render_html
+    from chekan.report.typst_pdf import render_pdf
+
+    rep = build_report(_every_parameter_result(), lang=lang, figures=False)
+    import io
+
+    pdf = " ".join(p.extract_text() for p in PdfReader(io.BytesIO(render_pdf(rep))).pages)
+    html = re.sub(r"<[^>]+>", " ", render_html(rep).decode("utf-8"))
+    raw = [k for k in (*PARAMETER_UNITS, *LEGACY_UNITS, *MODEL_UNITS) if len(k) > 2]
+    for name, text in (("pdf", normalize(pdf)), ("html", html)):
+        found = [k for k in raw if re.search(rf"(?<![\w.]){re.escape(k)}(?!\w)", text)]
+        assert found == [], (name, found)
+    assert "σ₁ (" in html and "κ (" in html and "σ_e (" in html
+    reading_noise = {"en": "reading noise", "ru": "шум отсчёта"}[lang]
+    assert f"σ₁ ({reading_noise}" in html  # the budget table's word for the same source

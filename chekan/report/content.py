@@ -687,7 +687,7 @@ def build_report(
             or result.get("drift_curve")
         ):
             _posterior_figures(rep, result, netcdf_path, source, t, lang)
-        diagnostics_table(rep, result, t)
+        diagnostics_table(rep, result, t, lang)
         rep.add(Heading(t("sec_verdict")), *verdict)
         sw = result.get("software") or {}
         rep.add(

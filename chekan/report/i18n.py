@@ -6,6 +6,7 @@ raises ``KeyError`` (the tests render both languages, so every key used is check
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 
 from chekan.errors import ChekanError
@@ -536,8 +537,23 @@ PARAM_NAMES: dict[str, dict[str, str]] = {
     "tau_s": {"en": "τ (time constant)", "ru": "τ (постоянная времени)"},
     "drift1_pix_per_h": {"en": "drift of system 1", "ru": "дрейф системы 1"},
     "drift2_pix_per_h": {"en": "drift of system 2", "ru": "дрейф системы 2"},
-    "sigma_theta_arcsec": {"en": "σ_θ (angle)", "ru": "σ_θ (угол)"},
-    "sigma_hold_pix": {"en": "σ_hold (hold offset)", "ru": "σ_hold (смещение удержания)"},
+    "sigma1_pix": {"en": "σ₁ (reading noise, system 1)", "ru": "σ₁ (шум отсчёта, система 1)"},
+    "sigma2_pix": {"en": "σ₂ (reading noise, system 2)", "ru": "σ₂ (шум отсчёта, система 2)"},
+    "sigma_theta_arcsec": {
+        "en": "σ_θ (angle readout, random)",
+        "ru": "σ_θ (отсчёт угла, случайная)",
+    },
+    "sigma_hold_pix": {
+        "en": "σ_hold (per-hold offsets)",
+        "ru": "σ_hold (смещения на стоянках)",
+    },
+    "slew_error": {"en": "κ (slew error, relative)", "ru": "κ (ошибка отработки наклона, отн.)"},
+    "sigma_e_mgal": {
+        "en": "σ_e (error of a pair mean)",
+        "ru": "σ_e (погрешность среднего пары)",
+    },
+    "noise_scale": {"en": "s (noise scale)", "ru": "s (масштаб шума)"},
+    "K": {"en": "K (optical conversion)", "ru": "K (оптическое преобразование)"},
 }
 UNITS: dict[str, dict[str, str]] = {
     "mGal/pix": {"en": "mGal/pix", "ru": "мГал/пикс"},
@@ -549,6 +565,12 @@ UNITS: dict[str, dict[str, str]] = {
     "pix": {"en": "pix", "ru": "пикс"},
     "mGal": {"en": "mGal", "ru": "мГал"},
 }
+# a raw key as a whole word (not inside another name); single letters are words of the text
+_RAW_NAME = re.compile(
+    r"(?<![\w.])("
+    + "|".join(re.escape(k) for k in sorted(PARAM_NAMES, key=len, reverse=True) if len(k) > 2)
+    + r")(?![\w])"
+)
 VALUES: dict[str, dict[str, str]] = {
     "Chekan-AM": {"en": "Chekan-AM", "ru": "«Чекан-АМ»"},
     "Shelf": {"en": "Shelf", "ru": "Шельф"},
@@ -577,6 +599,12 @@ def tr(lang: str) -> Callable[..., str]:
 def param_name(name: str, lang: str) -> str:
     """Display name of a result parameter (the raw key when unknown)."""
     return PARAM_NAMES.get(name, {}).get(lang, name)
+
+
+def with_param_names(text: str, lang: str) -> str:
+    """``text`` (a message of the fit) with every raw parameter key (``eps1_arcmin``,
+    ``sigma1_pix`` …) replaced by its display name."""
+    return _RAW_NAME.sub(lambda m: PARAM_NAMES[m.group(0)][lang], text)
 
 
 def unit_name(unit: str, lang: str) -> str:

@@ -8,7 +8,7 @@ from typing import Any
 
 from chekan.parameters import PHYSICAL
 from chekan.report.document import Cell, Heading, KeyValue, Para, Report, Table
-from chekan.report.i18n import param_name, unit_name
+from chekan.report.i18n import param_name, unit_name, with_param_names
 from chekan.report.numbers import DASH, fixed, general, is_num, plain, sci, unc, value_unc
 
 PARAM_ORDER = (*PHYSICAL, "sigma_theta_arcsec", "sigma_hold_pix")
@@ -153,7 +153,9 @@ def _known_sources() -> set[str]:
     return {k for k in LABELS if k.startswith("src_")}
 
 
-def diagnostics_table(rep: Report, result: Mapping[str, Any], t: Translator) -> None:
+def diagnostics_table(
+    rep: Report, result: Mapping[str, Any], t: Translator, lang: str = "en"
+) -> None:
     """The diagnostics section: convergence, R-hat, ESS, problems and notes."""
     d = result.get("diagnostics") or {}
     if not d:
@@ -174,6 +176,6 @@ def diagnostics_table(rep: Report, result: Mapping[str, Any], t: Translator) -> 
         rows.append((t("sigma_fit"), fixed(d["sigma_mgal"], 3), False))
     rep.add(Heading(t("sec_diag" if bayes else "sec_diag_classical")), KeyValue(rows))
     for msg in d.get("problems") or []:
-        rep.add(Para(f"{t('problem')}: {msg}", "warn"))
+        rep.add(Para(f"{t('problem')}: {with_param_names(str(msg), lang)}", "warn"))
     for msg in d.get("notes") or []:
-        rep.add(Para(f"{t('note')}: {msg}", "note"))
+        rep.add(Para(f"{t('note')}: {with_param_names(str(msg), lang)}", "note"))
