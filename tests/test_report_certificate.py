@@ -133,3 +133,51 @@ def test_no_raw_parameter_names_in_pdf_or_html(lang):
     assert "σ₁ (" in html and "κ (" in html and "σ_e (" in html
     reading_noise = {"en": "reading noise", "ru": "шум отсчёта"}[lang]
     assert f"σ₁ ({reading_noise}" in html  # the budget table's word for the same source
+
+
+def _pages_of(rep) -> list[str]:
+    import io
+
+    from pdfread import normalize
+    from pypdf import PdfReader
+
+    from chekan.report.typst_pdf import render_pdf
+
+    return [normalize(p.extract_text()) for p in PdfReader(io.BytesIO(render_pdf(rep))).pages]
+
+
+def _line(cells) -> str:
+    from pdfread import normalize
+
+    return normalize(" ".join(c.text for c in cells if c.text))
+
+
+@pytest.mark.parametrize("which", ["map", "bayes"])
+def test_pdf_pages_do_not_split_tables(sim_map, which):
+    """Every table with its caption, header and last row on one page; so is every key–value
+    block, and a heading with the paragraphs under it."""
+    pytest.importorskip("typst")
+    from pdfread import normalize
+
+    from chekan.report.document import Heading, KeyValue, Table
+
+    res, record = sim_map
+    if which == "bayes":
+        res, record = _bayes(), None
+    rep = build_report(res, lang="en", source=record)
+    pages = _pages_of(rep)
+    assert len(pages) >= 3
+    tables = [b for b in rep.blocks if isinstance(b, Table)]
+    assert len(tables) >= 3
+    for n, tb in enumerate(tables, start=1):
+        cap = normalize(f"Table {n}: {tb.caption}")
+        (page,) = [p for p in pages if cap in p]
+        for row in (tb.header[0], tb.rows[0], tb.rows[-1]):
+            assert _line(row) in page, (tb.caption, _line(row))
+    for kv in (b for b in rep.blocks if isinstance(b, KeyValue)):
+        first, last = (normalize(f"{k} {v}") for k, v, _ in (kv.rows[0], kv.rows[-1]))
+        assert any(first in p and last in p for p in pages), (first, last)
+    for i, b in enumerate(rep.blocks[:-1]):
+        nxt = rep.blocks[i + 1]
+        if isinstance(b, Heading) and isinstance(nxt, Para):
+            assert any(normalize(b.text) in p and normalize(nxt.text)[:40] in p for p in pages)

@@ -17,6 +17,8 @@ from chekan.report.document import Cell, Figure, Heading, KeyValue, Para, Report
 
 FONT = "Libertinus Serif"
 MONO = "DejaVu Sans Mono"
+MAX_UNSPLIT_ROWS = 40  # a table up to this many rows is never split over two pages
+MAX_KEPT_PARAS = 12  # paragraphs kept on the page of the heading above them
 _ALIGN = {"l": "left", "c": "center", "r": "right"}
 _BOX = {
     "pass": ('rgb("#e6f4e8")', 'rgb("#2e7d32")'),
@@ -70,9 +72,13 @@ def _table(tb: Table) -> str:
         parts.extend(_cell(c) for c in row)
     parts.append("table.hline(stroke: 0.8pt)")
     inner = "table(\n    " + ",\n    ".join(parts) + ",\n  )"
-    if tb.caption:
-        return f"#figure(kind: table, caption: {tstr(tb.caption)},\n  {inner})\n"
-    return f"#{inner}\n"
+    if len(tb.rows) + len(tb.header) <= MAX_UNSPLIT_ROWS:  # on one page, caption and all
+        if tb.caption:
+            return f"#figure(kind: table, caption: {tstr(tb.caption)},\n  {inner})\n"
+        return f"#block(breakable: false, {inner})\n"
+    # longer than a page can hold: split, the header repeated on the next page
+    fig = f"figure(kind: table, caption: {tstr(tb.caption)},\n  {inner})" if tb.caption else inner
+    return f"#[#show figure: set block(breakable: true)\n#{fig}]\n"
 
 
 def _keyvalue(kv: KeyValue) -> str:
@@ -82,10 +88,10 @@ def _keyvalue(kv: KeyValue) -> str:
         cells.append(
             f"text(font: {tstr(MONO)}, size: 7.6pt, {tstr(value)})" if mono else tstr(value)
         )
+    whole = "false" if len(kv.rows) <= MAX_UNSPLIT_ROWS else "true"
     return (
-        "#table(columns: (auto, 1fr), stroke: none, inset: (x: 4pt, y: 2.2pt),\n  "
-        + ",\n  ".join(cells)
-        + ",\n)\n"
+        f"#block(breakable: {whole}, table(columns: (auto, 1fr), stroke: none, "
+        "inset: (x: 4pt, y: 2.2pt),\n  " + ",\n  ".join(cells) + ",\n))\n"
     )
 
 
@@ -119,7 +125,6 @@ def typst_source(rep: Report, fig_files: dict[int, str]) -> str:
         "#show heading.where(level: 1): set text(size: 12pt)",
         "#show heading: set block(above: 1.3em, below: 0.7em)",
         "#show figure: set block(breakable: false)",
-        "#show figure.where(kind: table): set block(breakable: true)",
         "#show figure.where(kind: table): set figure.caption(position: top)",
         "#show figure.caption: set text(size: 8.5pt)",
         "#show table: set text(size: 8.6pt)",
@@ -130,10 +135,24 @@ def typst_source(rep: Report, fig_files: dict[int, str]) -> str:
         "",
     ]
     body: list[str] = []
-    for b in rep.blocks:
+    blocks = rep.blocks
+    i = 0
+    while i < len(blocks):
+        b = blocks[i]
         if isinstance(b, Heading):
-            body.append(f"#heading(level: {b.level}, {tstr(b.text)})\n")
-        elif isinstance(b, Para):
+            # a heading and the paragraphs under it stay on one page
+            j = i + 1
+            while j < len(blocks) and isinstance(blocks[j], Para) and j - i <= MAX_KEPT_PARAS:
+                j += 1
+            paras = "\n".join(_para(p) for p in blocks[i + 1 : j] if isinstance(p, Para))
+            body.append(
+                f"#block(breakable: false, sticky: true)[\n"
+                f"#heading(level: {b.level}, {tstr(b.text)})\n\n{paras}]\n"
+            )
+            i = j
+            continue
+        i += 1
+        if isinstance(b, Para):
             body.append(_para(b))
         elif isinstance(b, Table):
             body.append(_table(b))
