@@ -181,3 +181,20 @@ def test_pdf_pages_do_not_split_tables(sim_map, which):
         nxt = rep.blocks[i + 1]
         if isinstance(b, Heading) and isinstance(nxt, Para):
             assert any(normalize(b.text) in p and normalize(nxt.text)[:40] in p for p in pages)
+
+
+def test_angle_bound_reading_is_one_truth_in_help_result_and_certificate(sim_map, capsys):
+    """--angle-bound-arcsec's help, the result's angle_sensor and the certificate all read
+    the bound as rectangular, u = U/√3 (issue 33 §6: the help said one, the budget another)."""
+    from chekan.cli import main
+
+    res, record = sim_map
+    with pytest.raises(SystemExit):
+        main(["calibrate", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "read as rectangular, u = U/√3" in help_text and "triangular" not in help_text
+    sensor = res["angle_sensor"]
+    assert sensor["distribution"] == "rectangular" and "U/√3" in sensor["reading"]
+    rep = build_report(res, lang="en", source=record, figures=False)
+    text = " ".join(str(getattr(b, "rows", "")) + getattr(b, "text", "") for b in rep.blocks)
+    assert "read as rectangular (u = U/√3" in text and "triangular" not in text
