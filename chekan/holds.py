@@ -6,9 +6,11 @@ last run is a hold). Each hold is classified from the angle sensors, not from a
 program file, so records of any program (or of another recorder) are understood:
 
 - level if the tilt magnitude is below ``level_threshold_deg``;
-- otherwise a tilt of signed angle θ about the dominant axis (X or Y);
+- otherwise a tilt of signed angle θ about its own dominant axis (X or Y): a record may
+  hold rounds about both axes (``hold_axis``; ``axis`` is "y", "x" or "xy");
 - a *round* is a maximal run of tilt holds between level holds, with the level
-  holds on either side as its level references;
+  holds on either side as its level references; a round is about one axis (a round
+  whose tilts change axis is split where the axis changes);
 - tilt magnitudes are clustered (tolerance ``angle_tol_deg``) into the program's angles.
 
 Dwell means use the samples after ``settle_s`` from the start of the hold.
@@ -31,6 +33,7 @@ class Round:
     tilt_holds: list[int]  # indices into the hold table
     level_before: int | None
     level_after: int | None
+    axis: str = "y"  # "x" or "y": the axis (and angle sensor) of the round's tilts
 
 
 @dataclass
@@ -52,12 +55,15 @@ class HoldTable:
     m_sd_pix: np.ndarray  # (n, 2) sample sd after settling
     tilt_x_rad: np.ndarray  # settled mean of the angle sensors
     tilt_y_rad: np.ndarray
-    theta_rad: np.ndarray  # signed angle about the program axis
-    axis: str
+    theta_rad: np.ndarray  # signed angle about the hold's own axis
+    axis: str  # "y", "x", or "xy" when the record holds rounds about both
     angle_deg: np.ndarray  # (n_angles,) cluster magnitudes, ascending
     rounds: list[Round]
     settle_s: float
     warnings: list[str] = field(default_factory=list)
+    hold_axis: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype="<U1"))
+    """(n,) "x" or "y" per hold: the axis of a tilt; a level hold takes the axis of the
+    round after it (of the last round for a trailing level hold)."""
 
     @property
     def n(self) -> int:
@@ -128,8 +134,8 @@ def segment_record(
     mag = np.sqrt(out["tx"] ** 2 + out["ty"] ** 2)
     is_level = mag < np.deg2rad(level_threshold_deg)
     tilts = ~is_level
-    axis = "y" if np.abs(out["ty"][tilts]).sum() >= np.abs(out["tx"][tilts]).sum() else "x"
-    theta = np.where(is_level, 0.0, out["ty"] if axis == "y" else out["tx"])
+    about_x = np.abs(out["tx"]) > np.abs(out["ty"])
+    theta = np.where(is_level, 0.0, np.where(about_x, out["tx"], out["ty"]))
     sign = np.where(is_level, 0, np.sign(theta)).astype(np.int64)
     # cluster the magnitudes
     angle_index = np.full(n, -1, dtype=np.int64)
@@ -150,10 +156,14 @@ def segment_record(
             i += 1
             continue
         j = i
-        while j < n and not is_level[j]:
+        while j < n and not is_level[j] and about_x[j] == about_x[i]:
             j += 1
         r = Round(
-            len(rounds) + 1, list(range(i, j)), i - 1 if i > 0 else None, j if j < n else None
+            len(rounds) + 1,
+            list(range(i, j)),
+            i - 1 if i > 0 and is_level[i - 1] else None,
+            j if j < n and is_level[j] else None,
+            "x" if about_x[i] else "y",
         )
         if r.level_before is None or r.level_after is None:
             notes.append(
@@ -166,6 +176,12 @@ def segment_record(
         i = j
     if not rounds:
         raise ChekanError(f"{src}: no tilt holds found (all {n} holds are level)")
+    hold_axis = np.where(about_x, "x", "y")
+    for i in np.flatnonzero(is_level):
+        after = [r for r in rounds if r.tilt_holds[0] > i]
+        hold_axis[i] = after[0].axis if after else rounds[-1].axis
+    axes = {r.axis for r in rounds}
+    axis = "xy" if len(axes) > 1 else axes.pop()
     if not is_level.any():
         raise ChekanError(f"{src}: no level hold found: the level reading m_h is undefined")
     for msg in notes:
@@ -192,4 +208,5 @@ def segment_record(
         rounds=rounds,
         settle_s=float(settle_s),
         warnings=notes,
+        hold_axis=hold_axis,
     )
