@@ -325,7 +325,7 @@ def calibrate_record(record, settle_s: float | None = None, a_fixed: float | Non
     if settle_s is None:
         settle_s = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle_s)
-    check_single_axis(holds, record.path)
+    # rounds about X: processed per axis (issue 30)
     table = increments_from_holds(holds, record.g_local_mgal)
     return _fit_input(table, a_fixed, record.path), holds
 

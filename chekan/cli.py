@@ -57,18 +57,12 @@ short options (the same in every command that has the option):
 def _cmd_simulate(args) -> int:
     import numpy as np
 
-    from chekan.errors import ProgramError
     from chekan.program import default_program, load_program
     from chekan.records import write_record
     from chekan.simulate import Truth, random_truth, simulate_session, write_truth
 
     check_outputs([args.program], [args.out, args.truth])
     program = load_program(args.program) if args.program else default_program()
-    if program.axis == "xy":
-        raise ProgramError(
-            f"{args.program}: axis 'xy' (rounds alternating Y and X) is a design option so far: "
-            "the simulator and the estimator handle one tilt axis per record"
-        )
     truth = (
         random_truth(np.random.default_rng(args.seed + 10_000), serial=args.serial)
         if args.random_truth

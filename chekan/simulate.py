@@ -49,6 +49,18 @@ class Truth:
     angle_systematic_arcsec: float = 1.5  # bound of the systematic part (0: none)
     angle_systematic_shape: str = "mixed"  # see SYSTEMATIC_SHAPES
     angle_systematic_peak: tuple[float, float] = (0.4, 1.0)  # max |δ| / bound, drawn in
+    # the X sensor (programs with rounds about X): its own systematic bound and random sd
+    # (None: as the Y sensor's); each sensor's systematic error is drawn on its own
+    angle_systematic_x_arcsec: float | None = None
+    angle_error_sd_x_arcsec: float | None = None
+    # the axis not tilted in a hold is read by its own sensor, with that sensor's zero
+    # error and random error: the platform holds it at −(error) (programs about both axes)
+    cross_axis_error: bool | None = None  # None: on for programs about both axes
+    # the X rounds' response beyond eq. (6) (fibre sag and the like, which the model does
+    # not contain): added to the equilibrium at tilts θ about X, per system, pix at the
+    # largest X angle θ_r: odd·(sin θ/sin θ_r)³ + even·((1 − cos θ)/(1 − cos θ_r))²
+    x_unmodelled_odd_pix: tuple[float, float] = (0.0, 0.0)
+    x_unmodelled_even_pix: tuple[float, float] = (0.0, 0.0)
     tilt_jitter_arcsec: float = 0.3
     slew_deg_per_s: float = 0.5
     platform_settle_s: float = 3.0
@@ -160,17 +172,31 @@ def systematic_angle_error(
     return lambda theta: gain * raw(theta)
 
 
-def session_systematic(truth: Truth, program: TiltProgram, seed: int):
-    """The systematic angle error δ(θ) (arcsec) of the session ``seed`` of ``truth`` on
-    ``program``: drawn from its own stream, so the other draws do not move."""
-    theta = np.array([s.tilt_y_rad if program.axis == "y" else s.tilt_x_rad for s in program.steps])
+def session_systematic(truth: Truth, program: TiltProgram, seed: int, axis: str | None = None):
+    """The systematic angle error δ(θ) (arcsec) of the ``axis`` sensor (default: the
+    program's first) in session ``seed`` of ``truth`` on ``program``: drawn from its own
+    stream, so the other draws do not move (a program about one axis uses the first
+    stream whichever its axis; the X sensor of a two-axis program the second)."""
+    axes = _program_axes(program)
+    axis = axis or axes[0]
+    theta = np.array([s.theta_rad for s in program.steps if s.axis == axis] or [0.0])
+    second = axis == "x" and "y" in axes
+    bound = truth.angle_systematic_arcsec
+    if axis == "x" and truth.angle_systematic_x_arcsec is not None:
+        bound = truth.angle_systematic_x_arcsec
     return systematic_angle_error(
         truth.angle_systematic_shape,
-        truth.angle_systematic_arcsec,
+        bound,
         float(np.max(np.abs(theta))),
-        np.random.default_rng([seed, 0x5157]),
+        np.random.default_rng([seed, 0x5158 if second else 0x5157]),
         truth.angle_systematic_peak,
     )
+
+
+def _program_axes(program: TiltProgram) -> list[str]:
+    """The axes of the program's tilts, Y first."""
+    axes = {s.axis for s in program.steps if s.kind == "tilt"}
+    return [a for a in ("y", "x") if a in axes] or [program.axis[:1]]
 
 
 def random_truth(rng: np.random.Generator, serial: str = "SIM-1", **overrides) -> Truth:
@@ -208,23 +234,34 @@ def program_timeline(
     rng: np.random.Generator,
     systematic_arcsec: np.ndarray | None = None,
     systematic_fn=None,
+    cross_arcsec: np.ndarray | None = None,
 ) -> tuple[Timeline, np.ndarray]:
     """Lay the program out at the sample rate: slews between holds, holds of ``dwell_s``.
 
-    The angle error of step k is the random draw (or ``truth.angle_error_arcsec``) plus
-    ``systematic_arcsec[k]`` when given. ``systematic_fn`` (θ rad → arcsec): the same
-    sensor reads the slews, so their reported angles carry its error too."""
+    The angle error of step k about its own axis is the random draw (or
+    ``truth.angle_error_arcsec``) plus ``systematic_arcsec[k]`` when given.
+    ``systematic_fn`` (θ rad → arcsec, or a dict axis → such a function): the same
+    sensor reads the slews, so their reported angles carry its error too.
+    ``cross_arcsec`` (n_steps,): the error of the other axis's sensor in each step (the
+    platform then holds that axis at minus it; None: exact)."""
     dt = 1.0 / truth.sample_rate_hz
     n_steps = program.n_steps
+    fns = systematic_fn if isinstance(systematic_fn, dict) else None
     err = np.asarray(truth.angle_error_arcsec, dtype=float)
     if err.size == 0:
-        err = rng.normal(0.0, truth.angle_error_sd_arcsec, n_steps)
+        if truth.angle_error_sd_x_arcsec is None or len(_program_axes(program)) == 1:
+            err = rng.normal(0.0, truth.angle_error_sd_arcsec, n_steps)
+        else:
+            sd = [_random_sd(truth, s.axis) for s in program.steps]
+            err = rng.normal(0.0, 1.0, n_steps) * np.asarray(sd)
         if systematic_arcsec is not None:
             err = err + np.asarray(systematic_arcsec, dtype=float)
     if err.size != n_steps:
         raise ValueError(f"angle_error_arcsec has {err.size} values, program has {n_steps} steps")
+    cross = np.zeros(n_steps) if cross_arcsec is None else np.asarray(cross_arcsec, float)
     seg_t, seg_step, seg_tx, seg_ty, seg_rx, seg_ry = [], [], [], [], [], []
     prev = (0.0, 0.0)
+    prev_axis = program.steps[0].axis if program.steps else "y"
     for k, s in enumerate(program.steps):
         cmd = (s.tilt_x_rad, s.tilt_y_rad)
         dist = max(abs(cmd[0] - prev[0]), abs(cmd[1] - prev[1]))
@@ -238,21 +275,24 @@ def program_timeline(
             seg_tx.append(mx)
             seg_ty.append(my)
             ex = ey = 0.0
-            if systematic_fn is not None:  # reported = true + the sensor's error
-                ex, ey = (
-                    (0.0, systematic_fn(my)) if program.axis == "y" else (systematic_fn(mx), 0.0)
-                )
+            moving = s.axis if s.kind == "tilt" else prev_axis  # back to level: the tilt's
+            fn = fns.get(moving) if fns is not None else systematic_fn
+            if fn is not None:  # reported = true + the sensor's error
+                ex, ey = (0.0, fn(my)) if moving == "y" else (fn(mx), 0.0)
             seg_rx.append(mx * ARCSEC_PER_RAD + ex)
             seg_ry.append(my * ARCSEC_PER_RAD + ey)
         n_hold = round(s.dwell_s / dt)
-        e = err[k] / ARCSEC_PER_RAD  # readout − true, about the program axis
-        tx_true, ty_true = (cmd[0], cmd[1] - e) if program.axis == "y" else (cmd[0] - e, cmd[1])
+        e = err[k] / ARCSEC_PER_RAD  # readout − true, about the step's own axis
+        c = cross[k] / ARCSEC_PER_RAD  # readout − true, about the other axis
+        tx_true, ty_true = (cmd[0] - c, cmd[1] - e) if s.axis == "y" else (cmd[0] - e, cmd[1] - c)
         seg_step.append(np.full(n_hold, k))
         seg_tx.append(np.full(n_hold, tx_true))
         seg_ty.append(np.full(n_hold, ty_true))
         seg_rx.append(np.full(n_hold, cmd[0] * ARCSEC_PER_RAD))
         seg_ry.append(np.full(n_hold, cmd[1] * ARCSEC_PER_RAD))
         prev = cmd
+        if s.kind == "tilt":
+            prev_axis = s.axis
     step = np.concatenate(seg_step)
     n = step.size
     seg_t = np.arange(n) * dt
@@ -262,13 +302,38 @@ def program_timeline(
     return tl, err
 
 
-def simulate_readings(truth: Truth, tl: Timeline, rng: np.random.Generator) -> np.ndarray:
-    """Readings (n, 2): (equilibrium + hold offset) → damping lag → + drift + noise."""
+def _random_sd(truth: Truth, axis: str) -> float:
+    """The random angle error sd (arcsec) of the ``axis`` sensor."""
+    if axis == "x" and truth.angle_error_sd_x_arcsec is not None:
+        return truth.angle_error_sd_x_arcsec
+    return truth.angle_error_sd_arcsec
+
+
+def _x_unmodelled(truth: Truth, tx_true_rad: np.ndarray, ty_true_rad: np.ndarray, th_r: float):
+    """(n, 2) pix: the X response that eq. (6) does not contain (:class:`Truth`)."""
+    odd, even = np.asarray(truth.x_unmodelled_odd_pix), np.asarray(truth.x_unmodelled_even_pix)
+    if not (odd.any() or even.any()) or th_r <= 0:
+        return None
+    about_x = np.abs(tx_true_rad) > np.abs(ty_true_rad)
+    tx = np.where(about_x, tx_true_rad, 0.0)
+    u = (np.sin(tx) / np.sin(th_r)) ** 3
+    v = ((1 - np.cos(tx)) / (1 - np.cos(th_r))) ** 2
+    return u[:, None] * odd + v[:, None] * even
+
+
+def simulate_readings(
+    truth: Truth, tl: Timeline, rng: np.random.Generator, x_theta_max_rad: float = 0.0
+) -> np.ndarray:
+    """Readings (n, 2): (equilibrium [+ the unmodelled X response, largest X angle
+    ``x_theta_max_rad``] + hold offset) → damping lag → + drift + noise."""
     p = truth.params()
     # solve the equilibrium once per distinct attitude (holds repeat one attitude)
     att = np.stack([tl.tx_true_rad, tl.ty_true_rad], axis=1)
     uniq, inv = np.unique(att, axis=0, return_inverse=True)
     m_eq = np.asarray(fm.equilibrium_readings(p, uniq[:, 0], uniq[:, 1]))[inv.ravel()]
+    extra = _x_unmodelled(truth, tl.tx_true_rad, tl.ty_true_rad, x_theta_max_rad)
+    if extra is not None:
+        m_eq = m_eq + extra
     off = np.asarray(truth.hold_offset_pix, dtype=float).reshape(-1, 2)
     if off.size:  # a per-hold offset settles in with the lag like any equilibrium change
         m_eq = m_eq + np.where(tl.step[:, None] >= 0, off[np.maximum(tl.step, 0)], 0.0)
@@ -292,21 +357,30 @@ def simulate_session(
     rng = np.random.default_rng(seed)
     truth = truth or Truth()
     systematic = None
+    fns: dict = {}
+    axes = _program_axes(program)
     if not truth.angle_error_arcsec:
-        fn = session_systematic(truth, program, seed)
-        theta = np.array(
-            [s.tilt_y_rad if program.axis == "y" else s.tilt_x_rad for s in program.steps]
-        )
-        systematic = fn(theta)
+        fns = {a: session_systematic(truth, program, seed, a) for a in axes}
+        theta = np.array([s.theta_rad for s in program.steps])
+        systematic = np.array([fns[s.axis](t) for s, t in zip(program.steps, theta, strict=True)])
         truth.angle_systematic_per_step_arcsec = [float(e) for e in systematic]
+    cross = None
+    if truth.cross_axis_error or (truth.cross_axis_error is None and len(axes) > 1):
+        cross = _cross_axis_errors(truth, program, seed, fns)
     tl, err = program_timeline(
-        program, truth, rng, systematic, fn if systematic is not None else None
+        program,
+        truth,
+        rng,
+        systematic,
+        (fns if len(axes) > 1 else fns[axes[0]]) if fns else None,
+        cross,
     )
     truth.angle_error_arcsec = [float(e) for e in err]
     if not truth.hold_offset_pix:
         off = rng.normal(0.0, truth.hold_offset_sd_pix, (program.n_steps, 2))
         truth.hold_offset_pix = [[float(a), float(b)] for a, b in off]
-    m = simulate_readings(truth, tl, rng)
+    x_max = max([abs(s.tilt_x_rad) for s in program.steps if s.axis == "x"] or [0.0])
+    m = simulate_readings(truth, tl, rng, x_max)
     n = tl.t_s.size
     temp = truth.temp_c + 0.002 * rng.normal(size=n) + 0.01 * np.sin(2 * np.pi * tl.t_s / 7200.0)
     meta = {
@@ -339,6 +413,19 @@ def simulate_session(
         temp_c=temp,
     )
     return rec, truth
+
+
+def _cross_axis_errors(truth: Truth, program: TiltProgram, seed: int, fns: dict) -> np.ndarray:
+    """(n_steps,) arcsec: the error of the sensor of the axis a step does not tilt about:
+    that sensor's systematic error at zero and its random error (its own stream)."""
+    rng = np.random.default_rng([seed, 0x5159])
+    out = np.zeros(program.n_steps)
+    for k, s in enumerate(program.steps):
+        other = "x" if s.axis == "y" else "y"
+        fn = fns.get(other)
+        zero = float(fn(0.0)) if fn is not None else 0.0
+        out[k] = zero + rng.normal(0.0, _random_sd(truth, other))
+    return out
 
 
 def write_truth(path: str | Path, truth: Truth) -> Path:

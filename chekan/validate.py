@@ -63,7 +63,7 @@ from chekan.validate_scenario import (
     session_truth,
 )
 
-CASES = ("typical", "misaligned", "drift", "slow", "edge")
+CASES = ("typical", "misaligned", "drift", "slow", "edge", "x_response")
 LEVELS = (0.5, 0.9, 0.95)
 PARAMS = ("b1", "b2", "a")
 
@@ -579,7 +579,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--sessions", type=int, default=200, help="sessions (default 200)")
     ap.add_argument("-o", "--out", default="validation", help="folder for the files (created)")
-    ap.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES))
+    ap.add_argument(
+        "--cases",
+        nargs="+",
+        choices=CASES,
+        help="cases to run (default: all; x_response only for programs with rounds about X)",
+    )
     ap.add_argument(
         "--methods",
         nargs="+",
@@ -655,10 +660,12 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
         from chekan.program import load_program
 
         program = load_program(args.program)
+    about_x = program is not None and any(st.axis == "x" for st in program.steps)
+    cases = args.cases or [c for c in CASES if about_x or c != "x_response"]
     s = run_study(
         args.sessions,
         Path(args.out),
-        cases=tuple(args.cases),
+        cases=tuple(cases),
         quick=args.quick,
         seed=args.seed,
         progress=not args.no_progress,

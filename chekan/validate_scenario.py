@@ -49,6 +49,10 @@ EDGE_PEAK = (2.5 / 3.0, 1.0)
 EDGE_SHAPES = ("periodic", "scale", "graduation", "mixed")
 EDGE_RANDOM_ARCSEC = (0.3, 0.8)
 CALIBRATION_STEP_ARCSEC = 300.0  # a lab's table: one angle every 5′
+# the X rounds' response beyond eq. (6), drawn per session: odd up to this many pixels at
+# the largest X angle, even up to the model's bound (:mod:`chekan.joint.xresponse`), both
+# in shapes (sin³, (1 − cos)²) that the model's terms (sin, 1 − cos) do not contain
+X_ODD_PIX = 2.0
 
 
 DEFAULT_SCENARIO = Scenario()
@@ -78,6 +82,15 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
             angle_systematic_shape=str(edge.choice(EDGE_SHAPES)),
             angle_error_sd_arcsec=float(edge.uniform(*EDGE_RANDOM_ARCSEC)),
         )
+    elif case == "x_response":  # what eq. (6) lacks about X, up to the model's bounds
+        from chekan.joint.xresponse import B_NOMINAL_MGAL_PER_PIX, EVEN_BOUND_MGAL
+
+        xr = np.random.default_rng([i, 0x0DD])
+        even = EVEN_BOUND_MGAL / B_NOMINAL_MGAL_PER_PIX
+        kw.update(
+            x_unmodelled_odd_pix=tuple(xr.uniform(-X_ODD_PIX, X_ODD_PIX, 2)),
+            x_unmodelled_even_pix=tuple(xr.uniform(-even, even, 2)),
+        )
     truth = random_truth(rng, serial=f"V{i}", **kw)
     if scenario.random_arcsec is not None and case != "edge":
         lo, hi = scenario.random_arcsec
@@ -90,17 +103,20 @@ def session_calibration(truth, program, seed: int, u_expanded_arcsec: float):
     of the session's systematic error every 5′ over the program's range (and 10′ beyond),
     each with an independent residual error N(0, (U/2)²), stated as U at k = 2."""
     from chekan.anglecal import AngleCalibration, AxisTable
-    from chekan.simulate import session_systematic
+    from chekan.simulate import _program_axes, session_systematic
     from chekan.units import ARCSEC_PER_RAD
 
-    fn = session_systematic(truth, program, seed)
-    theta = np.array([s.tilt_y_rad if program.axis == "y" else s.tilt_x_rad for s in program.steps])
-    t_max = float(np.max(np.abs(theta))) * ARCSEC_PER_RAD
-    grid = np.arange(-t_max - 600.0, t_max + 600.0 + 1.0, CALIBRATION_STEP_ARCSEC)
-    residual = np.random.default_rng([seed, 0xCA1]).normal(0.0, u_expanded_arcsec / 2, grid.size)
-    corr = -fn(grid / ARCSEC_PER_RAD) + residual
-    table = AxisTable(program.axis, grid, corr, np.full(grid.size, u_expanded_arcsec))
-    return AngleCalibration(f"SIM-AC-{seed}", "2026-01-01", {program.axis: table})
+    tables = {}
+    for axis in _program_axes(program):
+        fn = session_systematic(truth, program, seed, axis)
+        theta = np.array([s.theta_rad for s in program.steps if s.axis == axis])
+        t_max = float(np.max(np.abs(theta))) * ARCSEC_PER_RAD
+        grid = np.arange(-t_max - 600.0, t_max + 600.0 + 1.0, CALIBRATION_STEP_ARCSEC)
+        stream = [seed, 0xCA1] if axis == "y" or len(tables) == 0 else [seed, 0xCA2]
+        residual = np.random.default_rng(stream).normal(0.0, u_expanded_arcsec / 2, grid.size)
+        corr = -fn(grid / ARCSEC_PER_RAD) + residual
+        tables[axis] = AxisTable(axis, grid, corr, np.full(grid.size, u_expanded_arcsec))
+    return AngleCalibration(f"SIM-AC-{seed}", "2026-01-01", tables)
 
 
 def scenario_line(sc: dict | None) -> str:

@@ -239,8 +239,8 @@ def run_design_command(args) -> int:
     prec = expected_precision(program, values)
     print(f"given program ({args.program or 'the paper’s default'}):")
     print(
-        "(programs with rounds about X, axis x or xy, are ranked for what they would give; "
-        "this version of chekan calibrate supports tilts about Y only)"
+        "(programs with rounds about X, axis x or xy: the X rounds' response beyond eq. (6) "
+        "is a nuisance, so they inform b through their even part, not K; see the README)"
     )
     if values.angle_bound_arcsec:
         print(

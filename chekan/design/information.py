@@ -82,6 +82,7 @@ from chekan.design.layout import DesignValues, Lagged, Layout, lagged_means, pro
 from chekan.joint.angles import systematic_basis as angle_systematic_basis
 from chekan.joint.derived import at_level
 from chekan.joint.problem import nonlinear_params
+from chekan.joint.xresponse import x_response_basis
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
@@ -332,8 +333,10 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     s_ang = -S_h / ARCSEC_PER_RAD  # (H, 2) pix per arcsec of readout error
 
     B, B_var = systematic_basis(layout, values)
+    Phi, Phi_var = x_response_basis(layout.theta_hold_rad, layout.hold_axis, truth.g_local_mgal)
     n_old = 9 + 2 * (values.drift_degree if values.drift else 0)
-    ng = n_old + B.shape[1]
+    nx = Phi.shape[1]
+    ng = n_old + B.shape[1] + 2 * nx
     nb = 3 * H
     Mgg = np.zeros((ng, ng))
     Mgb = np.zeros((ng, nb))
@@ -345,6 +348,12 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
             X_sys = (lag.g_own * s_ang[k_own, j])[:, None] * B[k_own]
             X_sys += (lag.g_prev * s_ang[k_prev, j])[:, None] * B[k_prev]
             X = np.concatenate([X, X_sys], axis=1)
+        if nx:  # the X response beyond eq. (6), per system, settling in with the lag
+            X_x = np.zeros((X.shape[0], 2 * nx))
+            X_x[:, j * nx : (j + 1) * nx] = (
+                lag.g_own[:, None] * Phi[k_own] + lag.g_prev[:, None] * Phi[k_prev]
+            )
+            X = np.concatenate([X, X_x], axis=1)
         idx, val = _local_columns(values, layout, lag, s_ang, j)
         Wj = W[:, j]
         Mgg += X.T @ (X * Wj[:, None])
@@ -366,7 +375,8 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
         prec_g[:7] = [1.0 / p.scale**2 for p in nonlinear_params()]
         prec_g[7:9] = 1.0 / C_PRIOR_VAR_PIX2
         prec_g[9:n_old] = 1.0 / DRIFT_PRIOR_VAR_PIX2
-    prec_g[n_old:] = 1.0 / B_var  # Type B: the specification's prior, with or without priors
+    prec_g[n_old : n_old + B.shape[1]] = 1.0 / B_var  # Type B: the specification's prior
+    prec_g[n_old + B.shape[1] :] = 1.0 / np.tile(Phi_var, 2)  # :mod:`chekan.joint.xresponse`
     if not values.estimate_tau:
         prec_g[6] = 1.0
     Mgg += np.diag(prec_g)

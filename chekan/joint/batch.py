@@ -49,6 +49,9 @@ def _estimate_map_many(
                 options.settle_s,
                 encoder=options.encoder_error,
                 angle_spec=options.angle_spec(record.meta, calibration=record.angle_calibration),
+                angle_spec_x=options.angle_spec(
+                    record.meta, calibration=record.angle_calibration, axis="x"
+                ),
             )
             ready.append(
                 (

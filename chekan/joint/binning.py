@@ -19,6 +19,7 @@ from chekan.holds import HoldTable, segment_record
 from chekan.jaxconfig import device_arrays
 from chekan.joint.angles import AngleSensorSpec, SystematicBasis
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
+from chekan.joint.xresponse import x_response_basis, x_response_path
 from chekan.units import ARCSEC_PER_RAD
 
 BIN_EDGES_S = (0.0, 15.0, 40.0, 90.0, 180.0)
@@ -30,6 +31,7 @@ def prepare(
     *,
     encoder: bool = False,
     angle_spec: AngleSensorSpec | None = None,
+    angle_spec_x: AngleSensorSpec | None = None,
 ):
     """Segment the record into holds and lay it out: ``(holds, RecordModel)``.
 
@@ -43,7 +45,9 @@ def prepare(
         settle = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle)
     m_ref = np.nanmean(holds.m_mean_pix[holds.is_level], axis=0)
-    return holds, prepare_record(record, holds, m_ref, encoder=encoder, angle_spec=angle_spec)
+    return holds, prepare_record(
+        record, holds, m_ref, encoder=encoder, angle_spec=angle_spec, angle_spec_x=angle_spec_x
+    )
 
 
 def _robust_sigma(record, holds: HoldTable) -> np.ndarray:
@@ -119,22 +123,63 @@ def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s) -> list[tuple]:
     return rows
 
 
-def _angle_bases(theta, mv_theta, mv_mask, L: int, angle_spec: AngleSensorSpec | None):
+def _slew_axis(holds: HoldTable) -> np.ndarray:
+    """The axis of the slew into each hold: that of the tilt it reaches or leaves (a slew
+    between a level hold and a tilt moves about the tilt's axis)."""
+    axis = np.asarray(holds.hold_axis).copy()
+    for k in range(1, holds.n):
+        if holds.is_level[k] and not holds.is_level[k - 1]:
+            axis[k] = holds.hold_axis[k - 1]
+    return axis
+
+
+def _angle_bases(
+    holds: HoldTable,
+    mv_tx,
+    mv_ty,
+    mv_mask,
+    L: int,
+    specs: dict[str, AngleSensorSpec | None],
+):
     """The shared angle-error columns at the holds and along the slews, their prior
-    variances and how many are systematic: ``L`` legacy encoder terms (N(0, 2″)), then the
-    systematic basis of :mod:`.angles` where ``angle_spec`` is given."""
+    variances, how many are systematic and how many of those are the X sensor's: ``L``
+    legacy encoder terms (N(0, 2″)), then the systematic basis of :mod:`.angles` of each
+    sensor that reads holds of this record (X first, then Y; a sensor's columns are zero
+    at the other sensor's holds and slews)."""
+    theta = holds.theta_rad
     tmax = max(np.max(np.abs(theta)), 1e-9)
     H = theta.shape[0]
     enc = np.polynomial.legendre.legvander(theta / tmax, L)[:, 1:] if L else np.zeros((H, 0))
-    basis, prior_var = enc, np.full(L, 4.0)
-    mv_basis = np.zeros((*mv_theta.shape, L))  # the legacy terms act at the holds only
-    if angle_spec is None:
-        return basis, prior_var, mv_basis, 0
-    sb = SystematicBasis.for_holds(theta)
-    basis = np.concatenate([basis, sb.at(theta)], axis=1)
-    prior_var = np.concatenate([prior_var, sb.prior_var(angle_spec)])
-    mv_basis = np.concatenate([mv_basis, sb.at(mv_theta) * mv_mask[..., None]], axis=-1)
-    return basis, prior_var, mv_basis, sb.size
+    basis, prior_var = [enc], [np.full(L, 4.0)]
+    mv_basis = [np.zeros((*mv_tx.shape, L))]  # the legacy terms act at the holds only
+    hold_axis, slew_axis = np.asarray(holds.hold_axis), _slew_axis(holds)
+    n_x = 0
+    for axis in ("x", "y"):
+        spec = specs.get(axis)
+        on = hold_axis == axis
+        if spec is None or not np.any(on & ~holds.is_level):
+            continue
+        sb = SystematicBasis.for_holds(theta[on])
+        basis.append(sb.at(theta) * on[:, None])
+        prior_var.append(sb.prior_var(spec))
+        mv_theta = mv_tx if axis == "x" else mv_ty
+        mv_on = (slew_axis == axis)[:, None] & mv_mask
+        mv_basis.append(sb.at(mv_theta) * mv_on[..., None])
+        if axis == "x":
+            n_x = sb.size
+    S = sum(b.shape[1] for b in basis) - L
+    return (
+        np.concatenate(basis, axis=1),
+        np.concatenate(prior_var),
+        np.concatenate(mv_basis, axis=-1),
+        S,
+        n_x,
+    )
+
+
+def _directions(axis: np.ndarray) -> np.ndarray:
+    """(H, 2) unit vectors (x, y) of tilts about each axis."""
+    return np.where((np.asarray(axis) == "x")[:, None], [1.0, 0.0], [0.0, 1.0])
 
 
 def prepare_record(
@@ -145,9 +190,11 @@ def prepare_record(
     drift_degree: int = 3,
     encoder: bool = False,
     angle_spec: AngleSensorSpec | None = None,
+    angle_spec_x: AngleSensorSpec | None = None,
     bin_edges_s=BIN_EDGES_S,
 ) -> RecordModel:
-    """Bin the samples of every hold and build the model's data pytree."""
+    """Bin the samples of every hold and build the model's data pytree (``angle_spec``:
+    the Y sensor's, ``angle_spec_x`` the X sensor's, used where the record tilts about X)."""
     t = np.asarray(record.t_s, dtype=float)
     m = np.stack([record.m1_pix, record.m2_pix], axis=1).astype(float)
     H = holds.n
@@ -172,9 +219,14 @@ def prepare_record(
     s = 2.0 * (t_mid - t0) / max(t1 - t0, 1.0) - 1.0
     P = np.polynomial.legendre.legvander(s, drift_degree)[:, 1:]  # no constant
     L = 3 if encoder else 0
-    mv_theta = mv_ty if holds.axis == "y" else mv_tx
-    basis, prior_var, mv_basis, S = _angle_bases(holds.theta_rad, mv_theta, mv_mask, L, angle_spec)
-    direction = np.array([0.0, 1.0]) if holds.axis == "y" else np.array([1.0, 0.0])
+    specs = {"y": angle_spec, "x": angle_spec_x}
+    basis, prior_var, mv_basis, S, S_x = _angle_bases(holds, mv_tx, mv_ty, mv_mask, L, specs)
+    x_basis, x_prior_var = x_response_basis(
+        holds.theta_rad, holds.hold_axis, float(record.g_local_mgal)
+    )
+    mv_x_basis = x_response_path(
+        holds.theta_rad, holds.hold_axis, mv_tx, (_slew_axis(holds) == "x")[:, None] & mv_mask
+    )
     # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
     arrays = {
         "g": np.asarray(record.g_local_mgal, dtype=np.float64),
@@ -182,7 +234,11 @@ def prepare_record(
         "m_ref": np.asarray(m_level_ref, dtype=np.float64),
         "hold_tx": np.asarray(holds.tilt_x_rad),
         "hold_ty": np.asarray(holds.tilt_y_rad),
-        "direction": direction,
+        "hold_dir": _directions(holds.hold_axis),
+        "mv_dir": _directions(_slew_axis(holds)),
+        "x_basis": x_basis,
+        "x_prior_var": x_prior_var,
+        "mv_x_basis": mv_x_basis,
         "own": np.asarray(own),
         "prev": np.asarray(prev),
         "d0": np.asarray(d0),
@@ -205,5 +261,14 @@ def prepare_record(
         "hold_mask": np.ones(H, dtype=bool),  # False for padding (see RecordData.pad)
     }
     data = RecordData(**device_arrays(arrays))
-    structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L, S)
-    return RecordModel(structure, data, holds.step, t_mid, (t0, t1), angle_spec)
+    structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L, S, x_basis.shape[1])
+    return RecordModel(
+        structure,
+        data,
+        holds.step,
+        t_mid,
+        (t0, t1),
+        angle_spec if S > S_x else None,
+        angle_spec_x if S_x else None,
+        S_x,
+    )

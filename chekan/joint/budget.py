@@ -1,16 +1,19 @@
 """The uncertainty budget of b: var(b̂) split by the source of each whitened row of the
 MAP Jacobian, var b̂ = Σ_rows hᵣ², h = e_bᵀ(JᵀJ)⁻¹Jᵀ.
 
-Groups: noise (data rows), level offset, drift, hold offsets, angle readout (the random
-error of every hold, δ, and the legacy encoder terms), **angle systematic** (the sensor's
-error per commanded angle and its scale error, repeated in every round: GUM Type B, from
-the platform's specification), a (the prior of K), other priors; scaled to the reported sd.
+Groups: noise (data rows), level offset, drift, X response (the X rounds' terms beyond
+eq. 6), hold offsets, angle readout (the random error of every hold, δ, and the legacy
+encoder terms), **angle systematic** (the sensor's error per commanded angle and its
+scale error, repeated in every round: GUM Type B, from the platform's specification; one
+line per angle sensor, ``angle_systematic_y`` and ``angle_systematic_x``, where the
+record tilts about both axes), a (the prior of K), other priors; scaled to the reported sd.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from chekan.errors import ChekanError
 from chekan.joint.engine import problem_for
 from chekan.joint.map import MapFit
 from chekan.joint.problem import nonlinear_params
@@ -40,16 +43,21 @@ def uncertainty_budget(fit: MapFit) -> dict:
     blocks = structure.beta_blocks
     groups = {"noise": np.arange(n_data)}
     off = n_data
-    for name, key in (
-        ("level_offset", "c"),
-        ("drift", "drift"),
-        ("hold_offsets", "hold_offset"),
-        ("angle_readout", "angle_error"),
-        ("angle_readout", "encoder"),
-        ("angle_systematic", "angle_systematic"),
+    sys_x = blocks["angle_systematic"][: model.n_systematic_x]
+    sys_y = blocks["angle_systematic"][model.n_systematic_x :]
+    two = model.n_systematic_x > 0 and model.angle_spec is not None
+    for name, idx_beta in (
+        ("level_offset", blocks["c"]),
+        ("drift", blocks["drift"]),
+        ("x_response", blocks["x_response"]),
+        ("hold_offsets", blocks["hold_offset"]),
+        ("angle_readout", blocks["angle_error"]),
+        ("angle_readout", blocks["encoder"]),
+        ("angle_systematic_y" if two else "angle_systematic", sys_y),
+        ("angle_systematic_x" if two else "angle_systematic", sys_x),
     ):
         groups.setdefault(name, np.zeros(0, int))
-        groups[name] = np.concatenate([groups[name], off + blocks[key]])
+        groups[name] = np.concatenate([groups[name], off + idx_beta])
     off += nb
     idx = off
     for p in (p for p in space.params if p.has_prior):
@@ -57,8 +65,7 @@ def uncertainty_budget(fit: MapFit) -> dict:
         groups.setdefault(key, np.zeros(0, int))
         groups[key] = np.concatenate([groups[key], np.arange(idx, idx + p.size)])
         idx += p.size
-    JtJ = J.T @ J
-    H = np.linalg.pinv(JtJ) @ J.T  # (nz, rows)
+    H = _influence(J)  # (nz, rows)
     step = space.step
     out = {}
     for name in ("b1", "b2"):
@@ -70,6 +77,23 @@ def uncertainty_budget(fit: MapFit) -> dict:
         }
         out[name]["total_linearised"] = float(np.sqrt(total))
     return out
+
+
+def _influence(J: np.ndarray) -> np.ndarray:
+    """(JᵀJ)⁺Jᵀ: by the SVD of J (pinv), or where LAPACK's SVD does not converge (a
+    Jacobian with rows of very different scale) by the eigendecomposition of JᵀJ."""
+    try:
+        return np.linalg.pinv(J.T @ J) @ J.T
+    except np.linalg.LinAlgError:
+        pass
+    try:
+        w, V = np.linalg.eigh(J.T @ J)
+    except np.linalg.LinAlgError as e:
+        raise ChekanError(
+            f"the uncertainty budget cannot be computed: the MAP's Jacobian is singular ({e})"
+        ) from None
+    keep = w > w.max() * J.shape[1] * np.finfo(float).eps
+    return (V[:, keep] / w[keep]) @ V[:, keep].T @ J.T
 
 
 def budget_entries(budget_raw: dict, params: dict) -> dict:

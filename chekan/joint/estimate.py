@@ -53,6 +53,9 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         angle_spec=options.angle_spec(
             record.meta, str(base.get("record", "record")), record.angle_calibration
         ),
+        angle_spec_x=options.angle_spec(
+            record.meta, str(base.get("record", "record")), record.angle_calibration, axis="x"
+        ),
     )
     init = initial_values(classical, record.g_local_mgal)
     if options.progress:
@@ -86,7 +89,13 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
     res = fit.result
     out = dict(base)
     out["method"] = options.method
-    out["angle_sensor"] = angle_sensor_entry(fit.model.angle_spec)
+    model = fit.model
+    out["angle_sensor"] = angle_sensor_entry(model.angle_spec or model.angle_spec_x)
+    if model.angle_spec is not None and model.angle_spec_x is not None:
+        out["angle_sensors"] = {
+            "y": angle_sensor_entry(model.angle_spec),
+            "x": angle_sensor_entry(model.angle_spec_x),
+        }
     out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2") if k in base["parameters"]}
     diag = {
         "converged": bool(res.converged),

@@ -27,9 +27,11 @@ from chekan.joint.angles import AngleSensorSpec
 @dataclass(frozen=True)
 class ModelStructure:
     """The static shape of a record model: H holds, N bins, M slew samples per hold,
-    drift degree D, encoder degree L (legacy smooth angle error) and S systematic
-    angle-error terms (one per commanded angle, plus the scale error). Hashable; equal
-    structures share compiled code."""
+    drift degree D, encoder degree L (legacy smooth angle error), S systematic
+    angle-error terms (per angle sensor: one per commanded angle, plus the scale error)
+    and X terms per system for the X rounds' response beyond eq. (6) (0 for records
+    without rounds about X; :mod:`chekan.joint.xresponse`). Hashable; equal structures
+    share compiled code."""
 
     n_holds: int
     n_bins: int
@@ -37,11 +39,23 @@ class ModelStructure:
     drift_degree: int = 3
     encoder_degree: int = 0
     n_systematic: int = 0
+    n_x_response: int = 0
 
     @property
     def beta_blocks(self) -> dict[str, np.ndarray]:
-        """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e, ζ) as index arrays per block."""
-        return beta_blocks(self.n_holds, self.drift_degree, self.encoder_degree, self.n_systematic)
+        """β's layout: (c₁, d₁, ν₁, c₂, d₂, ν₂, o₁, o₂, δ, e, ζ) as index arrays per block."""
+        return beta_blocks(
+            self.n_holds,
+            self.drift_degree,
+            self.encoder_degree,
+            self.n_systematic,
+            self.n_x_response,
+        )
+
+    @property
+    def n_q(self) -> int:
+        """Columns per system that do not go through the holds: cⱼ, dⱼ, νⱼ."""
+        return 1 + self.drift_degree + self.n_x_response
 
     @property
     def n_angle_cols(self) -> int:
@@ -54,11 +68,11 @@ class ModelStructure:
         return int(sum(len(ix) for ix in self.beta_blocks.values()))
 
     def beta_index(self, j: int) -> np.ndarray:
-        """Global β indices of system j's local columns [cⱼ, dⱼ, oⱼ, δ, e]."""
-        b, D, H = self.beta_blocks, self.drift_degree, self.n_holds
+        """Global β indices of system j's local columns [cⱼ, dⱼ, νⱼ, oⱼ, δ, e]."""
+        b, q, H = self.beta_blocks, self.n_q, self.n_holds
         return np.concatenate(
             [
-                j * (1 + D) + np.arange(1 + D),
+                j * q + np.arange(q),
                 b["hold_offset"][j * H : (j + 1) * H],
                 b["angle_error"],
                 b["encoder"],
@@ -67,15 +81,16 @@ class ModelStructure:
         )
 
 
-def beta_blocks(H: int, D: int, L: int, S: int = 0) -> dict[str, np.ndarray]:
-    """β's layout: (c₁, d₁, c₂, d₂, o₁, o₂, δ, e, ζ): level offsets and drift per system,
-    hold offsets, the random angle error of every hold, the legacy encoder terms and the
-    systematic angle-error terms shared by all rounds."""
-    q = 1 + D  # per system: level offset cⱼ then drift dⱼ
+def beta_blocks(H: int, D: int, L: int, S: int = 0, X: int = 0) -> dict[str, np.ndarray]:
+    """β's layout: (c₁, d₁, ν₁, c₂, d₂, ν₂, o₁, o₂, δ, e, ζ): level offsets, drift and the
+    X-response terms per system, hold offsets, the random angle error of every hold, the
+    legacy encoder terms and the systematic angle-error terms shared by all rounds."""
+    q = 1 + D + X  # per system: level offset cⱼ, drift dⱼ, X response νⱼ
     o0, a0, e0 = 2 * q, 2 * q + 2 * H, 2 * q + 3 * H
     return {
         "c": np.array([0, q]),
-        "drift": np.concatenate([np.arange(1, q), q + np.arange(1, q)]),
+        "drift": np.concatenate([np.arange(1, 1 + D), q + np.arange(1, 1 + D)]),
+        "x_response": np.concatenate([1 + D + np.arange(X), q + 1 + D + np.arange(X)]),
         "hold_offset": np.arange(o0, o0 + 2 * H),  # system 1's holds, then system 2's
         "angle_error": np.arange(a0, a0 + H),
         "encoder": np.arange(e0, e0 + L),
@@ -94,12 +109,15 @@ class RecordData(eqx.Module):
     g: jax.Array  # mGal, local gravity
     m0: jax.Array  # pix, CCD centre
     m_ref: jax.Array  # (2,) pix, level reference reading of each system
-    direction: jax.Array  # (2,) unit vector of the calibration tilt (x, y)
     dt: jax.Array  # s, sample period
     sigma_base: jax.Array  # (2,) pix, per-sample noise from first differences
+    x_prior_var: jax.Array  # (X,) pix², prior variances of the X-response terms νⱼ
     hold_tx: jax.Array = _padded("H", 0.0)  # (H,) rad, reported attitude of each hold
     hold_ty: jax.Array = _padded("H", 0.0)
     hold_T: jax.Array = _padded("H", 0.0)  # (H,) s, slew end to hold end
+    hold_dir: jax.Array = _padded("H", 0.0)  # (H, 2) unit vector of the hold's tilt (x, y)
+    mv_dir: jax.Array = _padded("H", 0.0)  # (H, 2) unit vector of the slew into each hold
+    x_basis: jax.Array = _padded("H", 0.0)  # (H, X) pix, X-response columns at the holds
     hold_mask: jax.Array = _padded("H", False)  # (H,) real holds
     angle_basis: jax.Array = _padded("HQ", 0.0)  # (H, Q) shared angle-error terms, arcsec
     angle_prior_var: jax.Array = _padded("Q", 1.0)  # (Q,) arcsec², their prior variances
@@ -117,6 +135,7 @@ class RecordData(eqx.Module):
     mv_lag: jax.Array = _padded("HM", 0.0)  # (H, M) s, t_last − tᵢ
     mv_mask: jax.Array = _padded("HM", False)
     mv_angle_basis: jax.Array = _padded("HMQ", 0.0)  # (H, M, Q) shared terms along slews
+    mv_x_basis: jax.Array = _padded("HM", 0.0)  # (H, M, X) pix, X-response terms along slews
 
     def pad(self, H: int, N: int, M: int, Q: int | None = None) -> RecordData:
         """The same record laid out for H holds, N bins, M slew samples and Q shared
@@ -158,7 +177,9 @@ class RecordModel:
     hold_steps: np.ndarray  # program step of each real hold
     bin_t_s: np.ndarray  # s, mid-time of each real bin
     t_span_s: tuple[float, float]  # s, first and last sample
-    angle_spec: AngleSensorSpec | None = None  # the systematic angle-error prior, if modelled
+    angle_spec: AngleSensorSpec | None = None  # the Y sensor's systematic error prior, if modelled
+    angle_spec_x: AngleSensorSpec | None = None  # the X sensor's, where the record tilts about X
+    n_systematic_x: int = 0  # the X sensor's systematic terms (the first of the block)
 
     @property
     def n_holds(self) -> int:

@@ -3,12 +3,14 @@ r"""The joint likelihood of a record: both systems, all rounds, β linear.
 **Prediction** of bin i in hold k for system j:
 
     ȳᵢⱼ = (1 − wᵢ) Eₖⱼ + wᵢ Eₖ₋₁,ⱼ + cⱼ + Σₗ dⱼₗ Pₗ(sᵢ)
-          + (1 − wᵢ)(oₖⱼ − Sₖⱼ δₖ) + wᵢ (oₖ₋₁,ⱼ − Sₖ₋₁,ⱼ δₖ₋₁),
+          + (1 − wᵢ)(oₖⱼ + Φₖνⱼ − Sₖⱼ δₖ) + wᵢ (oₖ₋₁,ⱼ + Φₖ₋₁νⱼ − Sₖ₋₁,ⱼ δₖ₋₁),
 
 where Eₖⱼ is the exact torsion equilibrium (:func:`chekan.model.equilibrium_readings`,
 eq. 6) at the *reported* attitude of hold k, Sₖⱼ = ∂Eₖⱼ/∂θ, δₖ the angle-readout error of
 hold k (reported − true, shared by both systems; prior N(0, σ_θ²)), oₖⱼ a per-hold offset
-of each system (prior N(0, σ_o²)), cⱼ the level-reading offset from m_ref, dⱼₗ drift
+of each system (prior N(0, σ_o²)), Φₖνⱼ the X rounds' response beyond eq. (6) (zero at
+holds about Y; :mod:`chekan.joint.xresponse`), Sₖⱼ along the hold's own tilt axis, cⱼ the
+level-reading offset from m_ref, dⱼₗ drift
 coefficients on sᵢ = time scaled to [−1, 1] (Legendre, no constant), and wᵢ the mean
 over the bin's samples of exp(−(t − t_last)/τ), the first-order lag weight from the
 state at the end of the slew into the hold. That state is the exact discrete lag filter
@@ -86,10 +88,10 @@ def slew_path(v: dict, data: RecordData) -> SlewPath:
     largest elementwise work of an evaluation: computed once, shared by
     :func:`linear_terms` and :func:`slew_angle_columns`)."""
     p = sensor_params(v, data)
-    dirn = data.direction
+    dx, dy = data.mv_dir[:, :1], data.mv_dir[:, 1:]  # (H, 1): the slew's own axis
 
     def path(h):
-        return fm.equilibrium_by_system(p, data.mv_tx + h * dirn[0], data.mv_ty + h * dirn[1])
+        return fm.equilibrium_by_system(p, data.mv_tx + h * dx, data.mv_ty + h * dy)
 
     zero = jnp.zeros_like(data.mv_tx)
     # materialised in this layout: left to itself XLA fuses the last Newton step into a
@@ -110,10 +112,10 @@ def linear_terms(v: dict, data: RecordData, slews: SlewPath | None = None):
     """
     p = sensor_params(v, data)
     tx, ty = data.hold_tx, data.hold_ty
-    dirn = data.direction
+    dx, dy = data.hold_dir[:, 0], data.hold_dir[:, 1]  # each hold about its own axis
 
     def eq(h):
-        return fm.equilibrium_readings(p, tx + h * dirn[0], ty + h * dirn[1])
+        return fm.equilibrium_readings(p, tx + h * dx, ty + h * dy)
 
     E, S = fusion_barrier(jax.jvp(eq, (jnp.zeros_like(tx),), (jnp.ones_like(tx),)))  # (H, 2)
     tau = v["tau_s"]
@@ -143,6 +145,8 @@ class SlewColumns(NamedTuple):
     """Uₖ = ∂Mvₖ/∂ζ (H, Q, 2): how ζ moves the lag state after slew k, pixels per unit ζ."""
     own: jax.Array
     """k(i) (N,) int: the bin's hold."""
+    x_per_hold: jax.Array
+    """Σₘ wₖₘ Φ(θₖₘ) (H, X): the X-response terms in the lag state after slew k."""
 
     def dense(self) -> jax.Array:
         """P (N, Q, 2) (reference and dense design)."""
@@ -166,7 +170,8 @@ def slew_angle_terms(v: dict, data: RecordData, slews: SlewPath | None = None) -
     dMv = jnp.einsum("hm,jhm,hmq->hqj", wm, -dEm / ARCSEC_PER_RAD, data.mv_angle_basis)
     w = lag_weights(v["tau_s"], data)
     own = jnp.argmax(data.own, axis=1)  # the bin's hold (a row of zeros: padding)
-    return SlewColumns(w * jnp.sum(data.own, axis=1), dMv, own)
+    x_mv = jnp.einsum("hm,hmx->hx", wm, data.mv_x_basis)
+    return SlewColumns(w * jnp.sum(data.own, axis=1), dMv, own, x_mv)
 
 
 def slew_angle_columns(v: dict, data: RecordData, slews: SlewPath | None = None) -> jax.Array:
@@ -198,6 +203,20 @@ def _unsettled_carry(E, Mv, wprev, rho):
     return a[:, None] * jnp.concatenate([zero, d[:-1]])
 
 
+def q_columns(G, data: RecordData, P: SlewColumns | None = None) -> jax.Array:
+    """The columns shared by both systems that do not go through the hold terms:
+    [1, P, G·Φ + w·Φ_slew] for (cⱼ, dⱼ, νⱼ) (Φ: the X-response terms at the holds and
+    along the slews, which settle in with the lag like any equilibrium change;
+    :mod:`chekan.joint.xresponse`; ``P`` carries the slews' share)."""
+    cols = [jnp.ones((G.shape[0], 1)), data.drift_basis]
+    if data.x_basis.shape[1]:
+        x = G @ data.x_basis
+        if P is not None:
+            x = x + P.weight[:, None] * P.x_per_hold[P.own]
+        cols.append(x)
+    return jnp.concatenate(cols, axis=1)
+
+
 def _local_columns(G, s_j, Q, enc, P_j=None):
     """System j's columns [Q, G, G·diag(sⱼ), G·diag(sⱼ)·E (+ Pⱼ)] (for A·β products)."""
     Gs = G * s_j[None, :]
@@ -209,7 +228,7 @@ def apply_A(beta, G, s, structure: ModelStructure, data: RecordData, P: SlewColu
     """A·β as (N, 2), without forming A (``P``: :func:`slew_angle_terms` or None):
     system j's share is Q qⱼ + G (oⱼ + sⱼ∘(δ + E ζ)) + Pⱼ ζ (:func:`_local_columns`),
     both systems at once (on the trailing axis)."""
-    Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
+    Q = q_columns(G, data, P)
     sp = _hold_sparse(G, data)
     b = structure.beta_blocks
     nq, H = Q.shape[1], G.shape[1]
@@ -242,7 +261,8 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     nv = noise_var(h, data, trans)
     W = jnp.where(mask, 1.0 / nv, 0.0)  # (N, 2)
     r = jnp.where(mask, data.y - f, 0.0)
-    Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
+    P = _slew_terms(v, structure, data, slews)
+    Q = q_columns(G, data, P)
     E = data.angle_basis
     nq, H, L = Q.shape[1], G.shape[1], E.shape[1]
     sp = _hold_sparse(G, data)
@@ -269,8 +289,7 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
         [QGs[0].T, QGs[1].T, GGs[0].T, GGs[1].T, Sd, SdE],
     ]
     gx = E.T @ bdt
-    P = slew_angle_terms(v, data, slews) if structure.n_systematic else None
-    if P is not None:  # the slews' share of the systematic columns (see slew_angle_terms)
+    if P is not None and structure.n_systematic:  # the slews' share (see slew_angle_terms)
         QWP, GtWP, sGtWP, ee, gP = _slew_systematic_blocks(P, W, Q, r, s, E, sp, H)
         rows[0][5] = rows[0][5] + QWP[0]
         rows[1][5] = rows[1][5] + QWP[1]
@@ -376,8 +395,15 @@ def predict(v: dict, structure: ModelStructure, data: RecordData):
     """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
     slews = slew_path(v, data)
     f, G, s, _ = linear_terms(v, data, slews)
-    P = slew_angle_terms(v, data, slews) if structure.n_systematic else None
-    return f, dense_design(G, s, structure, data, P)
+    return f, dense_design(G, s, structure, data, _slew_terms(v, structure, data, slews))
+
+
+def _slew_terms(v: dict, structure: ModelStructure, data: RecordData, slews: SlewPath):
+    """The slews' share of the systematic and X-response columns, where the model has
+    either (:func:`slew_angle_terms`)."""
+    if structure.n_systematic or structure.n_x_response:
+        return slew_angle_terms(v, data, slews)
+    return None
 
 
 def dense_design(
@@ -385,9 +411,9 @@ def dense_design(
 ) -> jax.Array:
     """The design ``A`` (N, 2, p) formed from the pieces of :func:`linear_terms` (``P``:
     :func:`slew_angle_terms` or None)."""
-    Q = jnp.concatenate([jnp.ones((G.shape[0], 1)), data.drift_basis], axis=1)
+    Q = q_columns(G, data, P)
     N = G.shape[0]
-    Pd = None if P is None else P.dense()
+    Pd = None if P is None or not structure.n_systematic else P.dense()
     cols = []
     for j in range(2):
         X = _local_columns(G, s[:, j], Q, data.angle_basis, None if Pd is None else Pd[..., j])
@@ -398,12 +424,14 @@ def dense_design(
 
 def beta_prior_var(h: dict, structure: ModelStructure, data: RecordData) -> jax.Array:
     """Prior variances of β given the hyperparameters, in β's layout: c 1 pix², d 4 pix²,
-    o σ_o², δ σ_θ², and the shared angle-error terms (e, ζ) from ``data.angle_prior_var``
+    ν from ``data.x_prior_var``, o σ_o², δ σ_θ², and the shared angle-error terms (e, ζ)
+    from ``data.angle_prior_var``
     (legacy encoder: 4 arcsec²; systematic terms: the platform specification, Type B)."""
     pv = jnp.zeros(structure.n_beta)
     b = structure.beta_blocks
     shared = np.concatenate([b["encoder"], b["angle_systematic"]])
     pv = pv.at[b["c"]].set(1.0).at[b["drift"]].set(4.0).at[shared].set(data.angle_prior_var)
+    pv = pv.at[b["x_response"]].set(jnp.tile(data.x_prior_var, 2))
     pv = pv.at[b["hold_offset"]].set(h["sigma_hold_pix"] ** 2)
     return pv.at[b["angle_error"]].set(h["sigma_theta_arcsec"] ** 2)
 

@@ -1,0 +1,96 @@
+r"""The X rounds' response beyond eq. (6): a nuisance per quartz system.
+
+A tilt about the platform X axis turns the pendulums in their own plane. Eq. (6) with
+the attitude of the system (:mod:`chekan.model`) gives the reading's response to it:
+to first order the same g(1 − cos θ) as a tilt about Y (the *even* part), plus
+g·sin θ·sin φ (the *odd* part, the paper's d·θ·(m − m_h) of eq. 11–12, which depends on
+φ = (m − m₀)/K and so on K). The paper warns that eq. (11) leaves effects out (fibre sag
+among them), which is why the stand method calibrates in several azimuths. So that b
+and a do not rest on the ideal model's X response alone, every system j carries two
+terms **per distinct angle magnitude** a of the X holds (β, marginalised like the drift;
+no shape in θ assumed, as for the angle sensors' systematic error; continued along the
+slews about X, which the lag carries into the holds), with θₖ the hold's tilt about X
+and θ_r the largest one:
+
+    Δmₖⱼ = νⱼ,odd,a · sin θₖ / sin θ_r  +  νⱼ,even,a · (1 − cos θₖ)/(1 − cos θ_r)   [pix].
+
+- **odd**: the pendulum's horizontal is the CCD centre m₀ only to the instrument's
+  mounting tolerance (``M0_TOLERANCE_PIX``); an offset Δm₀ moves the odd part by
+  (g/(bK))·sin θ·Δm₀. With that tolerance the prior is far wider than what the data
+  measure: the X rounds' odd part does not inform K (nor a) — it is fitted, not trusted.
+- **even**: what eq. (6) lacks in the X response relative to the Y response. The paper
+  bounds the terms that eq. (21) leaves out at ``EVEN_BOUND_MGAL`` (eq. 20: δg ≤ 0.2 mGal);
+  read as a bound (rectangular, u = U/√3, GUM 4.3.7) in mGal and converted with the
+  nominal b. The X rounds then inform b through their even part up to that uncertainty;
+  the Y rounds carry b on their own when it is larger (validation: ``docs/figures/``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from chekan.units import ARCSEC_PER_RAD
+
+K_NOMINAL_PIX_PER_RAD = 60428.0  # eq. (4): the design K
+B_NOMINAL_MGAL_PER_PIX = 6.9  # the paper's single-system b (eq. 9), for unit conversion only
+M0_TOLERANCE_PIX = 100.0  # the CCD centre vs the pendulum's horizontal (5 % of the CCD)
+EVEN_BOUND_MGAL = 0.2  # eq. (20): what eq. (21) may leave out at the largest angle
+GROUP_ARCSEC = 30.0  # X angles closer than this are one angle (as the angle sensors')
+LEVEL_RAD = float(np.deg2rad(0.1))  # below this a hold is level (:mod:`chekan.holds`)
+
+
+def _groups(theta: np.ndarray, on: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Group key of every angle and the sorted keys of the X holds' magnitudes."""
+    key = np.round(np.abs(theta) * ARCSEC_PER_RAD / GROUP_ARCSEC).astype(np.int64)
+    return key, np.unique(key[on])
+
+
+def x_response_path(
+    theta_rad: np.ndarray, hold_axis: np.ndarray, path_rad: np.ndarray, path_on: np.ndarray
+) -> np.ndarray:
+    """The X-response columns along the slews (H, M, 2A): the same terms continued
+    between the angles (each angle's coefficients weighted by hat functions of |θ| over
+    the X holds' magnitudes, clamped beyond the ends; sin θ and 1 − cos θ vanish at
+    level), where ``path_on`` (the slew moves about X)."""
+    theta = np.asarray(theta_rad, dtype=float)
+    on = (np.asarray(hold_axis) == "x") & (np.abs(theta) > LEVEL_RAD)
+    path = np.asarray(path_rad, dtype=float)
+    if not np.any(on):
+        return np.zeros((*path.shape, 0))
+    key, groups = _groups(theta, on)
+    nodes = np.array([np.abs(theta[on & (key == a)]).mean() for a in groups])
+    th_r = float(np.max(np.abs(theta[on])))
+    odd = np.sin(path) / math.sin(th_r)
+    even = (1.0 - np.cos(path)) / (1.0 - math.cos(th_r))
+    eye = np.eye(groups.size)
+    cols = []
+    for a in range(groups.size):
+        hat = np.interp(np.abs(path), nodes, eye[a]) * path_on
+        cols += [hat * odd, hat * even]
+    return np.stack(cols, axis=-1)
+
+
+def x_response_basis(
+    theta_rad: np.ndarray, hold_axis: np.ndarray, g_mgal: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The columns (H, 2A) at the holds, odd then even for each of the A angle magnitudes
+    of the X holds (zero at Y and level holds), and their prior variances (2A,) in pix²;
+    (H, 0) and (0,) when no hold tilts about X."""
+    theta = np.asarray(theta_rad, dtype=float)
+    on = (np.asarray(hold_axis) == "x") & (np.abs(theta) > LEVEL_RAD)
+    if not np.any(on):
+        return np.zeros((theta.size, 0)), np.zeros(0)
+    th_r = float(np.max(np.abs(theta[on])))
+    key, groups = _groups(theta, on)
+    odd = np.sin(theta) / math.sin(th_r)
+    even = (1.0 - np.cos(theta)) / (1.0 - math.cos(th_r))
+    cols = []
+    for a in groups:
+        member = on & (key == a)
+        cols += [np.where(member, odd, 0.0), np.where(member, even, 0.0)]
+    sd_odd = g_mgal * math.sin(th_r) * M0_TOLERANCE_PIX
+    sd_odd /= B_NOMINAL_MGAL_PER_PIX * K_NOMINAL_PIX_PER_RAD
+    sd_even = EVEN_BOUND_MGAL / math.sqrt(3.0) / B_NOMINAL_MGAL_PER_PIX
+    return np.stack(cols, axis=1), np.tile([sd_odd**2, sd_even**2], groups.size)
