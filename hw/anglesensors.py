@@ -96,7 +96,7 @@ class PlatformSensors:
 
 def default_sensors(sd_arcsec: float = 2.0, jitter_arcsec: float = 0.3) -> PlatformSensors:
     """The default platform: each sensor its own periodic error and scale error (fixed
-    numbers, |δ_sys| ≤ 2.6″ over ±6°), random error ``sd_arcsec`` per hold and jitter."""
+    numbers, |δ_sys| ≤ 2.4″ over ±6°), random error ``sd_arcsec`` per hold and jitter."""
     return PlatformSensors(
         x=AngleSensor(1.0, 2.3, 200.0, -70.0, sd_arcsec, jitter_arcsec),
         y=AngleSensor(1.2, 1.5, 40.0, 50.0, sd_arcsec, jitter_arcsec),

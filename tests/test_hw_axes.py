@@ -18,6 +18,7 @@ from hw import anglesensors
 from hw.acquisition import Acquisition, Options, PlanStep, acquire, resume
 from hw.emulator import InProcessEmulator, PlatformModel
 from hw.journal import journal_path, read_journal
+from hw.progress import Progress, format_progress
 
 DWELL = 30
 XY = build_program([1.0, 2.0], axis="xy", dwell_s=DWELL, settle_s=10, rounds=2, name="xy")
@@ -306,3 +307,35 @@ def test_emulate_angle_errors_option(tmp_path, capsys):
     assert h["target_arcsec"] == [0.0, 0.0] and len(h["systematic_arcsec"]) == 2
     assert h["systematic_arcsec"][1] == pytest.approx(1.0 * np.sin(0.0))
     assert np.allclose(np.subtract(h["target_arcsec"], h["readout_error_arcsec"]), h["true_arcsec"])
+
+
+def test_acquire_command_runs_an_xy_program_without_warning(tmp_path, capsys):
+    """``chekan acquire --program`` with ``axis = "xy"``: no warning, every step recorded
+    about its own axis; the progress line names the axis."""
+    from hw.cli import main
+
+    prog = tmp_path / "xy.toml"
+    prog.write_text(
+        'name = "xy"\nangles = ["1°"]\naxis = "xy"\ndwell_s = 20\nsettle_s = 5\nrounds = 2\n',
+        encoding="utf-8",
+    )
+    rec = tmp_path / "rec.csv"
+    handler = signal.getsignal(signal.SIGTERM)
+    try:
+        with InProcessEmulator("axes-cli", speed=0, seed=2) as emu:
+            code = main(
+                ["acquire", "--sensor", emu.sensor_url, "--platform", emu.platform_url,
+                 "--out", str(rec), "--program", str(prog), "--g-local-mgal", "981922.05"]
+            )  # fmt: skip
+    finally:
+        signal.signal(signal.SIGTERM, handler)
+    out, err = capsys.readouterr()
+    assert code == 0, out + err
+    assert "warning" not in err.lower() and "refuse" not in (out + err)
+    assert "about Y and X (alternate rounds)" in out and "steps      8/8 done" in out
+    line = format_progress(Progress(6, 8, 2, "+1°00'", "dwell", 3, 20, 99.0, 60.0, 99, 0, 0, "x"))
+    assert "round 2 +1°00' X dwell" in line  # the status line names the step's axis
+    r = read_record(rec)
+    x_rows = np.isin(r.step, [5, 6])  # round 2: level, +1°, −1°, level
+    assert np.allclose(np.abs(r.tilt_x_arcsec[x_rows]), 3600, atol=1.5)
+    assert np.abs(r.tilt_y_arcsec[x_rows]).max() < 1.5
