@@ -8,6 +8,7 @@ Modules (one job each)::
     drivers      SensorDriver, PlatformDriver (reader thread, replies matched by type + key)
     faults       fault-injection plan of the emulator (``--faults`` text)
     endpoints    where the emulator's bytes go: pseudo-terminals or in-process pipes
+    anglesensors the emulated platform's X and Y angle sensors and their errors
     emulator     both devices on one device clock (physics from chekan.simulate)
     protocol_chekanemu   pyserial URL scheme ``chekanemu://sensor?session=NAME``
     journal      fsynced JSON-lines journal of a run

@@ -61,6 +61,16 @@ def add_emulate_parser(subparsers) -> argparse.ArgumentParser:
         "--seq-start", type=argtypes.integer(0, 65535), default=0, help="first sensor seq (0-65535)"
     )
     p.add_argument("--random-truth", action="store_true", help="draw the instrument from --seed")
+    p.add_argument(
+        "--angle-errors",
+        default="default",
+        metavar="SPEC",
+        help="errors of the platform's angle sensors: 'default' (each sensor a periodic and "
+        "a scale error inside the 3″ bound), 'none' (no systematic error), 'random' "
+        "(drawn from --seed), then items AXIS.FIELD=VALUE to change one number, e.g. "
+        "'none;x.scale_ppm=40;y.sd=1' (fields amp, period_deg, phase_deg, scale_ppm, sd, "
+        "jitter; see hw/anglesensors.py)",
+    )
     p.add_argument("--truth", help="write the true parameters and holds here (JSON) at exit")
     p.add_argument(
         "-v", "--verbose", action="store_true", help="print device events as they happen"
@@ -75,19 +85,26 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from chekan.simulate import Truth, random_truth
+    from hw import anglesensors
     from hw.emulator import PtyEmulator
     from hw.faults import parse_faults
 
     check_outputs([], [args.truth])
-    try:
-        faults = parse_faults(args.faults)
-    except ValueError as e:
-        print(f"chekan emulate: {e}", file=sys.stderr)
-        return 2
     if args.random_truth:
         truth = random_truth(np.random.default_rng(args.seed + 10_000), serial=args.serial)
     else:
         truth = Truth(serial=args.serial)
+    try:
+        faults = parse_faults(args.faults)
+        sensors = anglesensors.parse(
+            args.angle_errors,
+            seed=args.seed,
+            sd_arcsec=truth.angle_error_sd_arcsec,
+            jitter_arcsec=truth.tilt_jitter_arcsec,
+        )
+    except ValueError as e:
+        print(f"chekan emulate: {e}", file=sys.stderr)
+        return 2
     emu = PtyEmulator(
         args.sensor,
         args.platform,
@@ -96,6 +113,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         speed=args.speed,
         faults=faults,
         seq_start=args.seq_start,
+        sensors=sensors,
     )
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _on_sigterm)  # clean up the symlinks on kill too
@@ -103,6 +121,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     print(f"sensor   {emu.sensor.link_path} -> {emu.sensor.device}")
     print(f"platform {emu.platform.link_path} -> {emu.platform.device}")
     speed = "as fast as the host reads" if args.speed == 0 else f"{args.speed:g}x"
+    print(sensors.describe())
     print(f"speed {speed}, {truth.sample_rate_hz:g} Hz; Ctrl-C to stop", flush=True)
     shown = 0
     try:
@@ -116,21 +135,15 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         pass
     finally:
         emu.stop()
-    e = emu.emulator
+    em = emu.emulator
     print(
-        f"stopped at device time {e.t:.0f} s after {e.ticks} ticks; "
-        f"{e.tilt_commands} TILT commands; {dict(sorted(e.stats.items()))}"
+        f"stopped at device time {em.t:.0f} s after {em.ticks} ticks; "
+        f"{em.tilt_commands} TILT commands; {dict(sorted(em.stats.items()))}"
     )
     if args.truth:
         d = truth.to_json()
-        d["holds"] = [
-            {
-                "t_s": h.t_s,
-                "target_arcsec": h.target_arcsec,
-                "readout_error_arcsec": h.readout_error_arcsec,
-            }
-            for h in e.platform.holds
-        ]
+        d["angle_sensors"] = sensors.to_json()
+        d["holds"] = [h.to_json() for h in em.platform.holds]
         from chekan.durable import atomic_output
 
         with atomic_output(args.truth) as f:
@@ -284,14 +297,6 @@ def cmd_acquire(args: argparse.Namespace) -> int:
                 if v is not None:
                     setattr(opts, k, v)
             print(f"program {program.describe()}", flush=True)
-            if any(st.kind == "tilt" and st.axis == "x" for st in program.steps):
-                print(
-                    "warning: this program tilts about the platform X axis: the record is "
-                    "kept whole, but this version of chekan calibrate supports tilts about Y "
-                    "only and will refuse it",
-                    file=sys.stderr,
-                    flush=True,
-                )
             _start_live(args, args.out)
             summary = acquire(
                 args.out,

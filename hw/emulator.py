@@ -6,9 +6,13 @@ It follows ``shared/specs/serial-protocol.md``; the physics is
 - the platform slews at ``Truth.slew_deg_per_s`` (both axes reach the target
   together), settles for ``Truth.platform_settle_s``, then holds; it reports
   ``MOVE`` while slewing/settling, ``HOLD`` at the target;
-- at each hold a readout error ``e`` ~ N(0, ``Truth.angle_error_sd_arcsec``) is
-  drawn per axis: the TRUE attitude is ``commanded − e``, the reported one is
-  ``commanded + jitter`` (N(0, ``Truth.tilt_jitter_arcsec``) per status line);
+- each angle sensor has its own errors (:mod:`hw.anglesensors`: a systematic
+  δ(θ) = A·sin(2π·θ/P + φ) + s·θ, a random error per hold, a jitter per status line;
+  the default platform has both, inside the 3″ bound): at a hold the REPORTED angle
+  of each axis is ``commanded + jitter`` and the TRUE one ``commanded − δ(commanded)
+  − e`` (the axis not tilted sits at its own offset −δ(0) − e); while slewing the
+  true angle is the path minus δ(path); the instrument sees the TRUE (tx, ty)
+  through the full geometry of ``record-format.md``;
   ``instrument.begin_hold()`` at HOLD, ``end_hold()`` when it moves or faults;
 - the sensor samples the instrument at the true attitude every ``1/rate``
   device seconds; ``seq`` wraps at 65536 and keeps counting while nobody
@@ -40,11 +44,13 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from chekan.simulate import Instrument, Truth
 from chekan.units import ARCSEC_PER_RAD
+from hw.anglesensors import PlatformSensors, default_sensors
 from hw.endpoints import MemoryEndpoint, PtyEndpoint, memory_url, register, unregister
 from hw.faults import FaultPlan
 from hw.nmea import DEVICE_TYPES, SEQ_MOD, Query, SentenceParser, encode, format_number
@@ -58,35 +64,66 @@ _NOISE = [b for b in range(256) if b not in (0x0A, 0x24)]  # no '\n', no '$'
 
 @dataclass
 class Hold:
-    """One hold as the emulator made it (for checks against an estimator)."""
+    """One hold as the emulator made it (for checks against an estimator).
+
+    ``readout_error_arcsec`` is the whole error (reported − true) of each sensor (X, Y),
+    ``systematic_arcsec`` its systematic part; the true attitude is target − error.
+    """
 
     t_s: float
     target_arcsec: tuple[float, float]
     readout_error_arcsec: tuple[float, float]
+    systematic_arcsec: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def true_arcsec(self) -> tuple[float, float]:
+        t, e = self.target_arcsec, self.readout_error_arcsec
+        return t[0] - e[0], t[1] - e[1]
+
+    def to_json(self) -> dict:
+        return {
+            "t_s": self.t_s,
+            "target_arcsec": list(self.target_arcsec),
+            "readout_error_arcsec": list(self.readout_error_arcsec),
+            "systematic_arcsec": list(self.systematic_arcsec),
+            "true_arcsec": list(self.true_arcsec),
+        }
 
 
 class PlatformModel:
     """Attitude and state of the gyro-platform as functions of device time (arcsec)."""
 
-    def __init__(self, truth: Truth, rng: np.random.Generator):
+    def __init__(
+        self, truth: Truth, rng: np.random.Generator, sensors: PlatformSensors | None = None
+    ):
         self.truth = truth
         self.rng = rng
+        self.sensors = sensors or default_sensors(
+            truth.angle_error_sd_arcsec, truth.tilt_jitter_arcsec
+        )
         self.state = "HOLD"
         self.target = (0.0, 0.0)
         self._start = (0.0, 0.0)
         self._t_cmd = 0.0
         self._t_arrive = 0.0
         self._t_hold = 0.0
-        self._frozen = (0.0, 0.0)
+        self._frozen = (0.0, 0.0)  # FAULT: the true attitude stays where it was
+        self._frozen_read = (0.0, 0.0)  # … and so does the reading
+        self.sys_err = self.sensors.systematic_arcsec(*self.target)
         self.err = self._draw_err()
         self.fault_active = False
         self.recommanded = False
-        self.holds: list[Hold] = [Hold(0.0, self.target, self.err)]
+        self.holds: list[Hold] = [Hold(0.0, self.target, self.err, self.sys_err)]
 
     def _draw_err(self) -> tuple[float, float]:
-        sd = self.truth.angle_error_sd_arcsec
-        e = self.rng.normal(0.0, sd, 2) if sd > 0 else np.zeros(2)
-        return float(e[0]), float(e[1])
+        """The whole error (reported − true) of each sensor at this hold: its systematic
+        error at the target plus a random draw with its own sd."""
+        z = self.rng.normal(0.0, 1.0, 2)
+        sd = (self.sensors.x.sd, self.sensors.y.sd)
+        return (
+            self.sys_err[0] + float(z[0]) * sd[0],
+            self.sys_err[1] + float(z[1]) * sd[1],
+        )
 
     def _path(self, t: float) -> tuple[float, float]:
         if t >= self._t_arrive or self._t_arrive <= self._t_cmd:
@@ -102,18 +139,20 @@ class PlatformModel:
             return self.target[0] - self.err[0], self.target[1] - self.err[1]
         if self.state == "FAULT":
             return self._frozen
-        return self._path(t)
+        x, y = self._path(t)
+        dx, dy = self.sensors.systematic_arcsec(x, y)
+        return x - dx, y - dy
 
     def reading(self, t: float) -> tuple[float, float]:
         """What the angle sensors report (without jitter)."""
         if self.state == "HOLD":
             return self.target
         if self.state == "FAULT":
-            return self._frozen
+            return self._frozen_read
         return self._path(t)
 
     def _move(self, t: float, x: float, y: float) -> None:
-        self._start = self.reading(t) if self.state != "FAULT" else self._frozen
+        self._start = self.reading(t)
         self.target = (x, y)
         dist = max(abs(x - self._start[0]), abs(y - self._start[1]))
         slew = max(self.truth.slew_deg_per_s, 1e-9) * 3600.0
@@ -142,6 +181,7 @@ class PlatformModel:
         self.fault_active = fault_active
         if fault_active and self.state != "FAULT":
             self._frozen = self.true_attitude(t)
+            self._frozen_read = self.reading(t)
             self.state = "FAULT"
             self.recommanded = False
             return ["FAULT"]
@@ -151,8 +191,9 @@ class PlatformModel:
             return ["MOVE"]
         if self.state == "MOVE" and t >= self._t_hold:
             self.state = "HOLD"
+            self.sys_err = self.sensors.systematic_arcsec(*self.target)
             self.err = self._draw_err()
-            self.holds.append(Hold(t, self.target, self.err))
+            self.holds.append(Hold(t, self.target, self.err, self.sys_err))
             return ["HOLD"]
         return []
 
@@ -171,6 +212,7 @@ class Emulator:
         model: str = "Shelf",
         platform_serial: str = "SIM-PLATFORM",
         clock: Callable[[], float] = time.monotonic,
+        sensors: PlatformSensors | None = None,
     ):
         if speed < 0 or not math.isfinite(speed):
             raise ValueError(f"speed must be >= 0 (0: as fast as the host reads), not {speed}")
@@ -182,7 +224,8 @@ class Emulator:
         self.platform_serial = platform_serial
         self._clock = clock
         self.instrument = Instrument(self.truth, seed)
-        self.platform = PlatformModel(self.truth, np.random.default_rng([seed, 1]))
+        self.platform = PlatformModel(self.truth, np.random.default_rng([seed, 1]), sensors)
+        self.sensors = self.platform.sensors
         self._jitter_rng = np.random.default_rng([seed, 2])
         self._frng = random.Random(self.faults.seed if self.faults.seed is not None else seed)
         self.t = 0.0  # device time of the last tick
@@ -192,7 +235,7 @@ class Emulator:
         self.tilt_commands = 0
         self.stats: Counter[str] = Counter()
         self.events: list[tuple[float, str]] = []  # (device time, what) for tests and logs
-        self.endpoints: dict[str, object] = {}
+        self.endpoints: dict[str, Any] = {}  # MemoryEndpoint or PtyEndpoint
         self._parsers = {p: SentenceParser(DEVICE_TYPES) for p in ("sensor", "platform")}
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -279,10 +322,10 @@ class Emulator:
 
     def _status(self, t: float) -> None:
         x, y = self.platform.reading(t)
-        j = self.truth.tilt_jitter_arcsec
-        if j > 0:
-            dx, dy = self._jitter_rng.normal(0.0, j, 2)
-            x, y = x + float(dx), y + float(dy)
+        jx, jy = self.sensors.x.jitter, self.sensors.y.jitter
+        if jx > 0 or jy > 0:
+            zx, zy = self._jitter_rng.normal(0.0, 1.0, 2)
+            x, y = x + float(zx) * jx, y + float(zy) * jy
         line = encode("PLT", self.plt_seq, f"{x:.2f}", f"{y:.2f}", self.platform.state)
         self.plt_seq = (self.plt_seq + 1) % SEQ_MOD
         self._emit("platform", line, stream=True)
@@ -482,7 +525,7 @@ class _Server:
         self._done = threading.Event()
         self.error: BaseException | None = None
 
-    def _endpoints(self) -> dict[str, object]:
+    def _endpoints(self) -> dict[str, Any]:
         raise NotImplementedError
 
     def start(self, duration_s: float | None = None) -> _Server:
@@ -548,7 +591,7 @@ class PtyEmulator(_Server):
         self.sensor = PtyEndpoint("sensor", sensor_link)
         self.platform = PtyEndpoint("platform", platform_link)
 
-    def _endpoints(self) -> dict[str, object]:
+    def _endpoints(self) -> dict[str, Any]:
         return {"sensor": self.sensor, "platform": self.platform}
 
     @property
@@ -569,7 +612,7 @@ class InProcessEmulator(_Server):
         self.sensor = MemoryEndpoint("sensor", self.emulator.wake)
         self.platform = MemoryEndpoint("platform", self.emulator.wake)
 
-    def _endpoints(self) -> dict[str, object]:
+    def _endpoints(self) -> dict[str, Any]:
         return {"sensor": self.sensor, "platform": self.platform}
 
     def start(self, duration_s: float | None = None) -> InProcessEmulator:

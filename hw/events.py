@@ -45,7 +45,9 @@ FIELDS = MappingProxyType(
         Event.RESUME: ("from_step", "steps_done", "last_t_s", "torn_saved_to", "options"),
         Event.SYNC: ("seq_ref", "t_ref", "resumed"),
         Event.GAP: ("seq_from", "seq_to", "lost", "t_s_from", "t_s_to", "step", "resumed?"),
-        Event.STEP_START: (*("step", "round", "kind", "label", "x", "y", "dwell_samples", "t_s"),),
+        Event.STEP_START: (
+            *("step", "round", "kind", "label", "axis", "x", "y", "dwell_samples", "t_s"),
+        ),
         Event.TILT: ("step", "x", "y", "reason", "t_s"),
         Event.HOLD: ("step", "t_s", "angles"),
         Event.HOLD_LOST: ("step", "state", "t_s", "samples"),

@@ -25,13 +25,15 @@ class Progress:
     samples: int  # rows written in this session
     lost: int
     reconnects: int
+    axis: str = ""  # the step's tilt axis, "x" or "y"
 
 
 def format_progress(p: Progress) -> str:
     h, rem = divmod(int(max(p.left_s, 0)), 3600)
     m, s = divmod(rem, 60)
+    label = f"{p.label} {p.axis.upper()}" if p.axis and p.label != "level" else p.label
     return (
-        f"step {p.step + 1}/{p.n_steps} round {p.round} {p.label:>8} {p.phase:<6} "
+        f"step {p.step + 1}/{p.n_steps} round {p.round} {label:>8} {p.phase:<6} "
         f"{p.step_samples}/{p.dwell_samples} samples  t={p.t_s:.0f} s  left {h}:{m:02d}:{s:02d}  "
         f"rows {p.samples} lost {p.lost} reconnects {p.reconnects}"
     )

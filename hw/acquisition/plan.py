@@ -26,11 +26,16 @@ class PlanStep:
     y_arcsec: float
     dwell_s: float
     settle_s: float
+    axis: str = ""  # "x" or "y": the tilt's axis (level: its round's); "" read from x, y
+
+    def __post_init__(self) -> None:
+        if not self.axis:  # a journal written before steps carried their axis
+            object.__setattr__(self, "axis", "x" if self.x_arcsec != 0.0 else "y")
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> PlanStep:
-        """The step as stored in a ``run_start`` event."""
-        return cls(**{f.name: d[f.name] for f in fields(cls)})
+        """The step as stored in a ``run_start`` event (older journals: no ``axis``)."""
+        return cls(**{f.name: d[f.name] for f in fields(cls) if f.name in d or f.name != "axis"})
 
     def dwell_samples(self, rate_hz: float) -> int:
         """Sample periods of the dwell (at least one)."""
@@ -49,6 +54,7 @@ def plan_from_program(program: TiltProgram) -> list[PlanStep]:
             float(s.tilt_y_arcsec),
             float(s.dwell_s),
             float(s.settle_s),
+            s.axis,
         )
         for s in program.steps
     ]

@@ -215,6 +215,14 @@ class Acquisition:
                 options=self.opts.to_json(),
             )
 
+    def _await_platform(self) -> None:
+        """Wait (recording) for the platform's first status, up to ``timeout_s``: where it
+        stands decides whether the first step goes through level (a resumed run may find
+        it tilted about the other axis)."""
+        deadline = self._clock() + self.opts.timeout_s
+        while self.steps.status.angles is None and self._clock() < deadline:
+            self._pump()
+
     def _run_step(self, st: PlanStep) -> None:
         self.steps.begin(st)
         while not self.steps.step_done:
@@ -230,6 +238,7 @@ class Acquisition:
             self.links.open(self.recorder.open_raw_log())
             self._identify()
             self._start_record()
+            self._await_platform()
             rs = self.resume_state
             for st in self.plan[rs.first_step if rs else 0 :]:
                 if rs and st.index in rs.done:
@@ -338,6 +347,7 @@ class Acquisition:
                 n_steps=len(self.plan),
                 round=st.round if st else 0,
                 label=st.label if st else "",
+                axis=st.axis if st else "",
                 phase=steps.phase.shown,
                 step_samples=steps.step_samples,
                 dwell_samples=steps.dwell_n,

@@ -7,6 +7,12 @@ from the first sample after the hold. A platform ``FAULT`` re-sends the ``TILT``
 (every ``recommand_s`` while it lasts) and restarts the dwell at the next
 ``HOLD``; no HOLD within ``hold_timeout_s`` re-sends it once, then is an error.
 At the end the platform is levelled (:attr:`Phase.LEVELING` → :attr:`Phase.LEVEL`).
+
+The platform changes axis only through level: a step about one axis that would start
+while the platform stands tilted about the other (beyond ``angle_tol_arcsec``: a
+program whose rounds alternate axes without a level step between them, or a resumed
+run) first commands ``TILT 0,0`` and waits for its HOLD (journaled as a ``tilt`` with
+reason ``via level``; those rows belong to no step), then the step's own target.
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ from __future__ import annotations
 import contextlib
 import enum
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from hw.acquisition.clock import SampleClock
 from hw.acquisition.plan import Options, PlanStep
@@ -91,6 +97,7 @@ class StepMachine:
         self._cmd_mono = 0.0
         self._hold_retry = False
         self._last_recommand_idx: int | None = None
+        self._via_level = False  # the current TILT is the level leg before the step's own
         self.dwell_start = 0
         self.dwell_n = 0
         self.dwell_rows = 0
@@ -115,6 +122,15 @@ class StepMachine:
             yield
         finally:
             self.commanding = False
+
+    def _crosses_axes(self, st: PlanStep) -> bool:
+        """Whether ``st``'s target lies about the other axis than the platform now stands:
+        going straight there would tilt about both axes at once."""
+        here = self.status.angles if self.status.angles is not None else self._target
+        tol = self.opts.angle_tol_arcsec
+        return (abs(here[0]) > tol and st.y_arcsec != 0.0) or (
+            abs(here[1]) > tol and st.x_arcsec != 0.0
+        )
 
     def _near_target(self, x: float, y: float) -> bool:
         tol = self.opts.angle_tol_arcsec
@@ -145,12 +161,14 @@ class StepMachine:
             round=st.round,
             kind=st.kind,
             label=st.label,
+            axis=st.axis,
             x=st.x_arcsec,
             y=st.y_arcsec,
             dwell_samples=self.dwell_n,
             t_s=self._t_last(),
         )
-        self._send_tilt("step")
+        self._via_level = self._crosses_axes(st)
+        self._send_tilt("via level" if self._via_level else "step")
 
     @property
     def step_done(self) -> bool:
@@ -158,19 +176,21 @@ class StepMachine:
         return self.phase is Phase.DONE
 
     def _send_tilt(self, reason: str) -> None:
+        """TILT to the step's target, or to level first while :attr:`_via_level`."""
         st = self.step
         assert st is not None
+        leg = replace(st, label="level", x_arcsec=0.0, y_arcsec=0.0) if self._via_level else st
         self.phase = Phase.WAIT_HOLD
-        self._target = (st.x_arcsec, st.y_arcsec)
+        self._target = (leg.x_arcsec, leg.y_arcsec)
         with self.command():
-            rx = self._send(st)
+            rx = self._send(leg)
         self._tilt_rx = rx
         self._cmd_idx, self._cmd_mono = None, self._clock()  # hold timeout counts from here
         self._journal(
             Event.TILT,
             step=st.index,
-            x=st.x_arcsec,
-            y=st.y_arcsec,
+            x=leg.x_arcsec,
+            y=leg.y_arcsec,
             reason=reason,
             t_s=self._t_last(),
         )
@@ -205,7 +225,11 @@ class StepMachine:
         if st is None:
             return
         if self.phase is Phase.WAIT_HOLD:
-            if p.state == "HOLD" and self._near_target(p.x, p.y):
+            if p.state == "HOLD" and self._near_target(p.x, p.y) and self._via_level:
+                self._via_level = False  # level reached: now the step's own target
+                self._hold_retry = False
+                self._send_tilt("step")
+            elif p.state == "HOLD" and self._near_target(p.x, p.y):
                 self.phase = Phase.HOLD_PENDING
             elif p.state == "FAULT":
                 self._on_fault(p, prev)
@@ -292,7 +316,7 @@ class StepMachine:
                 if self._hold_retry:
                     raise DeviceError(
                         "platform",
-                        f"TILT {st.x_arcsec:g} {st.y_arcsec:g}",
+                        f"TILT {self._target[0]:g} {self._target[1]:g}",
                         f"no HOLD at the target within {self.opts.hold_timeout_s:g} s of "
                         f"sample clock (state {self.status.state or '?'}, "
                         f"angles {self.status.angles})",
