@@ -139,9 +139,11 @@ def classical_of(
     from chekan import classical
 
     if isinstance(data, Record):
-        cres, _holds = classical.calibrate_record(
-            data, settle_s=opts.settle_s, a_fixed=opts.a_fixed
-        )
+        cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
+        if opts.method != "classical":  # the joint model does not describe X rounds yet
+            classical.check_single_axis(
+                holds, data.path or (str(input_path) if input_path else None)
+            )
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)

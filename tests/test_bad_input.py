@@ -284,8 +284,9 @@ def test_fuzz_numeric_options(command, option, value, fuzz_inputs, monkeypatch, 
 
 
 def test_a_record_tilted_about_x_is_refused_until_supported(tmp_path, capsys):
-    """Until rounds about both axes are supported end to end, calibrate says which programs
-    it supports instead of miscalibrating an X round (issue 33 §3)."""
+    """Until the joint model supports rounds about both axes, calibrate --method map says
+    which programs it supports instead of miscalibrating an X round (issue 33 §3); the
+    classical method fits X rounds and flags a result of X rounds alone (issue 30)."""
     prog = tmp_path / "x.toml"
     prog.write_text(
         'name = "x"\nangles = ["2°30\'", "4°10\'", "5°10\'"]\naxis = "x"\n'
@@ -295,9 +296,10 @@ def test_a_record_tilted_about_x_is_refused_until_supported(tmp_path, capsys):
     rec = tmp_path / "rx.csv"
     assert main(["simulate", "--out", str(rec), "--program", str(prog)]) == 0
     capsys.readouterr()
-    for method in ("classical", "map"):
-        status, err = run(["calibrate", str(rec), "-q", "--method", method], capsys)
-        assert status == 2 and "tilted about the platform X axis" in err, err
-        assert "tilts about the platform Y axis only" in err
+    status, err = run(["calibrate", str(rec), "-q", "--method", "map"], capsys)
+    assert status == 2 and "tilted about the platform X axis" in err, err
+    assert "tilts about the platform Y axis only" in err and len(err.strip().splitlines()) == 1
+    status, err = run(["calibrate", str(rec), "-q", "--method", "classical", "--strict"], capsys)
+    assert status == 3 and not err.strip(), err
     assert main(["design", str(prog)]) == 0
     assert "supports tilts about Y only" in capsys.readouterr().out

@@ -249,8 +249,9 @@ def run_design_command(args) -> int:
     prec = expected_precision(program, values)
     print(f"given program ({args.program or 'the paper’s default'}):")
     print(
-        "(programs with rounds about X, axis x or xy, are ranked for what they would give; "
-        "this version of chekan calibrate supports tilts about Y only)"
+        "(programs with rounds about X, axis x or xy, are ranked for what the joint model "
+        "would give; its version here (--method map, bayes) supports tilts about Y only; the "
+        "classical method certifies the rounds about Y and reports those about X beside them)"
     )
     if values.angle_bound_arcsec:
         print(
