@@ -217,6 +217,40 @@ def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) ->
     return out
 
 
+def tilt_program_entry(holds=None, table=None, name: str | None = None) -> dict:
+    """The tilt program as run, for the certificate: each round's number, axis and angle
+    magnitudes, and (from a record's holds) the median dwell and the settling time used.
+    From a record's ``holds`` (every round, both axes) or else a protocol's increment
+    ``table``."""
+    out: dict[str, Any] = {"name": name} if name else {}
+    if holds is not None:
+        labels = holds.angle_labels()
+        rounds = []
+        for r in holds.rounds:
+            idx = sorted({int(holds.angle_index[i]) for i in r.tilt_holds})
+            rounds.append({"round": r.number, "axis": r.axis, "angles": [labels[i] for i in idx]})
+        span = np.asarray(holds.t_end_s, dtype=float) - np.asarray(holds.t_start_s, dtype=float)
+        count = np.asarray(holds.stop) - np.asarray(holds.start)  # samples: span + one interval
+        dwell = span * count / np.maximum(count - 1, 1)
+        out.update(
+            source="record",
+            rounds=rounds,
+            angles=labels,
+            dwell_s=round(float(np.median(dwell)), 1),
+            settle_s=float(holds.settle_s),
+        )
+    elif table is not None:
+        out.update(
+            source="protocol",
+            rounds=[
+                {"round": int(r), "axis": a, "angles": list(table.angle_label)}
+                for r, a in zip(table.rounds, table.axes, strict=True)
+            ],
+            angles=list(table.angle_label),
+        )
+    return out
+
+
 #: The keys of a classical result that each axis's fit repeats in ``classical_by_axis``.
 AXIS_KEYS = (
     "parameters",
