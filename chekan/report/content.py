@@ -214,7 +214,7 @@ def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) ->
         rows.append((t("started"), str(meta["started"]), False))
     if meta.get("operator"):
         rows.append((t("operator"), str(meta["operator"]), False))
-    prog = _program_text(result, t)
+    prog = program_text(result, t)
     if prog:
         rows.append((t("program"), prog, False))
     method = result["method"]
@@ -257,7 +257,7 @@ def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) ->
     rep.add(Heading(t("sec_header")), KeyValue(rows))
 
 
-def _program_text(result: Mapping[str, Any], t: Translator) -> str | None:
+def program_text(result: Mapping[str, Any], t: Translator) -> str | None:
     """The tilt program as run: name, rounds and the axis of each, angles, dwell (settle)."""
     meta = result.get("metadata") or {}
     tp = result.get("tilt_program")
