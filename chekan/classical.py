@@ -394,18 +394,32 @@ def calibrate_record(record, settle_s: float | None = None, a_fixed: float | Non
         settle_s = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle_s)
     table = increments_from_holds(holds, record.g_local_mgal)
-    if holds.axis == "y":
-        return _fit_input(table, a_fixed, record.path), holds
+    try:
+        return fit_by_axis(table, a_fixed), holds
+    except ChekanError as e:
+        raise ChekanError(f"{record.path or '<input>'}: {e}") from None
+
+
+def fit_by_axis(
+    table: IncrementTable, a_fixed: float | None = None, *, preview: bool = False
+) -> ClassicalResult:
+    """:func:`fit_classical` of a table whose rounds may be about both axes: the rounds
+    about Y give the result (``a_fixed`` applies to them); the rounds about X are fitted
+    apart with their own ``a`` (``by_axis["x"]``; one that cannot be fitted is a note); X
+    rounds alone give their fit, flagged in ``problems``. A table about Y alone: exactly
+    :func:`fit_classical`."""
+    if all(a == "y" for a in table.axes):
+        return fit_classical(table, a_fixed=a_fixed, preview=preview)
     y_table, x_table = table.for_axis("y"), table.for_axis("x")
     assert x_table is not None
     if y_table is None:
-        res = _fit_input(x_table, None, record.path)
+        res = fit_classical(x_table, preview=preview)
         res.problems.append(X_ONLY_PROBLEM)
-        return res, holds
-    res = _fit_input(y_table, a_fixed, record.path)
+        return res
+    res = fit_classical(y_table, a_fixed=a_fixed, preview=preview)
     x_rounds = ", ".join(map(str, x_table.rounds))
     try:
-        res.by_axis = {"y": res, "x": fit_classical(x_table)}
+        res.by_axis = {"y": res, "x": fit_classical(x_table, preview=preview)}
     except ChekanError as e:
         res.by_axis = {"y": res}
         res.notes.append(f"rounds about X ({x_rounds}) not fitted: {e}")
@@ -413,7 +427,7 @@ def calibrate_record(record, settle_s: float | None = None, a_fixed: float | Non
         f"rounds about X ({x_rounds}) are fitted apart, with their own a, and reported beside "
         "the result; the classical b and a are those of the rounds about Y (eq. 14)"
     )
-    return res, holds
+    return res
 
 
 #: Why the classical fit of rounds about X alone is flagged.

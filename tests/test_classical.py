@@ -5,7 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from chekan.classical import calibrate_protocol, calibrate_record
+from chekan.classical import (
+    calibrate_protocol,
+    calibrate_record,
+    fit_by_axis,
+    increments_from_holds,
+)
 from chekan.cli import main
 from chekan.protocol import read_protocol
 from chekan.result import read_result
@@ -206,6 +211,10 @@ def test_rounds_about_x_are_processed_per_axis_with_analytic_truth():
     assert holds.axis == "xy" and [r.axis for r in holds.rounds] == ["y", "x", "y", "x"]
     assert res.axis == "y" and set(res.by_axis) == {"y", "x"} and res.by_axis["y"] is res
     assert res.table.rounds == (1, 3) and res.by_axis["x"].table.rounds == (2, 4)
+    # the live page's preview goes the same way (fit_by_axis of the whole table)
+    whole = increments_from_holds(holds, G_MGAL)
+    assert whole.axes == ("y", "x", "y", "x")
+    np.testing.assert_array_equal(fit_by_axis(whole, preview=True).b, res.b)
     np.testing.assert_allclose(res.b_mean, B_TRUE, rtol=1e-4)  # truncation: ≈ 2e-5
     a_true = float(np.mean(fm.quadratic_coefficient(params, params.m_level_pix)))
     assert res.a == pytest.approx(a_true, rel=0.02)
