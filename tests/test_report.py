@@ -603,3 +603,11 @@ def test_certificate_of_a_record_with_rounds_about_both_axes(tmp_path, lang):
     for r in x["rounds"] + res["rounds"]:
         assert f6(r["b1"]["mean"]) in text and f6(r["b2"]["mean"]) in text
     assert len(re.findall(r'\bsrc="data:image/png;base64,', html)) == 3
+    # a hand-edited per-axis part that cannot be right is an error naming it, not a traceback
+    bad = json.loads(path.read_text(encoding="utf-8"))
+    del bad["classical_by_axis"]["x"]["residuals_mgal"]["dg_mgal"]["r2_s1"]
+    with pytest.raises(FormatError, match=r"classical_by_axis\.x\.residuals_mgal\.dg_mgal has no"):
+        build_report(bad, figures=False)
+    bad["classical_by_axis"] = {"z": {}}
+    with pytest.raises(FormatError, match=r"classical_by_axis\.z: the axis must be"):
+        build_report(bad, figures=False)

@@ -63,32 +63,45 @@ def _need_dict(obj: Any, where: str, src: str) -> dict:
     return obj
 
 
-def check_certificate_input(result: Mapping[str, Any], src: str) -> None:
-    """Check the optional parts the certificate reads; raise :class:`FormatError` naming them."""
-    for name, e in result["parameters"].items():
-        if not is_num(e.get("mean")):
-            raise _fail(src, f"parameters.{name}.mean is not a number")
-    rs = result.get("residuals_mgal")
+def _check_classical_part(part: Mapping[str, Any], at: str, src: str) -> None:
+    """The parameters, residual tables and rounds of a result (or of one axis's fit in
+    ``classical_by_axis``, ``at`` its prefix)."""
+    for name, e in _need_dict(part.get("parameters", {}), f"{at}parameters", src).items():
+        if not isinstance(e, dict) or not is_num(e.get("mean")):
+            raise _fail(src, f"{at}parameters.{name}.mean is not a number")
+    rs = part.get("residuals_mgal")
     if rs is not None:
-        _need_dict(rs, "residuals_mgal", src)
+        _need_dict(rs, f"{at}residuals_mgal", src)
         for k in ("angle_label", "columns", "da_ref_mgal", "dg_mgal", "delta_g_mgal"):
             if k not in rs:
-                raise _fail(src, f"residuals_mgal.{k} is missing")
-        n = len(_need_list(rs["angle_label"], "residuals_mgal.angle_label", src))
-        _need_list(rs["da_ref_mgal"], "residuals_mgal.da_ref_mgal", src, n)
+                raise _fail(src, f"{at}residuals_mgal.{k} is missing")
+        n = len(_need_list(rs["angle_label"], f"{at}residuals_mgal.angle_label", src))
+        _need_list(rs["da_ref_mgal"], f"{at}residuals_mgal.da_ref_mgal", src, n)
         if "mean_delta_g_mgal" in rs:
-            _need_list(rs["mean_delta_g_mgal"], "residuals_mgal.mean_delta_g_mgal", src, n)
-        for c in _need_list(rs["columns"], "residuals_mgal.columns", src):
+            _need_list(rs["mean_delta_g_mgal"], f"{at}residuals_mgal.mean_delta_g_mgal", src, n)
+        for c in _need_list(rs["columns"], f"{at}residuals_mgal.columns", src):
             for k in ("dg_mgal", "delta_g_mgal"):
-                d = _need_dict(rs[k], f"residuals_mgal.{k}", src)
+                d = _need_dict(rs[k], f"{at}residuals_mgal.{k}", src)
                 if c not in d:
-                    raise _fail(src, f"residuals_mgal.{k} has no column {c!r}")
-                _need_list(d[c], f"residuals_mgal.{k}.{c}", src, n)
-    for i, r in enumerate(_need_list(result.get("rounds", []), "rounds", src)):
-        _need_dict(r, f"rounds[{i}]", src)
+                    raise _fail(src, f"{at}residuals_mgal.{k} has no column {c!r}")
+                _need_list(d[c], f"{at}residuals_mgal.{k}.{c}", src, n)
+    for i, r in enumerate(_need_list(part.get("rounds", []), f"{at}rounds", src)):
+        _need_dict(r, f"{at}rounds[{i}]", src)
         for s in ("b1", "b2"):
             if not isinstance(r.get(s), dict) or "mean" not in r[s]:
-                raise _fail(src, f"rounds[{i}].{s}.mean is missing")
+                raise _fail(src, f"{at}rounds[{i}].{s}.mean is missing")
+
+
+def check_certificate_input(result: Mapping[str, Any], src: str) -> None:
+    """Check the optional parts the certificate reads; raise :class:`FormatError` naming them."""
+    _check_classical_part(result, "", src)
+    by_axis = result.get("classical_by_axis")
+    if by_axis is not None:
+        for axis, entry in _need_dict(by_axis, "classical_by_axis", src).items():
+            where = f"classical_by_axis.{axis}"
+            if axis not in ("x", "y"):
+                raise _fail(src, f"{where}: the axis must be 'x' or 'y'")
+            _check_classical_part(_need_dict(entry, where, src), where + ".", src)
     bud = result.get("uncertainty_budget")
     if bud is not None:
         for s, comp in _need_dict(bud, "uncertainty_budget", src).items():
