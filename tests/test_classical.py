@@ -287,3 +287,25 @@ def test_x_rounds_alone_give_a_flagged_result_and_the_joint_model_refuses(tmp_pa
     assert main(["calibrate", str(path), "--method", "map", "--settle-s", "100"]) == 2
     err = capsys.readouterr().err
     assert "tilted about the platform X axis" in err and "--method classical" in err
+
+
+def test_each_axis_table_holds_only_its_own_angles():
+    """X rounds at other angles than the Y rounds (another recorder's program): each axis's
+    table has its own angles, no empty row or column."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from chekan.program import build_program
+
+    y = build_program([2.0, 4.0], axis="y", dwell_s=200, settle_s=100, rounds=2)
+    x = build_program([3.0, 5.0], axis="x", dwell_s=200, settle_s=100, rounds=1)
+    steps = list(y.steps) + [
+        dataclasses.replace(s, index=s.index + y.n_steps, round=s.round + 2) for s in x.steps
+    ]
+    rec, _ = _forward_record(SimpleNamespace(steps=steps, settle_s=100.0))
+    res, holds = calibrate_record(rec, settle_s=100)
+    assert holds.angle_deg.size == 4 and res.axis == "y"
+    for fit, labels in ((res, ["±2°00'", "±4°00'"]), (res.by_axis["x"], ["±3°00'", "±5°00'"])):
+        assert fit.table.angle_label == labels
+        assert np.isfinite(fit.table.x_pix).all() and np.isfinite(fit.delta_g_mgal).all()
+    assert res.by_axis["x"].table.rounds == (3,) and res.discrepancy_percent is not None
