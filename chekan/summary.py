@@ -92,8 +92,10 @@ def format_summary(res: dict) -> str:
         lines.extend(_classical_tables(res, method, res_level=True))
     lines.append("")
     if "mean_b_mgal_per_pix" in res:
+        which = "rounds about Y" if by_axis else "rounds"
         lines.append(
-            f"mean b over systems and rounds («Среднее»): {res['mean_b_mgal_per_pix']:.6f} mGal/pix"
+            f"mean b over systems and {which} («Среднее»): "
+            f"{res['mean_b_mgal_per_pix']:.6f} mGal/pix"
         )
     if "reduced_error_percent" in res:
         lines.append(f"reduced error of the characteristic: {res['reduced_error_percent']:.3f} %")
