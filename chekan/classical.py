@@ -19,6 +19,17 @@ depends only on the optics, eq. 10). Reported as in the paper's protocol:
 - the instability: deviation of b from the prior b;
 - b₀ = b + 2a(m₀ − m_h) (eq. 24); the range margin to the CCD ends in both directions;
 - ε from the asymmetry of ± tilts (eq. 17): ε_θ = −(m₊ − m₋)/(m₊ + m₋ − 2m_h)·|θ|/2.
+
+Rounds about the platform X axis are processed as Calibr.exe processes any round (the ±
+pair of eq. 25 cancels the terms linear in θ; eqs. 21–24) and fitted apart from the Y
+rounds, with their own ``a``: a tilt about X turns the pendulums in their own plane, so
+the effective stiffness of eq. (6) changes by g·θ and the pair mean is
+Δg ≈ g(1 − cos θ)·(1 + (gθ/λ)²) — in the ideal geometry, with m_h at the CCD centre, a
+quadratic term ≈ 5a instead of a (λ = bK, a = g/2K²), and more terms where m_h is off
+centre. Eq. (14) is the response to tilts about Y only: the classical certificate uses the
+Y rounds; the X rounds' fit is reported beside it (:attr:`ClassicalResult.by_axis`), and
+a record of X rounds alone gives a flagged result (``problems``). Eq. (17) holds for Y
+rounds only, so ε comes from them alone.
 """
 
 from __future__ import annotations
@@ -63,6 +74,43 @@ class IncrementTable:
     a_fixed: float | None = None  # record convention
     b_printed: np.ndarray | None = None  # (R, 2), protocols only
     notes: list[str] = field(default_factory=list)
+    round_axes: tuple[str, ...] = ()  # "y"/"x" per round; empty: all about Y
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The axis of every round ("y" throughout when not recorded)."""
+        return self.round_axes or ("y",) * len(self.rounds)
+
+    def for_axis(self, axis: str) -> IncrementTable | None:
+        """The rounds about ``axis`` alone, with the angles that have an increment in them;
+        None when no round is about ``axis``."""
+        keep = [i for i, a in enumerate(self.axes) if a == axis]
+        if not keep:
+            return None
+        sub = self.x_pix[keep]
+        cols = np.flatnonzero(np.isfinite(sub).any(axis=(0, 1)))
+
+        def pick(arr):  # (R, …, n) → the kept rounds and angles
+            return None if arr is None else arr[keep][..., cols]
+
+        kept = [f"round {self.rounds[i]}," for i in keep]
+        return IncrementTable(
+            source=self.source,
+            g_local_mgal=self.g_local_mgal,
+            angle_deg=self.angle_deg[cols],
+            angle_label=[self.angle_label[i] for i in cols],
+            rounds=tuple(self.rounds[i] for i in keep),
+            da_ref_mgal=pick(self.da_ref_mgal),
+            x_pix=pick(self.x_pix),
+            x_plus_pix=pick(self.x_plus_pix),
+            x_minus_pix=pick(self.x_minus_pix),
+            theta_pair_rad=pick(self.theta_pair_rad),
+            m_level_pix=None if self.m_level_pix is None else self.m_level_pix[keep],
+            a_fixed=self.a_fixed,
+            b_printed=None if self.b_printed is None else self.b_printed[keep],
+            notes=[n for n in self.notes if n.startswith(tuple(kept))],
+            round_axes=(axis,) * len(keep),
+        )
 
 
 def increments_from_holds(table: HoldTable, g_local_mgal: float) -> IncrementTable:
@@ -121,6 +169,7 @@ def increments_from_holds(table: HoldTable, g_local_mgal: float) -> IncrementTab
         theta_pair_rad=th,
         m_level_pix=mh_round,
         notes=notes,
+        round_axes=tuple(r.axis for r in table.rounds),
     )
 
 
@@ -181,6 +230,11 @@ class ClassicalResult:
     eps_arcmin: np.ndarray | None  # (2,) eq. (17) mean over angles and rounds
     eps_sd_arcmin: np.ndarray | None
     notes: list[str] = field(default_factory=list)
+    axis: str = "y"  # the axis of the rounds fitted: "y", "x" (or "xy": a mixed table)
+    by_axis: dict[str, ClassicalResult] = field(default_factory=dict)
+    """For a record with rounds about both axes: the fit of each axis's rounds ("y" is this
+    result itself, the certificate's; "x" is reported beside it)."""
+    problems: list[str] = field(default_factory=list)  # what makes the result doubtful
 
     @property
     def column_names(self) -> list[str]:
@@ -290,7 +344,8 @@ def fit_classical(
     if R >= 2:
         disc = float(np.mean((np.nanmax(b, axis=0) - np.nanmin(b, axis=0)) / b_mean) * 100.0)
     eps = eps_sd = None
-    if table.x_plus_pix is not None and table.theta_pair_rad is not None:
+    about_y = all(a == "y" for a in table.axes)  # eq. (17) is the asymmetry of tilts about Y
+    if table.x_plus_pix is not None and table.theta_pair_rad is not None and about_y:
         with np.errstate(invalid="ignore", divide="ignore"):
             e = -(table.x_plus_pix - table.x_minus_pix) / (table.x_plus_pix + table.x_minus_pix)
             e = e * table.theta_pair_rad[:, None, :] / 2.0 * ARCMIN_PER_RAD  # eq. (17)
@@ -317,36 +372,70 @@ def fit_classical(
         eps_arcmin=eps,
         eps_sd_arcmin=eps_sd,
         notes=list(table.notes),
+        axis=_axes_word(table.axes),
     )
 
 
+def _axes_word(axes) -> str:
+    """ "y", "x", or "xy" for rounds about both axes."""
+    present = set(axes) or {"y"}
+    return "xy" if len(present) > 1 else present.pop()
+
+
 def calibrate_record(record, settle_s: float | None = None, a_fixed: float | None = None):
-    """Classical calibration of a record: ``(ClassicalResult, HoldTable)``."""
+    """Classical calibration of a record: ``(ClassicalResult, HoldTable)``.
+
+    Rounds about Y give the result (``a_fixed`` applies to them). A record that also holds
+    rounds about X fits those apart, with their own ``a`` (:attr:`ClassicalResult.by_axis`;
+    one that cannot be fitted is a note, not an error); a record of X rounds alone gives
+    their fit, flagged in ``problems`` (eq. 14 is not the response to tilts about X).
+    """
     if settle_s is None:
         settle_s = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle_s)
-    # rounds about X: processed per axis (issue 30)
     table = increments_from_holds(holds, record.g_local_mgal)
-    return _fit_input(table, a_fixed, record.path), holds
+    try:
+        return fit_by_axis(table, a_fixed), holds
+    except ChekanError as e:
+        raise ChekanError(f"{record.path or '<input>'}: {e}") from None
 
 
-#: What the calibration supports today: tilts about the platform Y axis (the paper's).
-SUPPORTED_PROGRAMS = 'tilts about the platform Y axis only (program axis = "y")'
+def fit_by_axis(
+    table: IncrementTable, a_fixed: float | None = None, *, preview: bool = False
+) -> ClassicalResult:
+    """:func:`fit_classical` of a table whose rounds may be about both axes: the rounds
+    about Y give the result (``a_fixed`` applies to them); the rounds about X are fitted
+    apart with their own ``a`` (``by_axis["x"]``; one that cannot be fitted is a note); X
+    rounds alone give their fit, flagged in ``problems``. A table about Y alone: exactly
+    :func:`fit_classical`."""
+    if all(a == "y" for a in table.axes):
+        return fit_classical(table, a_fixed=a_fixed, preview=preview)
+    y_table, x_table = table.for_axis("y"), table.for_axis("x")
+    assert x_table is not None
+    if y_table is None:
+        res = fit_classical(x_table, preview=preview)
+        res.problems.append(X_ONLY_PROBLEM)
+        return res
+    res = fit_classical(y_table, a_fixed=a_fixed, preview=preview)
+    x_rounds = ", ".join(map(str, x_table.rounds))
+    try:
+        res.by_axis = {"y": res, "x": fit_classical(x_table, preview=preview)}
+    except ChekanError as e:
+        res.by_axis = {"y": res}
+        res.notes.append(f"rounds about X ({x_rounds}) not fitted: {e}")
+    res.notes.append(
+        f"rounds about X ({x_rounds}) are fitted apart, with their own a, and reported beside "
+        "the result; the classical b and a are those of the rounds about Y (eq. 14)"
+    )
+    return res
 
 
-def check_single_axis(holds: HoldTable, path: str | None) -> None:
-    """Refuse a record with tilts about the platform X axis: a tilt about X turns the
-    pendulums in their own plane and is not described by g(1 − cos θ) (eqs. 11–13), so
-    neither the classical method nor the joint model of this version can use it."""
-    tilts = ~holds.is_level
-    about_x = tilts & (np.abs(holds.tilt_x_rad) > np.abs(holds.tilt_y_rad))
-    if about_x.any():
-        rounds = sorted({int(r) for r in holds.round[about_x]})
-        raise ChekanError(
-            f"{path or '<record>'}: {int(about_x.sum())} hold(s) tilted about the platform X "
-            f"axis (round(s) {', '.join(map(str, rounds))}): this version calibrates "
-            f"{SUPPORTED_PROGRAMS}; rounds about X are not supported yet"
-        )
+#: Why the classical fit of rounds about X alone is flagged.
+X_ONLY_PROBLEM = (
+    "every round is about the platform X axis: the classical Δg = g(1 − cos θ) (eq. 14) is "
+    "the response to tilts about Y; about X the pendulums turn in their own plane (eq. 6), "
+    "so b is biased and a is not the characteristic's a (about 5a)"
+)
 
 
 def calibrate_protocol(protocol, a_fixed: float | None = None) -> ClassicalResult:

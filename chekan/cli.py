@@ -131,9 +131,11 @@ def _cmd_program(args) -> int:
 
     p = load_program(args.file) if args.file else default_program()
     print(p.describe())
+    print("rounds: " + ", ".join(f"{r} about {a.upper()}" for r, a in enumerate(p.round_axes, 1)))
     for s in p.steps:
+        about = f"about {s.axis.upper()}" if s.kind == "tilt" else ""
         print(
-            f"{s.index:3d}  round {s.round}  {s.label():>9}  "
+            f"{s.index:3d}  round {s.round}  {s.label():>9} {about:<7}  "
             f"dwell {s.dwell_s:g} s (settle {s.settle_s:g} s)"
         )
     return 0

@@ -16,7 +16,7 @@ from chekan.inputs import read_input
 from chekan.options import METHODS, CalibrationOptions
 from chekan.protocol import Protocol
 from chekan.records import Record
-from chekan.result import base_result, classical_result
+from chekan.result import base_result, classical_result, tilt_program_entry
 
 #: ``result["record"]`` of a calibration of data that came from no file.
 IN_MEMORY = "<memory>"
@@ -139,12 +139,15 @@ def classical_of(
     from chekan import classical
 
     if isinstance(data, Record):
-        cres, _holds = classical.calibrate_record(
-            data, settle_s=opts.settle_s, a_fixed=opts.a_fixed
-        )
+        cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
+    name = data.meta.get("program") or None
+    if isinstance(data, Record):
+        result["tilt_program"] = tilt_program_entry(holds=holds, name=name)
+    else:
+        result["tilt_program"] = tilt_program_entry(table=cres.table, name=name)
     if isinstance(data, Record) and data.angle_calibration is not None:
         result["angle_calibration"] = data.angle_calibration.entry()
     if isinstance(data, Record) and data.temp_c is not None and np.isfinite(data.temp_c).any():

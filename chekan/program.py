@@ -12,6 +12,9 @@ A program file is TOML::
     angles = ["1°50'", "2°30'", "3°10'"]   # magnitudes, DMS text or decimal degrees
     axis = "y"            # platform axis of the tilt: "y" (calibration), "x", or "xy"
                           # ("xy": rounds alternate, odd rounds about Y, even about X)
+    # round_axes = ["y", "x", "x", "y"]  # instead of axis: the axis of each round, one per
+                          # round (as many as ``rounds``, which it sets when absent);
+                          # a file gives axis or round_axes, not both
     order = "+-"          # per angle: "+-", "-+", or "alternate" (+- in odd rounds, -+ in even)
     sequence = "ascending" # "ascending", "descending", "as-given", "zigzag" (asc, then desc)
     dwell_s = 900
@@ -82,6 +85,10 @@ class TiltProgram:
     settle_s: float
     rounds: int
     steps: tuple[Step, ...] = field(repr=False)
+    round_axes: tuple[str, ...] = ()
+    """The axis ("y" or "x") of each round; ``axis`` summarises them ("xy": both axes)."""
+    axes_given: bool = False  # True: the program was given per round (``round_axes``)
+    angles_deg: tuple[float, ...] = ()  # the magnitudes as given, degrees (a file writes these)
 
     @property
     def duration_s(self) -> float:
@@ -93,11 +100,19 @@ class TiltProgram:
 
     def describe(self) -> str:
         angs = ", ".join(format_dms(np.rad2deg(a), sign="pm") for a in self.angles_rad)
+        about = self.axes_text()
         return (
             f"{self.name}: {self.rounds} round(s) × {len(self.angles_rad)} angles ({angs}) about "
-            f"{_axis_text(self.axis)}, order {self.order}, dwell {self.dwell_s:g} s "
+            f"{about}, order {self.order}, dwell {self.dwell_s:g} s "
             f"(settle {self.settle_s:g} s), {self.n_steps} steps, {self.duration_s / 3600:.2f} h"
         )
+
+    def axes_text(self) -> str:
+        """The axes of the rounds in words: "Y", "X", "Y and X (alternate rounds)", or the
+        axis of each round ("Y, X, X, Y") for a program given per round."""
+        if self.axes_given and len(set(self.round_axes)) > 1:
+            return "rounds " + ", ".join(a.upper() for a in self.round_axes)
+        return _axis_text(self.axis)
 
 
 def round_axis(axis: str, rnd: int) -> str:
@@ -121,10 +136,18 @@ def build_program(
     sequence: str = "ascending",
     dwell_s: float = 900.0,
     settle_s: float = 300.0,
-    rounds: int = 2,
+    rounds: int | None = None,
+    round_axes=None,
     source: str = "<program>",
 ) -> TiltProgram:
-    """Build and validate a program; errors name ``source`` and the offending value."""
+    """Build and validate a program; errors name ``source`` and the offending value.
+
+    ``round_axes``: the axis ("y"/"x") of each round, one per round, instead of ``axis``
+    (``axis`` then summarises them: "y", "x", or "xy" for both). ``rounds`` defaults to
+    one per entry of ``round_axes``, else 2."""
+    if rounds is None:
+        given = isinstance(round_axes, list | tuple) and len(round_axes) > 0
+        rounds = len(round_axes) if given else 2
     angles = [float(a) for a in angles_deg]
     if not angles:
         raise ProgramError(f"{source}: empty program (no angles)")
@@ -154,6 +177,11 @@ def build_program(
         )
     if int(rounds) != rounds or rounds < 1:
         raise ProgramError(f"{source}: rounds must be a positive integer, not {rounds!r}")
+    if round_axes is None:
+        per_round = tuple(round_axis(axis, r) for r in range(1, int(rounds) + 1))
+    else:
+        per_round = _checked_round_axes(round_axes, int(rounds), source)
+        axis = per_round[0] if len(set(per_round)) == 1 else "xy"
 
     idx = list(range(len(angles)))
     if sequence == "ascending":
@@ -164,7 +192,7 @@ def build_program(
 
     def add(rnd: int, kind: str, ai: int, sign: int) -> None:
         th = sign * np.deg2rad(angles[ai]) if kind == "tilt" else 0.0
-        ax = round_axis(axis, rnd)
+        ax = per_round[rnd - 1]
         tx, ty = (0.0, th) if ax == "y" else (th, 0.0)
         steps.append(
             Step(len(steps), rnd, kind, ai, sign, tx, ty, float(dwell_s), float(settle_s), ax)
@@ -192,7 +220,27 @@ def build_program(
         settle_s=float(settle_s),
         rounds=int(rounds),
         steps=tuple(steps),
+        round_axes=per_round,
+        axes_given=round_axes is not None,
+        angles_deg=tuple(angles),
     )
+
+
+def _checked_round_axes(round_axes, rounds: int, source: str) -> tuple[str, ...]:
+    """``round_axes`` as a tuple of "y"/"x", one per round; anything else is an error."""
+    if isinstance(round_axes, str) or not isinstance(round_axes, list | tuple):
+        raise ProgramError(
+            f'{source}: round_axes must be a list of "y"/"x", one per round, not {round_axes!r}'
+        )
+    for i, a in enumerate(round_axes):
+        if a not in ("y", "x"):
+            raise ProgramError(f"{source}: round_axes[{i}] must be 'y' or 'x', not {a!r}")
+    if len(round_axes) != rounds:
+        raise ProgramError(
+            f"{source}: round_axes has {len(round_axes)} entries for {rounds} round(s): "
+            "give one axis per round"
+        )
+    return tuple(round_axes)
 
 
 def default_program(**overrides) -> TiltProgram:
@@ -202,7 +250,17 @@ def default_program(**overrides) -> TiltProgram:
     return build_program([parse_angle_deg(a) for a in PAPER_ANGLES], **kw)
 
 
-_KEYS = {"name", "angles", "axis", "order", "sequence", "dwell_s", "settle_s", "rounds"}
+_KEYS = {
+    "name",
+    "angles",
+    "axis",
+    "round_axes",
+    "order",
+    "sequence",
+    "dwell_s",
+    "settle_s",
+    "rounds",
+}
 
 
 def load_program(path: str | Path) -> TiltProgram:
@@ -225,7 +283,11 @@ def load_program(path: str | Path) -> TiltProgram:
             angles.append(abs(parse_angle_deg(str(a))))
         except ValueError as e:
             raise ProgramError(f"{path}: angles[{i}]: {e}") from None
-    kw = {k: data[k] for k in ("axis", "order", "sequence", "rounds") if k in data}
+    if "axis" in data and "round_axes" in data:
+        raise ProgramError(
+            f"{path}: give either axis or round_axes (the axis of each round), not both"
+        )
+    kw = {k: data[k] for k in ("axis", "round_axes", "order", "sequence", "rounds") if k in data}
     for k in ("dwell_s", "settle_s"):
         if k in data:
             if not isinstance(data[k], int | float) or isinstance(data[k], bool):

@@ -158,9 +158,11 @@ def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) ->
     if t.m_level_pix is not None:
         mh = np.nanmean(t.m_level_pix, axis=0)
         out["level_reading_pix"] = {"m1": float(mh[0]), "m2": float(mh[1])}
+    axes = t.axes
     out["rounds"] = [
         {
             "round": int(r),
+            "axis": axes[i],
             "b1": {"mean": cres.b[i, 0], "sd": cres.b_sd[i, 0]},
             "b2": {"mean": cres.b[i, 1], "sd": cres.b_sd[i, 1]},
             **(
@@ -204,7 +206,78 @@ def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) ->
         "sigma_mgal": cres.sigma_mgal,
         "notes": list(cres.notes),
     }
+    if cres.problems:
+        out["diagnostics"]["problems"] = list(cres.problems)
+    out["classical_axis"] = cres.axis
+    if cres.by_axis:
+        out["classical_by_axis"] = {
+            axis: _axis_entry(fit, cres, header, b_prior, ccd_range_pix)
+            for axis, fit in cres.by_axis.items()
+        }
     return out
+
+
+def tilt_program_entry(holds=None, table=None, name: str | None = None) -> dict:
+    """The tilt program as run, for the certificate: each round's number, axis and angle
+    magnitudes, and (from a record's holds) the median dwell and the settling time used.
+    From a record's ``holds`` (every round, both axes) or else a protocol's increment
+    ``table``."""
+    out: dict[str, Any] = {"name": name} if name else {}
+    if holds is not None:
+        labels = holds.angle_labels()
+        rounds = []
+        for r in holds.rounds:
+            idx = sorted({int(holds.angle_index[i]) for i in r.tilt_holds})
+            rounds.append({"round": r.number, "axis": r.axis, "angles": [labels[i] for i in idx]})
+        span = np.asarray(holds.t_end_s, dtype=float) - np.asarray(holds.t_start_s, dtype=float)
+        count = np.asarray(holds.stop) - np.asarray(holds.start)  # samples: span + one interval
+        dwell = span * count / np.maximum(count - 1, 1)
+        out.update(
+            source="record",
+            rounds=rounds,
+            angles=labels,
+            dwell_s=round(float(np.median(dwell)), 1),
+            settle_s=float(holds.settle_s),
+        )
+    elif table is not None:
+        out.update(
+            source="protocol",
+            rounds=[
+                {"round": int(r), "axis": a, "angles": list(table.angle_label)}
+                for r, a in zip(table.rounds, table.axes, strict=True)
+            ],
+            angles=list(table.angle_label),
+        )
+    return out
+
+
+#: The keys of a classical result that each axis's fit repeats in ``classical_by_axis``.
+AXIS_KEYS = (
+    "parameters",
+    "fixed",
+    "level_reading_pix",
+    "rounds",
+    "mean_b_mgal_per_pix",
+    "residuals_mgal",
+    "reduced_error_percent",
+    "discrepancy_between_rounds_percent",
+)
+
+
+def _axis_entry(fit, cert, header: dict, b_prior, ccd_range_pix) -> dict:
+    """The classical result of one axis's rounds, and whether the certificate uses it."""
+    import dataclasses
+
+    full = classical_result(
+        dataclasses.replace(fit, by_axis={}),
+        header=header,
+        b_prior=b_prior,
+        ccd_range_pix=ccd_range_pix,
+    )
+    entry = {k: full[k] for k in AXIS_KEYS if k in full}
+    entry["sigma_mgal"] = fit.sigma_mgal
+    entry["used_by_certificate"] = fit is cert
+    return entry
 
 
 def write_result(path: str | Path, result: dict) -> Path:

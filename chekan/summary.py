@@ -43,7 +43,10 @@ def format_summary(res: dict) -> str:
         lines.append(f"level readings m_h: m1 = {lv['m1']:.3f} pix, m2 = {lv['m2']:.3f} pix")
     lines.append("")
     method = res.get("method", "classical")
-    lines.append(f"estimates — {ESTIMATES.get(method, method)}:")
+    scope = ESTIMATES.get(method, method)
+    if res.get("classical_by_axis") and method == "classical":
+        scope = scope.replace("all rounds", "the rounds about Y")
+    lines.append(f"estimates — {scope}:")
     p = res["parameters"]
     hp = round(res["hdi_prob"] * 100)
     head = f"{'parameter':<15}{'mean':>14}{'sd':>12}{f'{hp}% low':>14}{f'{hp}% high':>14}"
@@ -69,46 +72,30 @@ def format_summary(res: dict) -> str:
             "(a in the record's convention, Δg = b(m − m_h) + a(m − m_h)² with readings growing "
             "with gravity; a legacy protocol prints it with the opposite sign)"
         )
-    rs = res.get("residuals_mgal")
-    if rs and "columns" in rs:
-        cols = rs["columns"]
+    by_axis = res.get("classical_by_axis")
+    if by_axis:
         lines.append("")
-        if method != "classical":
-            lines.append(
-                "classical method (Calibr.exe), shown beside the joint estimate (the tables "
-                "below, to the mean b and the range margin)"
-            )
-        lines.append("increments dg and deviations δg = da_ref − dg, mGal")
         lines.append(
-            f"{'angle':<9}{'da_ref':>9}"
-            + "".join(f"{'dg ' + c:>12}" for c in cols)
-            + "".join(f"{'δg ' + c:>11}" for c in cols)
-            + f"{'mean δg':>9}"
+            "classical method per axis: rounds about Y and about X fitted apart, each with "
+            "its own a; the classical b and a above are those of the rounds about Y (eq. 14: "
+            "the response to tilts about Y)"
         )
-        for i, lab in enumerate(rs["angle_label"]):
-            row = f"{lab:<9}{_f(rs['da_ref_mgal'][i], '.2f'):>9}"
-            row += "".join(f"{_f(rs['dg_mgal'][c][i], '.2f'):>12}" for c in cols)
-            row += "".join(f"{_f(rs['delta_g_mgal'][c][i], '.2f'):>11}" for c in cols)
-            row += f"{_f(rs['mean_delta_g_mgal'][i], '.2f'):>9}"
-            lines.append(row)
-        lines.append(
-            f"{'СКП/RMS':<18}"
-            + " " * (12 * len(cols))
-            + "".join(f"{_f(rs['rms_mgal'][c], '.2f'):>11}" for c in cols)
-        )
-    if res.get("rounds"):
-        lines.append("")
-        lines.append("scale factors per round (classical, eq. 21):")
-        for r in res["rounds"]:
-            b1, b2 = r["b1"], r["b2"]
-            lines.append(
-                f"round {r['round']}: b1 = {_f(b1['mean'], '.6f')} ± {_f(b1.get('sd'), '.1e')}, "
-                f"b2 = {_f(b2['mean'], '.6f')} ± {_f(b2.get('sd'), '.1e')} mGal/pix"
-            )
+        for axis, entry in by_axis.items():
+            lines.append("")
+            use = "the certificate's" if entry.get("used_by_certificate") else "not certified"
+            rounds = ", ".join(str(r["round"]) for r in entry.get("rounds", []))
+            lines.append(f"rounds about {axis.upper()} (round(s) {rounds}; {use}):")
+            if not entry.get("used_by_certificate"):
+                lines.extend(_axis_parameters(entry))
+            lines.extend(_classical_tables(entry, method, res_level=False))
+    else:
+        lines.extend(_classical_tables(res, method, res_level=True))
     lines.append("")
     if "mean_b_mgal_per_pix" in res:
+        which = "rounds about Y" if by_axis else "rounds"
         lines.append(
-            f"mean b over systems and rounds («Среднее»): {res['mean_b_mgal_per_pix']:.6f} mGal/pix"
+            f"mean b over systems and {which} («Среднее»): "
+            f"{res['mean_b_mgal_per_pix']:.6f} mGal/pix"
         )
     if "reduced_error_percent" in res:
         lines.append(f"reduced error of the characteristic: {res['reduced_error_percent']:.3f} %")
@@ -140,3 +127,68 @@ def format_summary(res: dict) -> str:
         for msg in d.get("notes", []):
             lines.append(f"note: {msg}")
     return "\n".join(lines)
+
+
+def _axis_parameters(entry: dict) -> list[str]:
+    """b₁, b₂ and a of one axis's fit, one line."""
+    p = entry.get("parameters", {})
+    parts = [
+        f"{n} = {_f(p[n]['mean'], _param_fmt(n))} ± {_f(p[n].get('sd'), '.1e')}"
+        for n in ("b1", "b2", "a")
+        if n in p
+    ]
+    return ["  " + ", ".join(parts)] if parts else []
+
+
+def _classical_tables(res: dict, method: str, *, res_level: bool) -> list[str]:
+    """The classical increments, deviations and СКП table, and b per round."""
+    lines: list[str] = []
+    rs = res.get("residuals_mgal")
+    if rs and "columns" in rs:
+        cols = rs["columns"]
+        lines.append("")
+        if method != "classical" and res_level:
+            lines.append(
+                "classical method (Calibr.exe), shown beside the joint estimate (the tables "
+                "below, to the mean b and the range margin)"
+            )
+        lines.append("increments dg and deviations δg = da_ref − dg, mGal")
+        lines.append(
+            f"{'angle':<9}{'da_ref':>9}"
+            + "".join(f"{'dg ' + c:>12}" for c in cols)
+            + "".join(f"{'δg ' + c:>11}" for c in cols)
+            + f"{'mean δg':>9}"
+        )
+        for i, lab in enumerate(rs["angle_label"]):
+            row = f"{lab:<9}{_f(rs['da_ref_mgal'][i], '.2f'):>9}"
+            row += "".join(f"{_f(rs['dg_mgal'][c][i], '.2f'):>12}" for c in cols)
+            row += "".join(f"{_f(rs['delta_g_mgal'][c][i], '.2f'):>11}" for c in cols)
+            row += f"{_f(rs['mean_delta_g_mgal'][i], '.2f'):>9}"
+            lines.append(row)
+        lines.append(
+            f"{'СКП/RMS':<18}"
+            + " " * (12 * len(cols))
+            + "".join(f"{_f(rs['rms_mgal'][c], '.2f'):>11}" for c in cols)
+        )
+    if res.get("rounds"):
+        lines.append("")
+        lines.append("scale factors per round (classical, eq. 21):")
+        for r in res["rounds"]:
+            b1, b2 = r["b1"], r["b2"]
+            lines.append(
+                f"round {r['round']}: b1 = {_f(b1['mean'], '.6f')} ± {_f(b1.get('sd'), '.1e')}, "
+                f"b2 = {_f(b2['mean'], '.6f')} ± {_f(b2.get('sd'), '.1e')} mGal/pix"
+            )
+    if not res_level:
+        if "mean_b_mgal_per_pix" in res:
+            lines.append(
+                f"mean b over systems and rounds: {res['mean_b_mgal_per_pix']:.6f} mGal/pix"
+            )
+        if "reduced_error_percent" in res:
+            lines.append(
+                f"reduced error of the characteristic: {res['reduced_error_percent']:.3f} %"
+            )
+        if res.get("discrepancy_between_rounds_percent") is not None:
+            d = res["discrepancy_between_rounds_percent"]
+            lines.append(f"discrepancy between rounds: {d:.3f} %")
+    return lines

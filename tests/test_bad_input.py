@@ -283,9 +283,10 @@ def test_fuzz_numeric_options(command, option, value, fuzz_inputs, monkeypatch, 
         assert len(err.strip().splitlines()) == 1, err
 
 
-def test_a_record_tilted_about_x_is_refused_until_supported(tmp_path, capsys):
-    """Until rounds about both axes are supported end to end, calibrate says which programs
-    it supports instead of miscalibrating an X round (issue 33 §3)."""
+def test_a_record_tilted_about_x_alone(tmp_path, capsys):
+    """Rounds about X alone: the joint model calibrates them (issue 30, the X sensor's
+    systematic line in the budget); the classical method fits them but flags the result
+    (its g(1 − cos θ) describes tilts about Y), so --strict exits 3."""
     prog = tmp_path / "x.toml"
     prog.write_text(
         'name = "x"\nangles = ["2°30\'", "4°10\'", "5°10\'"]\naxis = "x"\n'
@@ -295,9 +296,12 @@ def test_a_record_tilted_about_x_is_refused_until_supported(tmp_path, capsys):
     rec = tmp_path / "rx.csv"
     assert main(["simulate", "--out", str(rec), "--program", str(prog)]) == 0
     capsys.readouterr()
-    for method in ("classical", "map"):
-        status, err = run(["calibrate", str(rec), "-q", "--method", method], capsys)
-        assert status == 2 and "tilted about the platform X axis" in err, err
-        assert "tilts about the platform Y axis only" in err
-    assert main(["design", str(prog)]) == 0
-    assert "supports tilts about Y only" in capsys.readouterr().out
+    out = tmp_path / "rx.json"
+    status, err = run(["calibrate", str(rec), "-q", "--method", "map", "-o", str(out)], capsys)
+    assert status == 0, err
+    res = json.loads(out.read_text())
+    assert res["angle_sensor"]["axis"] == "x"
+    assert res["uncertainty_budget"]["b1"]["angle_systematic"] > 0
+    assert abs(res["parameters"]["b1"]["mean"] - 6.98) < 4 * res["parameters"]["b1"]["sd"]
+    status, err = run(["calibrate", str(rec), "-q", "--method", "classical", "--strict"], capsys)
+    assert status == 3 and not err.strip(), err

@@ -5,7 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from chekan.classical import calibrate_protocol, calibrate_record
+from chekan.classical import (
+    calibrate_protocol,
+    calibrate_record,
+    fit_by_axis,
+    increments_from_holds,
+)
 from chekan.cli import main
 from chekan.protocol import read_protocol
 from chekan.result import read_result
@@ -147,3 +152,160 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     assert main(["calibrate", str(bad)]) == 2
     err = capsys.readouterr().err
     assert f"{bad}:6:" in err and "m1_pix" in err
+
+
+# ------------------------------------------------------------------ rounds about X (issue 30)
+
+G_MGAL = 981922.05
+K_PIX = 60428.0
+B_TRUE = (6.98, 6.882)
+
+
+def _forward_record(program, m_level=(1024.0, 1024.0), dt_s=10.0, serial="AX-1"):
+    """A noise-free record of ``program`` from the forward model itself (eq. 6, ideal
+    geometry: ε = γ = 0): every sample of a hold is the equilibrium reading there."""
+    from chekan import model as fm
+    from chekan.records import Record
+    from chekan.units import ARCSEC_PER_RAD
+
+    params = fm.make_params(
+        g_mgal=G_MGAL, K_pix_per_rad=K_PIX, b_mgal_per_pix=B_TRUE, m_level_pix=m_level
+    )
+    n = [int(s.dwell_s / dt_s) for s in program.steps]
+    tx = np.repeat([s.tilt_x_rad for s in program.steps], n)
+    ty = np.repeat([s.tilt_y_rad for s in program.steps], n)
+    m = np.asarray(fm.equilibrium_readings(params, tx, ty))
+    rec = Record(
+        meta={
+            "format": "chekan-record/1",
+            "serial": serial,
+            "g_local_mgal": repr(G_MGAL),
+            "program_settle_s": f"{program.settle_s:g}",
+        },
+        t_s=dt_s * np.arange(tx.size),
+        m1_pix=m[:, 0],
+        m2_pix=m[:, 1],
+        tilt_x_arcsec=tx * ARCSEC_PER_RAD,
+        tilt_y_arcsec=ty * ARCSEC_PER_RAD,
+        step=np.repeat([s.index for s in program.steps], n),
+    )
+    return rec, params
+
+
+def _xy_program(**kw):
+    from chekan.program import build_program
+
+    kw = {"round_axes": ["y", "x", "y", "x"], "dwell_s": 200, "settle_s": 100, **kw}
+    return build_program([1 + 50 / 60, 3 + 10 / 60, 4 + 10 / 60, 5 + 10 / 60], **kw)
+
+
+def test_rounds_about_x_are_processed_per_axis_with_analytic_truth():
+    """Y rounds give b to the quadratic model's truncation; X rounds are fitted apart: their
+    ± pairs cancel the terms linear in θ (eq. 25), and their pair means are the Y rounds'
+    times 1 + (gθ/λ)² (eq. 6: a tilt about X changes the stiffness by gθ), so their own a
+    is ≈ 5a (λ = bK, a = g/2K²)."""
+    from chekan import model as fm
+
+    rec, params = _forward_record(_xy_program())
+    res, holds = calibrate_record(rec, settle_s=100)
+    assert holds.axis == "xy" and [r.axis for r in holds.rounds] == ["y", "x", "y", "x"]
+    assert res.axis == "y" and set(res.by_axis) == {"y", "x"} and res.by_axis["y"] is res
+    assert res.table.rounds == (1, 3) and res.by_axis["x"].table.rounds == (2, 4)
+    # the live page's preview goes the same way (fit_by_axis of the whole table)
+    whole = increments_from_holds(holds, G_MGAL)
+    assert whole.axes == ("y", "x", "y", "x")
+    np.testing.assert_array_equal(fit_by_axis(whole, preview=True).b, res.b)
+    np.testing.assert_allclose(res.b_mean, B_TRUE, rtol=1e-4)  # truncation: ≈ 2e-5
+    a_true = float(np.mean(fm.quadratic_coefficient(params, params.m_level_pix)))
+    assert res.a == pytest.approx(a_true, rel=0.02)
+    xr = res.by_axis["x"]
+    assert xr.axis == "x" and xr.eps_arcmin is None  # eq. (17) is about Y tilts
+    np.testing.assert_allclose(xr.b_mean, B_TRUE, rtol=2e-3)
+    assert 4.5 < xr.a / a_true < 5.2
+    # pair means (eq. 25): X over Y = 1/(1 − u²), u = g sin θ/λ, λ = bK at m_h = m₀, to
+    # leading order in the deflection (λδ = gΔu_z + g sin θ·δ); 6 % of the excess at 5°10′
+    theta = xr.table.theta_pair_rad[0]
+    lam = np.asarray(B_TRUE) * K_PIX
+    ratio = xr.table.x_pix[0] / res.table.x_pix[0]  # (2, n)
+    u = G_MGAL * np.sin(theta[None, :]) / lam[:, None]
+    np.testing.assert_allclose(ratio - 1, u**2 / (1 - u**2), rtol=0.08)
+    assert np.all(ratio - 1 > 0.005)  # far above the Y rounds' truncation (2e-5)
+
+
+def test_cli_classical_on_both_axes_labelled_tables_no_warnings(tmp_path, capsys):
+    """``chekan calibrate`` of a Y/X record: one table per axis, labelled, with only that
+    axis's rounds and angles (no empty column, no ±0°00′ row, no "—"), no warning on the
+    terminal; the JSON holds each axis's fit and the certificate's (Y) parameters."""
+    import warnings
+
+    from chekan.records import write_record
+
+    rec, _ = _forward_record(_xy_program(round_axes=["y", "x", "x", "y"]))
+    path, out = tmp_path / "xy.csv", tmp_path / "xy.json"
+    write_record(path, rec)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert main(["calibrate", str(path), "--method", "classical", "--json", str(out)]) == 0
+    cap = capsys.readouterr()
+    assert "Warning" not in cap.err and "warning" not in cap.out.lower()
+    text = cap.out
+    assert "rounds about Y (round(s) 1, 4; the certificate's)" in text
+    assert "rounds about X (round(s) 2, 3; not certified)" in text
+    tables = text.split("classical method per axis")[1]
+    assert "—" not in tables and "0°00" not in tables
+    y_part, x_part = text.split("rounds about X (round(s)")
+    assert "dg r1_s1" in y_part and "dg r4_s2" in y_part and "r2_s1" not in y_part.split("Y (")[-1]
+    assert "dg r2_s1" in x_part and "dg r3_s2" in x_part and "r1_s1" not in x_part
+    res = json.loads(out.read_text())
+    assert res["classical_axis"] == "y"
+    by = res["classical_by_axis"]
+    assert by["y"]["used_by_certificate"] and not by["x"]["used_by_certificate"]
+    assert [r["round"] for r in by["x"]["rounds"]] == [2, 3]
+    assert [r["axis"] for r in res["rounds"]] == ["y", "y"]
+    assert res["parameters"]["b1"]["mean"] == by["y"]["parameters"]["b1"]["mean"]
+    assert abs(res["parameters"]["b1"]["mean"] / B_TRUE[0] - 1) < 1e-4
+    assert by["x"]["residuals_mgal"]["columns"] == ["r2_s1", "r2_s2", "r3_s1", "r3_s2"]
+    assert len(by["x"]["residuals_mgal"]["angle_label"]) == 4
+
+
+def test_x_rounds_alone_give_a_flagged_result_and_the_joint_model_refuses(tmp_path, capsys):
+    from chekan.program import build_program
+    from chekan.records import write_record
+
+    prog = build_program([2.5, 4 + 10 / 60, 5 + 10 / 60], axis="x", dwell_s=200, settle_s=100)
+    rec, _ = _forward_record(prog, m_level=(1031.2, 1012.9))
+    path = tmp_path / "x.csv"
+    write_record(path, rec)
+    res, _ = calibrate_record(rec, settle_s=100)
+    assert res.axis == "x" and res.problems and not res.by_axis
+    assert main(["calibrate", str(path), "--method", "classical", "--settle-s", "100"]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING: every round is about the platform X axis" in out
+    argv = ["calibrate", str(path), "--method", "classical", "--settle-s", "100", "--strict"]
+    assert main(argv) == 3
+    capsys.readouterr()
+    assert main(["calibrate", str(path), "--method", "map", "--settle-s", "100"]) == 2
+    err = capsys.readouterr().err
+    assert "tilted about the platform X axis" in err and "--method classical" in err
+
+
+def test_each_axis_table_holds_only_its_own_angles():
+    """X rounds at other angles than the Y rounds (another recorder's program): each axis's
+    table has its own angles, no empty row or column."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from chekan.program import build_program
+
+    y = build_program([2.0, 4.0], axis="y", dwell_s=200, settle_s=100, rounds=2)
+    x = build_program([3.0, 5.0], axis="x", dwell_s=200, settle_s=100, rounds=1)
+    steps = list(y.steps) + [
+        dataclasses.replace(s, index=s.index + y.n_steps, round=s.round + 2) for s in x.steps
+    ]
+    rec, _ = _forward_record(SimpleNamespace(steps=steps, settle_s=100.0))
+    res, holds = calibrate_record(rec, settle_s=100)
+    assert holds.angle_deg.size == 4 and res.axis == "y"
+    for fit, labels in ((res, ["±2°00'", "±4°00'"]), (res.by_axis["x"], ["±3°00'", "±5°00'"])):
+        assert fit.table.angle_label == labels
+        assert np.isfinite(fit.table.x_pix).all() and np.isfinite(fit.delta_g_mgal).all()
+    assert res.by_axis["x"].table.rounds == (3,) and res.discrepancy_percent is not None

@@ -421,3 +421,30 @@ def test_xy_program_file_round_trip_and_cli_bound(tmp_path, capsys):
     assert main(["design"]) == 0
     assert "ppm systematic" in capsys.readouterr().out
     assert main(["design", "--angle-bound-arcsec", "-1"]) == 2
+
+
+def test_every_ranked_program_is_a_program_file_with_the_same_steps(tmp_path):
+    """The designer's programs (every ranked candidate, both axes, about Y, X and Y/X
+    alternating, and one given per round) are program files that read back to the same
+    steps, and ``chekan program`` shows the axis of every round."""
+    from chekan.cli import main
+    from chekan.demo import demo_program
+
+    space = {
+        "n_angles": (3, 5),
+        "spacing": ("dg",),
+        "lowest_arcmin": (110, 190),
+        "scheme": ("paper", "zigzag"),
+        "rounds": (2, 3),
+        "settle_s": (120.0,),
+        "axis": ("y", "x", "xy"),
+    }
+    res = d.search_programs(demo_program(True), space=space)
+    assert {c.program.axis for c in res.ranked} == {"y", "x", "xy"}
+    progs = [c.program for c in res.ranked]
+    progs.append(build_program(PAPER_DEG[:3], round_axes=["x", "y", "y"], dwell_s=300.5))
+    for i, prog in enumerate(progs):
+        back = load_program(d.write_program_toml(tmp_path / f"p{i}.toml", prog))
+        assert back.steps == prog.steps, prog.describe()
+        assert back.round_axes == prog.round_axes and back.axis == prog.axis
+    assert main(["program", str(tmp_path / f"p{len(progs) - 1}.toml")]) == 0

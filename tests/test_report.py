@@ -550,3 +550,64 @@ def test_bad_inputs(paper, tmp_path):
         render_report(_write(tmp_path, broken), out)
     assert not out.exists()
     assert not list(tmp_path.glob(".c.pdf.*"))  # no temporary left behind
+
+
+# --------------------------------------------------------------------------- rounds about X
+
+
+@pytest.mark.parametrize("lang", ["en", "ru"])
+def test_certificate_of_a_record_with_rounds_about_both_axes(tmp_path, lang):
+    """Issue 30: the program as run (rounds with their axes, angles, dwell) in the header;
+    the rounds about Y as the certificate's tables; the X rounds' own fit in its own
+    labelled section; the figures drawn with each hold's axis."""
+    from test_classical import _forward_record, _xy_program
+
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.records import write_record
+    from chekan.result import write_result
+
+    rec, _ = _forward_record(_xy_program(round_axes=["y", "x", "x", "y"]))
+    rec.meta["program"] = "xy-test"
+    write_record(tmp_path / "xy.csv", rec)
+    res = calibrate_file(tmp_path / "xy.csv", CalibrationOptions(progress=False))
+    path = write_result(tmp_path / "xy.json", res)
+    tp = res["tilt_program"]
+    assert [(r["round"], r["axis"]) for r in tp["rounds"]] == [
+        (1, "y"),
+        (2, "x"),
+        (3, "x"),
+        (4, "y"),
+    ]
+    assert tp["dwell_s"] == 200.0 and tp["settle_s"] == 100.0 and len(tp["angles"]) == 4
+    html = render_report(path, tmp_path / f"xy_{lang}.html", lang=lang).read_text(encoding="utf-8")
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html)).replace("&#x27;", "'")
+    text = text.replace("&#39;", "'")
+    want = {
+        "en": [
+            "xy-test — 4 rounds, each about its axis: 1 Y, 2 X, 3 X, 4 Y",
+            "dwell 200 s (settling 100 s)",
+            "Rounds about X: classical method, fitted apart",
+            "— rounds about Y",
+            "— rounds about X",
+        ],
+        "ru": [
+            "xy-test — приёмов: 4, ось наклона каждого: 1 Y, 2 X, 3 X, 4 Y",
+            "выдержка 200 с (успокоение 100 с)",
+            "Приёмы с наклонами вокруг X",
+        ],
+    }[lang]
+    for w in want:
+        assert w in text, w
+    assert "angles ±1°50'" in text or "углы ±1°50'" in text
+    x = res["classical_by_axis"]["x"]
+    for r in x["rounds"] + res["rounds"]:
+        assert f6(r["b1"]["mean"]) in text and f6(r["b2"]["mean"]) in text
+    assert len(re.findall(r'\bsrc="data:image/png;base64,', html)) == 3
+    # a hand-edited per-axis part that cannot be right is an error naming it, not a traceback
+    bad = json.loads(path.read_text(encoding="utf-8"))
+    del bad["classical_by_axis"]["x"]["residuals_mgal"]["dg_mgal"]["r2_s1"]
+    with pytest.raises(FormatError, match=r"classical_by_axis\.x\.residuals_mgal\.dg_mgal has no"):
+        build_report(bad, figures=False)
+    bad["classical_by_axis"] = {"z": {}}
+    with pytest.raises(FormatError, match=r"classical_by_axis\.z: the axis must be"):
+        build_report(bad, figures=False)

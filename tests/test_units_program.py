@@ -106,3 +106,62 @@ def test_build_program_validates():
         build_program([1.0], rounds=0)
     with pytest.raises(ProgramError, match="axis"):
         build_program([1.0], axis="z")
+
+
+def test_cli_program_shows_the_axis_of_every_round(tmp_path, capsys):
+    from chekan.cli import main
+
+    f = tmp_path / "xy.toml"
+    f.write_text('angles = ["2°", "4°"]\nround_axes = ["y", "x", "x"]\n', encoding="utf-8")
+    assert main(["program", str(f)]) == 0
+    out = capsys.readouterr().out
+    assert "rounds Y, X, X" in out and "rounds: 1 about Y, 2 about X, 3 about X" in out
+    rows = [ln for ln in out.splitlines() if "  round " in ln]
+    assert len(rows) == 3 * 6
+    assert all("about X" in r for r in rows if " round 3 " in r and "level" not in r)
+    assert not any("about" in r for r in rows if "level" in r)
+
+
+def test_round_axes_give_the_axis_of_each_round(tmp_path):
+    f = tmp_path / "r.toml"
+    f.write_text('angles = ["2°", "4°"]\nround_axes = ["x", "y", "x"]\n', encoding="utf-8")
+    p = load_program(f)
+    assert p.rounds == 3 and p.round_axes == ("x", "y", "x") and p.axis == "xy"
+    for s in p.steps:
+        assert s.axis == p.round_axes[s.round - 1]
+        if s.kind == "tilt":
+            about_x = s.axis == "x"
+            assert (s.tilt_x_rad != 0.0) == about_x and (s.tilt_y_rad != 0.0) != about_x
+    assert "rounds X, Y, X" in p.describe()
+    # the same as axis = "xy" where that says it
+    same = build_program([2.0, 4.0], round_axes=["y", "x", "y", "x"], rounds=4)
+    assert same.steps == build_program([2.0, 4.0], axis="xy", rounds=4).steps
+    assert build_program([2.0], round_axes=["x", "x"]).axis == "x"
+
+
+def test_axis_programs_and_the_papers_are_unchanged():
+    """Programs given by ``axis`` keep their steps; round_axes is filled from it."""
+    p = default_program()
+    assert p.round_axes == ("y", "y") and not p.axes_given and p.axis == "y"
+    assert all(s.axis == "y" and s.tilt_x_rad == 0.0 for s in p.steps)
+    assert "about Y," in p.describe()
+    xy = build_program([2.0, 4.0], axis="xy", rounds=3)
+    assert xy.round_axes == ("y", "x", "y") and "Y and X (alternate rounds)" in xy.describe()
+
+
+@pytest.mark.parametrize(
+    "body, msg",
+    [
+        ('round_axes = ["y", "x"]\nrounds = 3', "2 entries for 3 round"),
+        ('round_axes = ["y", "z"]', "round_axes\\[1\\] must be 'y' or 'x'"),
+        ('round_axes = "xy"', "must be a list"),
+        ("round_axes = []", "0 entries for 2 round"),
+        ('axis = "y"\nround_axes = ["y", "x"]', "either axis or round_axes"),
+    ],
+)
+def test_round_axes_errors_name_the_file(tmp_path, body, msg):
+    f = tmp_path / "bad.toml"
+    f.write_text('angles = ["2°"]\n' + body + "\n", encoding="utf-8")
+    with pytest.raises(ProgramError, match=msg) as e:
+        load_program(f)
+    assert str(f) in str(e.value)

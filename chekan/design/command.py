@@ -15,7 +15,7 @@ from chekan.design.search import Candidate, SearchResult, search_programs
 from chekan.durable import atomic_output
 from chekan.errors import ChekanError
 from chekan.program import TiltProgram
-from chekan.units import format_dms
+from chekan.units import format_dms, parse_angle_deg
 
 #: The largest bound of an angle sensor's error that a design takes, arcsec (1°).
 MAX_BOUND_ARCSEC = 3600.0
@@ -148,27 +148,37 @@ def _dms_key(text: str) -> float:
 
 def program_toml(program: TiltProgram) -> str:
     """A TOML program file that :func:`chekan.program.load_program` reads back to the same
-    program (angles in whole arcminutes as DMS text, otherwise as decimal degrees)."""
+    program, step for step (angles in whole arcminutes as DMS text where that reads back to
+    the same number, otherwise as decimal degrees; the axis, or the axis of each round)."""
 
-    def angle_text(a_rad: float) -> str:
-        deg = math.degrees(a_rad)
+    def angle_text(deg: float) -> str:
         arcmin = deg * 60.0
-        if abs(arcmin - round(arcmin)) < 1e-9:
+        if abs(arcmin - round(arcmin)) < 1e-9 and parse_angle_deg(format_dms(deg)) == deg:
             return json.dumps(format_dms(deg), ensure_ascii=False)
         return json.dumps(repr(deg))
 
-    angles = ", ".join(angle_text(a) for a in program.angles_rad)
+    degs = program.angles_deg or tuple(math.degrees(a) for a in program.angles_rad)
+    angles = ", ".join(angle_text(a) for a in degs)
+    axis_line = (
+        f"round_axes = {json.dumps(list(program.round_axes))}\n"
+        if program.axes_given
+        else f"axis = {json.dumps(program.axis)}\n"
+    )
     return (
         f"# written by chekan design ({program_clock_s(program) / 3600:.2f} h with slews)\n"
         f"name = {json.dumps(program.name, ensure_ascii=False)}\n"
-        f"angles = [{angles}]\n"
-        f"axis = {json.dumps(program.axis)}\n"
-        f"order = {json.dumps(program.order)}\n"
+        f"angles = [{angles}]\n" + axis_line + f"order = {json.dumps(program.order)}\n"
         f"sequence = {json.dumps(program.sequence)}\n"
-        f"dwell_s = {program.dwell_s:g}\n"
-        f"settle_s = {program.settle_s:g}\n"
+        f"dwell_s = {_number(program.dwell_s)}\n"
+        f"settle_s = {_number(program.settle_s)}\n"
         f"rounds = {program.rounds}\n"
     )
+
+
+def _number(x: float) -> str:
+    """``x`` as TOML text that reads back to the same float (short where exact)."""
+    short = f"{x:g}"
+    return short if float(short) == x else repr(float(x))
 
 
 def write_program_toml(path: str | Path, program: TiltProgram) -> Path:
@@ -239,8 +249,9 @@ def run_design_command(args) -> int:
     prec = expected_precision(program, values)
     print(f"given program ({args.program or 'the paper’s default'}):")
     print(
-        "(programs with rounds about X, axis x or xy: the X rounds' response beyond eq. (6) "
-        "is a nuisance, so they inform b through their even part, not K; see the README)"
+        "(programs with rounds about X, axis x or xy: the joint model (--method map, bayes) "
+        "calibrates all rounds, with the X rounds' response beyond eq. (6) as a nuisance; "
+        "the classical method certifies the rounds about Y and reports those about X beside them)"
     )
     if values.angle_bound_arcsec:
         print(

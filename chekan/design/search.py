@@ -183,7 +183,7 @@ def spec_program(
     if spec.scheme == "interleaved":
         angles = _interleave(angles)
     return program_within_budget(
-        [a / 60.0 for a in angles],
+        [a // 60 + (a % 60) / 60.0 for a in angles],  # as a program file's DMS reads back
         budget_s,
         settle_s=spec.settle_s,
         rounds=spec.rounds,

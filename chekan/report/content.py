@@ -63,32 +63,45 @@ def _need_dict(obj: Any, where: str, src: str) -> dict:
     return obj
 
 
-def check_certificate_input(result: Mapping[str, Any], src: str) -> None:
-    """Check the optional parts the certificate reads; raise :class:`FormatError` naming them."""
-    for name, e in result["parameters"].items():
-        if not is_num(e.get("mean")):
-            raise _fail(src, f"parameters.{name}.mean is not a number")
-    rs = result.get("residuals_mgal")
+def _check_classical_part(part: Mapping[str, Any], at: str, src: str) -> None:
+    """The parameters, residual tables and rounds of a result (or of one axis's fit in
+    ``classical_by_axis``, ``at`` its prefix)."""
+    for name, e in _need_dict(part.get("parameters", {}), f"{at}parameters", src).items():
+        if not isinstance(e, dict) or not is_num(e.get("mean")):
+            raise _fail(src, f"{at}parameters.{name}.mean is not a number")
+    rs = part.get("residuals_mgal")
     if rs is not None:
-        _need_dict(rs, "residuals_mgal", src)
+        _need_dict(rs, f"{at}residuals_mgal", src)
         for k in ("angle_label", "columns", "da_ref_mgal", "dg_mgal", "delta_g_mgal"):
             if k not in rs:
-                raise _fail(src, f"residuals_mgal.{k} is missing")
-        n = len(_need_list(rs["angle_label"], "residuals_mgal.angle_label", src))
-        _need_list(rs["da_ref_mgal"], "residuals_mgal.da_ref_mgal", src, n)
+                raise _fail(src, f"{at}residuals_mgal.{k} is missing")
+        n = len(_need_list(rs["angle_label"], f"{at}residuals_mgal.angle_label", src))
+        _need_list(rs["da_ref_mgal"], f"{at}residuals_mgal.da_ref_mgal", src, n)
         if "mean_delta_g_mgal" in rs:
-            _need_list(rs["mean_delta_g_mgal"], "residuals_mgal.mean_delta_g_mgal", src, n)
-        for c in _need_list(rs["columns"], "residuals_mgal.columns", src):
+            _need_list(rs["mean_delta_g_mgal"], f"{at}residuals_mgal.mean_delta_g_mgal", src, n)
+        for c in _need_list(rs["columns"], f"{at}residuals_mgal.columns", src):
             for k in ("dg_mgal", "delta_g_mgal"):
-                d = _need_dict(rs[k], f"residuals_mgal.{k}", src)
+                d = _need_dict(rs[k], f"{at}residuals_mgal.{k}", src)
                 if c not in d:
-                    raise _fail(src, f"residuals_mgal.{k} has no column {c!r}")
-                _need_list(d[c], f"residuals_mgal.{k}.{c}", src, n)
-    for i, r in enumerate(_need_list(result.get("rounds", []), "rounds", src)):
-        _need_dict(r, f"rounds[{i}]", src)
+                    raise _fail(src, f"{at}residuals_mgal.{k} has no column {c!r}")
+                _need_list(d[c], f"{at}residuals_mgal.{k}.{c}", src, n)
+    for i, r in enumerate(_need_list(part.get("rounds", []), f"{at}rounds", src)):
+        _need_dict(r, f"{at}rounds[{i}]", src)
         for s in ("b1", "b2"):
             if not isinstance(r.get(s), dict) or "mean" not in r[s]:
-                raise _fail(src, f"rounds[{i}].{s}.mean is missing")
+                raise _fail(src, f"{at}rounds[{i}].{s}.mean is missing")
+
+
+def check_certificate_input(result: Mapping[str, Any], src: str) -> None:
+    """Check the optional parts the certificate reads; raise :class:`FormatError` naming them."""
+    _check_classical_part(result, "", src)
+    by_axis = result.get("classical_by_axis")
+    if by_axis is not None:
+        for axis, entry in _need_dict(by_axis, "classical_by_axis", src).items():
+            where = f"classical_by_axis.{axis}"
+            if axis not in ("x", "y"):
+                raise _fail(src, f"{where}: the axis must be 'x' or 'y'")
+            _check_classical_part(_need_dict(entry, where, src), where + ".", src)
     bud = result.get("uncertainty_budget")
     if bud is not None:
         for s, comp in _need_dict(bud, "uncertainty_budget", src).items():
@@ -214,8 +227,9 @@ def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) ->
         rows.append((t("started"), str(meta["started"]), False))
     if meta.get("operator"):
         rows.append((t("operator"), str(meta["operator"]), False))
-    if meta.get("program"):
-        rows.append((t("program"), str(meta["program"]), False))
+    prog = program_text(result, t)
+    if prog:
+        rows.append((t("program"), prog, False))
     method = result["method"]
     rows.append((t("method"), f"{t('method_' + method)} [{method}]", False))
     sensor = _angle_sensor_text(result, t)
@@ -254,6 +268,41 @@ def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) ->
     if is_num(result.get("hdi_prob")):
         rows.append((t("interval_prob"), plain(result["hdi_prob"]), False))
     rep.add(Heading(t("sec_header")), KeyValue(rows))
+
+
+def program_text(result: Mapping[str, Any], t: Translator) -> str | None:
+    """The tilt program as run: name, rounds and the axis of each, angles, dwell (settle)."""
+    meta = result.get("metadata") or {}
+    tp = result.get("tilt_program")
+    name = str(tp.get("name") or meta.get("program") or "") if isinstance(tp, dict) else ""
+    if not isinstance(tp, dict) or not isinstance(tp.get("rounds"), list) or not tp["rounds"]:
+        return str(meta["program"]) if meta.get("program") else None
+    rounds = [r for r in tp["rounds"] if isinstance(r, dict)]
+    axes = [str(r.get("axis", "y")).upper() for r in rounds]
+    if len(set(axes)) == 1:
+        parts = [t("prog_rounds", n=len(rounds), axis=axes[0])]
+    else:
+        each = ", ".join(f"{r.get('round', '')} {a}" for r, a in zip(rounds, axes, strict=True))
+        parts = [t("prog_rounds_each", n=len(rounds), each=each)]
+    by_axis: dict[str, list[str]] = {}
+    for r, a in zip(rounds, axes, strict=True):
+        for lab in r.get("angles") or []:
+            if str(lab) not in by_axis.setdefault(a, []):
+                by_axis[a].append(str(lab))
+    if len({tuple(v) for v in by_axis.values()}) <= 1:
+        angles = ", ".join(tp.get("angles") or next(iter(by_axis.values()), []))
+        parts.append(t("prog_angles", angles=angles))
+    else:
+        for a, labs in by_axis.items():
+            parts.append(t("prog_angles_axis", axis=a, angles=", ".join(labs)))
+    if is_num(tp.get("dwell_s")):
+        settle = tp.get("settle_s")
+        parts.append(
+            t("prog_dwell", dwell=plain(tp["dwell_s"]), settle=plain(settle))
+            if is_num(settle)
+            else t("prog_dwell_only", dwell=plain(tp["dwell_s"]))
+        )
+    return (f"{name} — " if name else "") + "; ".join(parts)
 
 
 def _statements(result: Mapping[str, Any], t: Translator, lang: str) -> list[Para]:
@@ -402,54 +451,13 @@ def _items(
     rep.add(Heading(t("sec_a")), Para(t("sec_a_text")))
     if cos_fig is not None:
         rep.add(cos_fig)
+    by_axis = result.get("classical_by_axis") or {}
+    about = t("cap_about", axis="Y") if by_axis else ""  # the certificate's rounds
     if rs:
-        cols = list(rs["columns"])
-        top, sub = _col_header(cols, t)
-        rows = []
-        for i, lab in enumerate(rs["angle_label"]):
-            rows.append(
-                [Cell(str(lab)), Cell(fixed(rs["da_ref_mgal"][i], 2))]
-                + [Cell(fixed(rs["dg_mgal"][c][i], 2)) for c in cols]
-            )
-        rep.add(
-            Table(
-                [
-                    [Cell(t("angle"), bold=True), Cell(t("da_ref"), bold=True), *top],
-                    [Cell(""), Cell(""), *sub],
-                ],
-                rows,
-                "lr" + "r" * len(cols),
-                t("cap_a"),
-            )
-        )
+        rep.add(_increments_table(rs, t, t("cap_a") + about))
         # б) deviations
         rep.add(Heading(t("sec_b")), Para(t("sec_b_text")))
-        rows = []
-        mean_dg = rs.get("mean_delta_g_mgal") or [None] * len(rs["angle_label"])
-        for i, lab in enumerate(rs["angle_label"]):
-            rows.append(
-                [Cell(str(lab))]
-                + [Cell(fixed(rs["delta_g_mgal"][c][i], 2)) for c in cols]
-                + [Cell(fixed(mean_dg[i], 2), bold=True)]
-            )
-        rms = rs.get("rms_mgal") or {}
-        rows.append(
-            [Cell(t("rms_row"), bold=True)]
-            + [Cell(fixed(rms.get(c), 2)) for c in cols]
-            + [Cell("")]
-        )
-        rep.add(
-            Table(
-                [
-                    [Cell(t("angle"), bold=True), *top, Cell(t("mean_dg"), bold=True)],
-                    [Cell(""), *sub, Cell("")],
-                ],
-                rows,
-                "l" + "r" * (len(cols) + 1),
-                t("cap_b"),
-                footer_rows=1,
-            )
-        )
+        rep.add(_deviations_table(rs, t, t("cap_b") + about))
         tol_mgal = tol / 100.0 * FULL_RANGE_MGAL
         cap = t("fig_resid", tol=plain(tol)) + (t("fig_resid_pp") if pp else "")
         if figures:
@@ -469,44 +477,7 @@ def _items(
     rep.add(Heading(t("sec_d")), Para(t("sec_d_text")))
     rounds = result.get("rounds") or []
     if rounds:
-        printed = any("b_printed" in r for r in rounds)
-        head = [
-            t("round"),
-            t("system"),
-            t("b_col"),
-            t("u_col"),
-            t("b0_col"),
-            t("mh_col"),
-            t("rms_col"),
-        ] + ([t("printed_col")] if printed else [])
-        rows = []
-        for r in rounds:
-            for s in (1, 2):
-                b = r[f"b{s}"]
-                lvl = r.get("level_reading_pix")
-                row = [
-                    Cell(str(r.get("round", ""))),
-                    Cell(t("sys_n", n=s)),
-                    Cell(fixed(b["mean"], 6), bold=True),
-                    Cell(unc(b.get("sd"))),
-                    Cell(fixed(r.get(f"b{s}_0"), 6)),
-                    Cell(fixed(lvl[s - 1], 3) if isinstance(lvl, list) and len(lvl) >= s else DASH),
-                    Cell(fixed((r.get("rms_mgal") or {}).get(f"s{s}"), 2)),
-                ]
-                if printed:
-                    bp = r.get("b_printed")
-                    row.append(
-                        Cell(fixed(bp[s - 1], 6) if isinstance(bp, list) and len(bp) >= s else DASH)
-                    )
-                rows.append(row)
-        rep.add(
-            Table(
-                [[Cell(h, bold=True) for h in head]],
-                rows,
-                "cc" + "r" * (len(head) - 2),
-                t("cap_rounds"),
-            )
-        )
+        rep.add(_rounds_table(rounds, t, t("cap_rounds") + about))
     param_table(rep, result, t, lang)
     if is_num(result.get("mean_b_mgal_per_pix")):
         rep.add(Para(t("mean_b", v=fixed(result["mean_b_mgal_per_pix"], 6))))
@@ -515,6 +486,132 @@ def _items(
     a, _ = _a_value(result)
     if a is not None:
         rep.add(Para(t("a_convention", v=sci(-a, 4) if a else "0"), "note"))
+    for axis, entry in by_axis.items():
+        if not entry.get("used_by_certificate"):
+            _other_axis(rep, axis, entry, t)
+    _rest_of_items(rep, result, t, lang, tol, figures)
+
+
+def _increments_table(rs: Mapping[str, Any], t: Translator, caption: str) -> Table:
+    """а) da_ref and dg per angle (rows) and round × system (columns)."""
+    cols = list(rs["columns"])
+    top, sub = _col_header(cols, t)
+    rows = []
+    for i, lab in enumerate(rs["angle_label"]):
+        rows.append(
+            [Cell(str(lab)), Cell(fixed(rs["da_ref_mgal"][i], 2))]
+            + [Cell(fixed(rs["dg_mgal"][c][i], 2)) for c in cols]
+        )
+    return Table(
+        [
+            [Cell(t("angle"), bold=True), Cell(t("da_ref"), bold=True), *top],
+            [Cell(""), Cell(""), *sub],
+        ],
+        rows,
+        "lr" + "r" * len(cols),
+        caption,
+    )
+
+
+def _deviations_table(rs: Mapping[str, Any], t: Translator, caption: str) -> Table:
+    """б) δg per angle and column, their mean and the СКП row."""
+    cols = list(rs["columns"])
+    top, sub = _col_header(cols, t)
+    rows = []
+    mean_dg = rs.get("mean_delta_g_mgal") or [None] * len(rs["angle_label"])
+    for i, lab in enumerate(rs["angle_label"]):
+        rows.append(
+            [Cell(str(lab))]
+            + [Cell(fixed(rs["delta_g_mgal"][c][i], 2)) for c in cols]
+            + [Cell(fixed(mean_dg[i], 2), bold=True)]
+        )
+    rms = rs.get("rms_mgal") or {}
+    rows.append(
+        [Cell(t("rms_row"), bold=True)] + [Cell(fixed(rms.get(c), 2)) for c in cols] + [Cell("")]
+    )
+    return Table(
+        [
+            [Cell(t("angle"), bold=True), *top, Cell(t("mean_dg"), bold=True)],
+            [Cell(""), *sub, Cell("")],
+        ],
+        rows,
+        "l" + "r" * (len(cols) + 1),
+        caption,
+        footer_rows=1,
+    )
+
+
+def _other_axis(rep: Report, axis: str, entry: Mapping[str, Any], t: Translator) -> None:
+    """The classical fit of the rounds about another axis than the certificate's, in full,
+    with what it is (not used by the certificate, and why)."""
+    rounds = entry.get("rounds") or []
+    nums = ", ".join(str(r.get("round", "")) for r in rounds)
+    rep.add(Heading(t("sec_axis", axis=axis.upper())), Para(t("sec_axis_text", rounds=nums)))
+    about = t("cap_about", axis=axis.upper())
+    rs = entry.get("residuals_mgal")
+    if rs:
+        rep.add(_increments_table(rs, t, t("cap_a") + about))
+        rep.add(_deviations_table(rs, t, t("cap_b") + about))
+    if rounds:
+        rep.add(_rounds_table(rounds, t, t("cap_rounds") + about))
+    p = entry.get("parameters") or {}
+    parts = [
+        f"{n} = {fixed(p[n]['mean'], 6)} ± {unc(p[n].get('sd'))}" for n in ("b1", "b2") if n in p
+    ]
+    if "a" in p:
+        parts.append(f"a = {sci(p['a']['mean'], 4)} ± {sci(p['a'].get('sd'), 1)}")
+    if parts:
+        rep.add(Para(t("axis_fit", axis=axis.upper(), fit="; ".join(parts))))
+
+
+def _rounds_table(rounds: list, t: Translator, caption: str) -> Table:
+    """г) b, its uncertainty, b₀, mₕ and СКП per round and system."""
+    printed = any("b_printed" in r for r in rounds)
+    head = [
+        t("round"),
+        t("system"),
+        t("b_col"),
+        t("u_col"),
+        t("b0_col"),
+        t("mh_col"),
+        t("rms_col"),
+    ] + ([t("printed_col")] if printed else [])
+    rows = []
+    for r in rounds:
+        for s in (1, 2):
+            b = r[f"b{s}"]
+            lvl = r.get("level_reading_pix")
+            row = [
+                Cell(str(r.get("round", ""))),
+                Cell(t("sys_n", n=s)),
+                Cell(fixed(b["mean"], 6), bold=True),
+                Cell(unc(b.get("sd"))),
+                Cell(fixed(r.get(f"b{s}_0"), 6)),
+                Cell(fixed(lvl[s - 1], 3) if isinstance(lvl, list) and len(lvl) >= s else DASH),
+                Cell(fixed((r.get("rms_mgal") or {}).get(f"s{s}"), 2)),
+            ]
+            if printed:
+                bp = r.get("b_printed")
+                row.append(
+                    Cell(fixed(bp[s - 1], 6) if isinstance(bp, list) and len(bp) >= s else DASH)
+                )
+            rows.append(row)
+    return Table(
+        [[Cell(h, bold=True) for h in head]],
+        rows,
+        "cc" + "r" * (len(head) - 2),
+        caption,
+    )
+
+
+def _rest_of_items(
+    rep: Report,
+    result: Mapping[str, Any],
+    t: Translator,
+    lang: str,
+    tol: float,
+    figures: bool,
+) -> None:
     # д) instability
     rep.add(Heading(t("sec_e")))
     inst = result.get("instability_percent") or {}

@@ -335,7 +335,10 @@ def _measurement_results(root: ET.Element, result: Mapping[str, Any]) -> None:
     um = _sub(_sub(mr, _d("usedMethods")), _d("usedMethod"), refType="chekan_tiltCalibration")
     _text(um, "name", f"tilt calibration, estimator: {result['method']}")
     desc = _sub(um, _d("description"))
-    prog = (result.get("metadata") or {}).get("program")
+    from chekan.report.content import program_text  # the certificate's own words
+    from chekan.report.i18n import tr
+
+    prog = program_text(result, tr("en"))
     _sub(desc, _d("content"), f"tilt program: {prog or 'not stated'}", lang="en")
     sw = _sub(_sub(mr, _d("usedSoftware")), _d("software"))
     _text(sw, "name", "chekan")

@@ -116,13 +116,23 @@ def fitted_model(result: Mapping[str, Any]):  # -> chekan.model.SensorParams | N
     )
 
 
-def _readings(params, axis: str, theta_rad: np.ndarray, other_rad: np.ndarray) -> np.ndarray:
-    """The model's readings (n, 2) at the signed angle θ about ``axis`` (the other axis at
-    ``other_rad``)."""
+def _readings(params, axis, theta_rad: np.ndarray, other_rad: np.ndarray) -> np.ndarray:
+    """The model's readings (n, 2) at the signed angle θ about ``axis`` ("x"/"y", or one
+    per point), the other axis at ``other_rad``."""
     from chekan import model
 
-    tx, ty = (other_rad, theta_rad) if axis == "y" else (theta_rad, other_rad)
+    about_y = np.asarray(axis) == "y"
+    tx = np.where(about_y, other_rad, theta_rad)
+    ty = np.where(about_y, theta_rad, other_rad)
     return np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
+
+
+def hold_axes(holds: Any) -> np.ndarray:
+    """The axis of every hold ("x"/"y"): ``holds.hold_axis``, or the table's one axis."""
+    per = np.asarray(getattr(holds, "hold_axis", ()), dtype=str)
+    if per.size == holds.n:
+        return per
+    return np.full(holds.n, "x" if holds.axis == "x" else "y")
 
 
 def has_noise_model(result: Mapping[str, Any]) -> bool:
@@ -146,11 +156,12 @@ def residual_band_pix(
     s_hold = float(p["sigma_hold_pix"]["mean"])
     s_theta = float(p["sigma_theta_arcsec"]["mean"]) * ARCSEC_RAD
     theta = np.asarray(holds.theta_rad, dtype=float)
-    other = np.asarray(holds.tilt_x_rad if holds.axis == "y" else holds.tilt_y_rad, dtype=float)
+    axes = hold_axes(holds)
+    tx, ty = (np.asarray(a, dtype=float) for a in (holds.tilt_x_rad, holds.tilt_y_rad))
+    other = np.where(axes == "y", tx, ty)
     h = 1e-5
     slope = (
-        _readings(params, holds.axis, theta + h, other)
-        - _readings(params, holds.axis, theta - h, other)
+        _readings(params, axes, theta + h, other) - _readings(params, axes, theta - h, other)
     ) / (2 * h)
     return 2.0 * np.sqrt(s_hold**2 + (slope * s_theta) ** 2)
 
@@ -168,7 +179,9 @@ def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> b
     theta_deg = np.rad2deg(theta)
     lim = float(np.nanmax(np.abs(theta_deg))) * 1.05 if theta.size else 6.0
     grid = np.linspace(-lim, lim, 401)
-    curve = _readings(params, holds.axis, np.deg2rad(grid), np.zeros_like(grid))
+    axes = hold_axes(holds)
+    tilt_axes = sorted(set(axes[~np.asarray(holds.is_level)]), reverse=True) or ["y"]
+    curves = {a: _readings(params, a, np.deg2rad(grid), np.zeros_like(grid)) for a in tilt_axes}
     order = np.argsort(theta_deg, kind="stable")
     rounds = np.asarray(holds.round)
     with _rc():
@@ -176,7 +189,9 @@ def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> b
         ax1, ax2 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [2.0, 1.2]})
         for s in range(2):
             col = SYS_COLORS[s]
-            ax1.plot(grid, curve[:, s], color=col, lw=0.8, alpha=0.7)
+            for a, curve in curves.items():
+                ls = "-" if a == "y" else "--"
+                ax1.plot(grid, curve[:, s], color=col, lw=0.8, alpha=0.7, ls=ls)
             ax2.fill_between(
                 theta_deg[order], -band[order, s], band[order, s], color=col, alpha=0.12, lw=0
             )
@@ -189,7 +204,14 @@ def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> b
                 style = dict(ls="none", marker=mk, ms=3.5, mfc="none", mew=0.8, color=col)
                 ax1.plot(theta_deg[sel], holds.m_mean_pix[sel, s], label=label, **style)
                 ax2.plot(theta_deg[sel], resid[sel, s], **style)
-        ax1.plot([], [], color="0.3", lw=0.8, label=t("lg_model"))
+        if len(curves) > 1:  # rounds about both axes: one model curve per axis
+            for a in curves:
+                ls = "-" if a == "y" else "--"
+                ax1.plot(
+                    [], [], color="0.3", lw=0.8, ls=ls, label=t("lg_model_axis", axis=a.upper())
+                )
+        else:
+            ax1.plot([], [], color="0.3", lw=0.8, label=t("lg_model"))
         band_label = t("lg_model_band" if has_noise_model(result) else "lg_rms_band")
         ax2.fill_between([], [], [], color="0.5", alpha=0.3, label=band_label)
         ax1.set_ylabel(t("ax_reading"))

@@ -40,6 +40,18 @@ LABELS: dict[str, dict[str, str]] = {
     "height": {"en": "height {h} m", "ru": "высота {h} м"},
     "operator": {"en": "Operator", "ru": "Оператор"},
     "program": {"en": "Tilt program", "ru": "Программа наклонов"},
+    "prog_rounds": {"en": "{n} round(s) about {axis}", "ru": "приёмов: {n}, наклоны вокруг {axis}"},
+    "prog_rounds_each": {
+        "en": "{n} rounds, each about its axis: {each}",
+        "ru": "приёмов: {n}, ось наклона каждого: {each}",
+    },
+    "prog_angles": {"en": "angles {angles}", "ru": "углы {angles}"},
+    "prog_angles_axis": {"en": "angles about {axis} {angles}", "ru": "углы вокруг {axis} {angles}"},
+    "prog_dwell": {
+        "en": "dwell {dwell} s (settling {settle} s)",
+        "ru": "выдержка {dwell} с (успокоение {settle} с)",
+    },
+    "prog_dwell_only": {"en": "dwell {dwell} s", "ru": "выдержка {dwell} с"},
     "g_local": {"en": "Gravity at the site g", "ru": "Ускорение силы тяжести в пункте g"},
     "date": {"en": "Date of calibration", "ru": "Дата калибровки"},
     "started": {"en": "Record started (UTC)", "ru": "Начало записи (UTC)"},
@@ -108,6 +120,29 @@ LABELS: dict[str, dict[str, str]] = {
         "среднее Δg. СКП — среднеквадратическое отклонение δg от среднего по столбцу.",
     },
     "cap_b": {"en": "Deviations δg, mGal", "ru": "Отклонения δg, мГал"},
+    "cap_about": {"en": " — rounds about {axis}", "ru": " — приёмы с наклонами вокруг {axis}"},
+    "sec_axis": {
+        "en": "Rounds about {axis}: classical method, fitted apart",
+        "ru": "Приёмы с наклонами вокруг {axis}: классический метод, отдельная обработка",
+    },
+    "sec_axis_text": {
+        "en": "Rounds {rounds} tilt the platform about its X axis. They are processed as "
+        "Calibr.exe processes a round (± pair mean, eq. 25; eqs. 21–24) and fitted apart, with "
+        "their own a. They are not used by this certificate: da_ref = g(1 − cos θ) (eq. 14) is "
+        "the response to tilts about Y; a tilt about X turns the pendulums in their own plane "
+        "(eq. 6), which adds to the response a term of relative size about (gθ/bK)² "
+        "(a quadratic coefficient about 5a).",
+        "ru": "В приёмах {rounds} платформа наклоняется вокруг оси X. Они обработаны так же, "
+        "как Calibr.exe обрабатывает приём (среднее пары ±, формула 25; формулы 21–24), "
+        "отдельно, со своим a. В свидетельстве они не используются: da_эт = g(1 − cos θ) "
+        "(формула 14) — отклик на наклоны вокруг Y; наклон вокруг X поворачивает маятники в "
+        "их плоскости (формула 6), что добавляет к отклику член относительной величины около "
+        "(gθ/bK)² (квадратичный коэффициент около 5a).",
+    },
+    "axis_fit": {
+        "en": "Rounds about {axis} (not certified): {fit}",
+        "ru": "Приёмы вокруг {axis} (не для свидетельства): {fit}",
+    },
     "mean_dg": {"en": "Mean Δg", "ru": "Среднее Δg"},
     "rms_row": {"en": "RMS (СКП)", "ru": "СКП"},
     "pp_note": {
@@ -513,6 +548,7 @@ LABELS: dict[str, dict[str, str]] = {
     "ax_drift": {"en": "drift, pix", "ru": "дрейф, пикс"},
     "lg_s": {"en": "system {n}", "ru": "система {n}"},
     "lg_model": {"en": "fitted model", "ru": "модель"},
+    "lg_model_axis": {"en": "fitted model, about {axis}", "ru": "модель, наклоны вокруг {axis}"},
     "lg_model_band": {"en": "95 % band", "ru": "95 %-я полоса"},
     "lg_rms_band": {"en": "±2 RMS", "ru": "±2 СКП"},
     "lg_mean": {"en": "mean Δg", "ru": "среднее Δg"},
