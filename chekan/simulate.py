@@ -58,7 +58,8 @@ class Truth:
     cross_axis_error: bool | None = None  # None: on for programs about both axes
     # the X rounds' response beyond eq. (6) (fibre sag and the like, which the model does
     # not contain): added to the equilibrium at tilts θ about X, per system, pix at the
-    # largest X angle θ_r: odd·(sin θ/sin θ_r)³ + even·((1 − cos θ)/(1 − cos θ_r))²
+    # largest X angle θ_r, with r = sin θ/sin θ_r: odd·(0.7 r + 0.3 r³)
+    # + even·((1 − cos θ)/(1 − cos θ_r))² (fibre sag moves the arm's angle: mostly ∝ sin θ)
     x_unmodelled_odd_pix: tuple[float, float] = (0.0, 0.0)
     x_unmodelled_even_pix: tuple[float, float] = (0.0, 0.0)
     tilt_jitter_arcsec: float = 0.3
@@ -316,7 +317,8 @@ def _x_unmodelled(truth: Truth, tx_true_rad: np.ndarray, ty_true_rad: np.ndarray
         return None
     about_x = np.abs(tx_true_rad) > np.abs(ty_true_rad)
     tx = np.where(about_x, tx_true_rad, 0.0)
-    u = (np.sin(tx) / np.sin(th_r)) ** 3
+    r = np.sin(tx) / np.sin(th_r)
+    u = 0.7 * r + 0.3 * r**3  # mostly an arm-angle offset (∝ sin θ), partly not
     v = ((1 - np.cos(tx)) / (1 - np.cos(th_r))) ** 2
     return u[:, None] * odd + v[:, None] * even
 

@@ -51,7 +51,8 @@ EDGE_RANDOM_ARCSEC = (0.3, 0.8)
 CALIBRATION_STEP_ARCSEC = 300.0  # a lab's table: one angle every 5′
 # the X rounds' response beyond eq. (6), drawn per session: odd up to this many pixels at
 # the largest X angle, even up to the model's bound (:mod:`chekan.joint.xresponse`), both
-# in shapes (sin³, (1 − cos)²) that the model's terms (sin, 1 − cos) do not contain
+# in shapes (0.7 sin + 0.3 sin³, (1 − cos)²) that the model's terms (sin, 1 − cos per
+# angle, continued along the slews) do not contain
 X_ODD_PIX = 2.0
 
 

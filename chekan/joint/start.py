@@ -28,9 +28,12 @@ _MIN_SAMPLES = 8
 
 
 def initial_values(classical, g: float, tau_s: float = TAU_START_S) -> dict[str, float]:
-    """θ to start the MAP from: the classical fit (a = g/2K², eq. 10) and ``tau_s``."""
+    """θ to start the MAP from: the classical fit (a = g/2K², eq. 10; the design K where
+    the classical fit is of rounds about X alone, whose a is about 5× eq. 10's) and
+    ``tau_s``."""
     a = classical.a
-    K = float(np.sqrt(g / (2 * a))) if a > 0 else K_DESIGN
+    about_x = getattr(classical, "axis", "y") == "x"  # X rounds alone: their a is not eq. 10's
+    K = float(np.sqrt(g / (2 * a))) if a > 0 and not about_x else K_DESIGN
     eps = classical.eps_arcmin if classical.eps_arcmin is not None else np.zeros(2)
     return {
         "b1": float(classical.b_mean[0]),

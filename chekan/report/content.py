@@ -336,7 +336,10 @@ def _statements(result: Mapping[str, Any], t: Translator, lang: str) -> list[Par
     note = t("statement_budget") if budget_used else t("statement_typeA")
     bud = result.get("uncertainty_budget") or {}
     if budget_used and any(
-        is_num((bud.get(n) or {}).get("angle_systematic")) for n in ("b1", "b2")
+        is_num(v)
+        for n in ("b1", "b2")
+        for k, v in (bud.get(n) or {}).items()
+        if k.startswith("angle_systematic")
     ):
         note += " " + t("statement_budget_systematic", bound=angle_bound_text(result))
     out.append(Para(note, "note"))

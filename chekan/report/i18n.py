@@ -310,6 +310,22 @@ LABELS: dict[str, dict[str, str]] = {
         "en": "angle sensor, systematic (Type B, platform specification{bound})",
         "ru": "датчик угла, систематическая (тип В, паспорт платформы{bound})",
     },
+    "src_angle_systematic_axis": {
+        "en": "angle sensor {axis}, systematic",
+        "ru": "датчик угла {axis}, систематическая",
+    },
+    "src_angle_spec_of": {
+        "en": " (Type B, platform specification{bound})",
+        "ru": " (тип В, паспорт платформы{bound})",
+    },
+    "src_angle_cal_of": {
+        "en": " (Type B, angle calibration {id})",
+        "ru": " (тип В, калибровка углов {id})",
+    },
+    "src_x_response": {
+        "en": "response to tilts about X beyond eq. (6) (Type B, eq. 20: 0.2 mGal)",
+        "ru": "отклик на наклоны вокруг X сверх ур. (6) (тип В, ур. 20: 0,2 мГал)",
+    },
     "src_angle_systematic_cal": {
         "en": "angle sensor, systematic (Type B, angle calibration {id})",
         "ru": "датчик угла, систематическая (тип В, калибровка углов {id})",

@@ -12,11 +12,23 @@ from chekan.report.i18n import param_name, unit_name, with_param_names
 from chekan.report.numbers import DASH, fixed, general, is_num, plain, sci, unc, value_unc
 
 PARAM_ORDER = (*PHYSICAL, "sigma_theta_arcsec", "sigma_hold_pix")
-BUDGET_ORDER = ("angle_systematic", "angle_readout", "noise", "drift", "a")
+BUDGET_ORDER = (
+    "angle_systematic",
+    "angle_systematic_y",
+    "angle_systematic_x",
+    "angle_readout",
+    "x_response",
+    "noise",
+    "drift",
+    "a",
+)
 # GUM evaluation type of each budget line: A from the scatter of the data, B from other
 # information (the platform's specification, priors)
 BUDGET_TYPE = {
     "angle_systematic": "B",
+    "angle_systematic_y": "B",
+    "angle_systematic_x": "B",
+    "x_response": "B",
     "angle_readout": "A",
     "noise": "A",
     "drift": "A",
@@ -115,6 +127,13 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
             label = t("src_angle_systematic_cal", id=result["angle_calibration"].get("id", "?"))
         elif k == "angle_systematic":
             label = t("src_angle_systematic", bound=angle_bound_text(result))
+        elif k in ("angle_systematic_y", "angle_systematic_x"):
+            axis = k[-1]
+            label = t("src_angle_systematic_axis", axis=axis.upper()) + (
+                t("src_angle_cal_of", id=result["angle_calibration"].get("id", "?"))
+                if _calibrated(result, axis)
+                else t("src_angle_spec_of", bound=angle_bound_text(result, axis))
+            )
         else:
             label = t(f"src_{k}") if f"src_{k}" in _known_sources() else k
         typ = BUDGET_TYPE.get(k)
@@ -139,11 +158,22 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
     )
 
 
-def angle_bound_text(result: Mapping[str, Any]) -> str:
-    """ " ±3″" from the result's ``angle_sensor.bound_arcsec``; "" when it has none."""
+def angle_bound_text(result: Mapping[str, Any], axis: str | None = None) -> str:
+    """ " ±3″" from the result's ``angle_sensor.bound_arcsec`` (or that of the ``axis``
+    sensor in ``angle_sensors``); "" when it has none."""
     a = result.get("angle_sensor")
+    sensors = result.get("angle_sensors")
+    if axis is not None and isinstance(sensors, Mapping):
+        a = sensors.get(axis)
     bound = a.get("bound_arcsec") if isinstance(a, Mapping) else None
     return f" ±{plain(bound)}″" if is_num(bound) else ""
+
+
+def _calibrated(result: Mapping[str, Any], axis: str) -> bool:
+    """The ``axis`` sensor's prior comes from the platform's angle calibration."""
+    sensors = result.get("angle_sensors")
+    a = sensors.get(axis) if isinstance(sensors, Mapping) else None
+    return isinstance(a, Mapping) and isinstance(a.get("calibration"), Mapping)
 
 
 def _known_sources() -> set[str]:
