@@ -33,7 +33,7 @@ from hw.acquisition.recorder import Recorder, record_meta
 from hw.acquisition.steps import StepMachine
 from hw.acquisition.summary import Summary
 from hw.drivers import LinkDown, PlatformInfo, Received, SensorInfo
-from hw.errors import DeviceError, GaveUp, HwError, LinkLost, ReplyTimeout
+from hw.errors import DeviceError, GaveUp, HwError, LinkLost, ReplyTimeout, StorageFailed
 from hw.events import Event
 from hw.nmea import Grv, Plt
 from hw.progress import Progress
@@ -88,6 +88,7 @@ class Acquisition:
         )
         self.steps = StepMachine(options, self.recorder.event, self._tilt, clock=clock)
         self._last_progress = 0.0
+        self._ending = False  # levelling at the end: a failed write no longer stops the pump
 
     def _t_last(self) -> float | None:
         return None if self.samples is None else self.samples.t_last
@@ -111,6 +112,9 @@ class Acquisition:
             except queue.Empty:
                 ev = None
         self.recorder.flush()
+        failure = self.recorder.check()
+        if failure is not None and not self._ending:
+            raise failure
         if watch and not self.steps.commanding:
             self.links.watch()
 
@@ -223,7 +227,8 @@ class Acquisition:
         self._show(force=True)
 
     def run(self) -> Summary:
-        """Run (or continue) the program; never raises for device or link trouble."""
+        """Run (or continue) the program; never raises for device, link or disk trouble
+        (a file that cannot be written stops the run: levelled, record closed, exit 1)."""
         status, code, message = "completed", EXIT_OK, ""
         try:
             self.recorder.open_journal()
@@ -237,6 +242,8 @@ class Acquisition:
                 self._run_step(st)
         except KeyboardInterrupt:
             status, code, message = "interrupted", EXIT_INTERRUPTED, "interrupted (Ctrl-C)"
+        except StorageFailed as e:
+            status, code, message = "stopped", EXIT_DEVICE, str(e)
         except DeviceError as e:
             status, code, message = "device_error", EXIT_DEVICE, str(e)
         except (GaveUp, LinkLost, ReplyTimeout) as e:
@@ -304,12 +311,17 @@ class Acquisition:
 
     def _finish(self) -> None:
         s, rec = self.summary, self.recorder
+        self._ending = True
         try:
             if rec.recording or self.links.platform is not None:
                 self._level()
         finally:
             s.dropped.update(self.links.close())
             rec.close_record()
+            rec.close_raw_log()
+            failure = rec.check()
+            if failure is not None and s.exit_code == EXIT_OK:  # the raw log's last lines
+                s.status, s.exit_code, s.message = "error", EXIT_DEVICE, str(failure)
             self._collect()
             rec.event(
                 Event.RUN_STOP,
