@@ -24,9 +24,10 @@ IN_MEMORY = "<memory>"
 
 
 #: The largest record (data rows) the joint methods take. Peak memory and time of
-#: ``chekan calibrate --method map`` on the paper's program repeated (2 CPU cores, 2026-11-25):
-#: 49 491 rows 1.14 GB, 98 982 rows 1.44 GB, 197 964 rows 1.47 GB, each in 2.5–4 min.
-MAX_JOINT_ROWS = 200_000
+#: ``chekan calibrate --method map`` on the paper's program repeated (2 shared CPU cores,
+#: 2026-11-25): 49 491 rows 1.14 GB, 98 982 rows 1.44 GB, 197 964 rows 1.47 GB, 395 928 rows
+#: 1.48 GB (2.5–4 min each); beyond, 1 022 814 rows took 3.51 GB and 8.7 min.
+MAX_JOINT_ROWS = 400_000
 
 
 def check_size(path: str | Path, method: str) -> None:
@@ -40,7 +41,7 @@ def check_size(path: str | Path, method: str) -> None:
         rows, limit = (f"{k:_}".replace("_", " ") for k in (n, MAX_JOINT_ROWS))
         raise ChekanError(
             f"{path}: {rows} rows ({mb:.1f} MB): --method {method} takes records of at most "
-            f"{limit} rows (about 55 h at 1 Hz); split the record, or use --method classical"
+            f"{limit} rows (about 111 h at 1 Hz); split the record, or use --method classical"
         )
 
 

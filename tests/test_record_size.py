@@ -56,8 +56,8 @@ def test_a_record_beyond_the_limit_is_refused_before_it_is_read(tmp_path, method
     line = p.stderr.strip()
     assert "\n" not in line and "Traceback" not in line
     assert line == (
-        f"chekan: error: {big}: 200 001 rows ({big.stat().st_size / 1e6:.1f} MB): --method "
-        f"{method} takes records of at most 200 000 rows (about 55 h at 1 Hz); split the "
+        f"chekan: error: {big}: 400 001 rows ({big.stat().st_size / 1e6:.1f} MB): --method "
+        f"{method} takes records of at most 400 000 rows (about 111 h at 1 Hz); split the "
         "record, or use --method classical"
     )
     assert not (tmp_path / "r.json").exists()
