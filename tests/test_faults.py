@@ -286,3 +286,34 @@ def test_a_record_write_that_fails_part_way_is_cut_back(tmp_path):
     again.write_row(2.0, 1.0, 2.0, 0.0, 0.0, 1)
     again.close()
     assert list(read_record(path).t_s) == [0.0, 1.0, 2.0] and again.torn_path is None
+
+
+def test_any_fatal_error_of_acquisition_levels_and_closes_first(tmp_path, monkeypatch):
+    """Not only the disk: whatever ends a run (here an unexpected error in the recorder)
+    levels the platform, closes the record at a whole row and says so in one line."""
+    from chekan.program import build_program
+    from hw.acquisition import EXIT_DEVICE, Options, acquire
+    from hw.acquisition.recorder import Recorder
+    from hw.emulator import InProcessEmulator
+
+    real = Recorder.add_sample
+
+    def breaks(self, t, g, angles, step):
+        if self.stats.samples >= 150:
+            raise RuntimeError("a bug in the recorder")
+        return real(self, t, g, angles, step)
+
+    monkeypatch.setattr(Recorder, "add_sample", breaks)
+    program = build_program([1.0, 2.0], dwell_s=60, settle_s=20, rounds=1, name="short")
+    with InProcessEmulator("fatal-bug", speed=300, seed=8) as emu:
+        o = Options(sensor_url=emu.sensor_url, platform_url=emu.platform_url, timeout_s=2.0)
+        o.reply_timeout_s = 0.5
+        rec = tmp_path / "rec.csv"
+        s = acquire(rec, program, o, g_local_mgal=981922.05, report=None)
+        platform = emu.emulator.platform
+        assert (platform.target, platform.state) == ((0.0, 0.0), "HOLD")
+    assert s.exit_code == EXIT_DEVICE and s.levelled and s.steps_done < 6
+    assert s.format().splitlines()[0] == (
+        "acquisition error (exit 1): unexpected RuntimeError: a bug in the recorder"
+    )
+    _record_ends_whole(rec)

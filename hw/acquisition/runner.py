@@ -89,6 +89,7 @@ class Acquisition:
         self.steps = StepMachine(options, self.recorder.event, self._tilt, clock=clock)
         self._last_progress = 0.0
         self._ending = False  # levelling at the end: a failed write no longer stops the pump
+        self._samples_broken = False  # a sample failed while levelling: record no more
 
     def _t_last(self) -> float | None:
         return None if self.samples is None else self.samples.t_last
@@ -103,7 +104,12 @@ class Acquisition:
             ev = None
         n = 0
         while ev is not None:
-            self._handle(ev)
+            try:
+                self._handle(ev)
+            except Exception:
+                if not self._ending:
+                    raise
+                self._samples_broken = True  # levelling goes on; no more rows
             n += 1
             if n >= MAX_EVENTS_PER_PUMP:
                 break
@@ -133,7 +139,7 @@ class Acquisition:
 
     def _on_sample(self, g: Grv, t_mono: float) -> None:
         clock, steps = self.samples, self.steps
-        if clock is None or not self.recorder.recording:
+        if clock is None or not self.recorder.recording or self._samples_broken:
             return
         if not clock.started and steps.status.angles is None:
             return  # the record starts with the first sample after a platform status
@@ -252,6 +258,8 @@ class Acquisition:
             status, code, message = "error", EXIT_CONFIG, str(e)
         except (HwError, OSError, ValueError) as e:
             status, code, message = "error", EXIT_DEVICE, f"{type(e).__name__}: {e}"
+        except Exception as e:  # any other fatal error: level and close first, then say it
+            status, code, message = "error", EXIT_DEVICE, f"unexpected {type(e).__name__}: {e}"
         finally:
             s = self.summary
             s.status, s.exit_code, s.message = status, code, message
