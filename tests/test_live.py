@@ -426,13 +426,13 @@ def test_live_page_in_a_browser_end_to_end(tmp_path):
             assert "about Y" in page.locator("#step-label").inner_text() or (
                 page.locator("#step-label").inner_text().startswith("level")
             )
+            page.wait_for_timeout(500)
+            for d in _screenshot_dirs(tmp_path):
+                page.screenshot(path=str(d / "live_page.png"), full_page=True)
             page.set_viewport_size({"width": 1024, "height": 768})  # alarms above the fold
             page.wait_for_timeout(300)
             box = page.locator("#alarms").bounding_box()
             assert box is not None and box["y"] + box["height"] <= 768, box
-            page.wait_for_timeout(500)
-            for d in _screenshot_dirs(tmp_path):
-                page.screenshot(path=str(d / "live_page.png"), full_page=True)
             ctx.close()
         code, out = run.finish()
         assert code == 0, out
