@@ -61,11 +61,13 @@ class StorageFailed(HwError):
         self.error = error
         self.t_s_last = t_s_last
         why = error.strerror or str(error)
-        end = "no rows yet" if t_s_last is None else f"its last row at t_s {t_s_last:g}"
-        super().__init__(
-            f"cannot write {path}: {why}; the record is closed with {end} and can be "
+        end = (
+            ""
+            if t_s_last is None
+            else f"; the record is closed with its last row at t_s {t_s_last:g} and can be "
             "resumed (--resume) once the disk has room"
         )
+        super().__init__(f"cannot write {path}: {why}{end}")
 
 
 class RunRefused(ChekanError):

@@ -317,3 +317,52 @@ def test_any_fatal_error_of_acquisition_levels_and_closes_first(tmp_path, monkey
         "acquisition error (exit 1): unexpected RuntimeError: a bug in the recorder"
     )
     _record_ends_whole(rec)
+
+
+def test_acquire_on_a_disk_already_full_leaves_nothing_that_blocks_a_retry(tmp_path):
+    """No room even for the record's header: one line naming the record, exit 1, and no
+    empty record, journal or raw log left to make the retry say 'exists'."""
+    import pytest
+
+    from hw.emulator import PtyEmulator
+
+    disk = tmp_path / "disk"
+    if not _small_disk(disk, "64k"):
+        pytest.skip("cannot mount a small tmpfs here (needs root on Linux)")
+    prog = tmp_path / "long.toml"
+    prog.write_text(LONG_PROGRAM_TOML, encoding="utf-8")
+    rec = disk / "rec.csv"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    try:
+        (disk / "fill").write_bytes(b"\0" * 65536)
+        with PtyEmulator(str(tmp_path / "s"), str(tmp_path / "p"), speed=100, seed=4) as emu:
+            argv = [
+                *(sys.executable, "-m", "chekan.cli", "acquire", "-q", "--out", str(rec)),
+                *("--sensor", emu.sensor_url, "--platform", emu.platform_url),
+                *("--program", str(prog), "--g-local-mgal", "981922.05"),
+            ]
+            p = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=120)
+            assert p.returncode == 1, (p.stdout, p.stderr)
+            assert "Traceback" not in p.stderr, p.stderr
+            first = p.stdout.splitlines()[1]
+            assert first == (
+                f"acquisition stopped (exit 1): cannot write {rec}: No space left on device; "
+                "nothing was recorded: the run's files were removed, so the same record can "
+                "be started again"
+            )
+            assert "levelled: yes" in p.stdout
+            assert sorted(x.name for x in disk.iterdir()) == ["fill"]
+            (disk / "fill").unlink()  # room again: the same command starts the run
+            p2 = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, env=env)
+            try:
+                deadline = time.monotonic() + 60
+                while time.monotonic() < deadline and not (
+                    rec.exists() and rec.stat().st_size > 2000
+                ):
+                    time.sleep(0.1)
+                assert rec.stat().st_size > 2000  # rows are being recorded
+            finally:
+                p2.send_signal(signal.SIGINT)
+                p2.communicate(timeout=60)
+    finally:
+        subprocess.run(["umount", str(disk)], capture_output=True)

@@ -136,7 +136,26 @@ class Recorder:
     def create(self, meta: dict[str, str]) -> None:
         """Start a new record with the header ``meta`` (refuses an existing file)."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.writer = RecordWriter(self.path, meta, fsync_interval_s=self._fsync_interval_s)
+        try:
+            self.writer = RecordWriter(self.path, meta, fsync_interval_s=self._fsync_interval_s)
+        except FileExistsError:
+            raise
+        except OSError as e:  # no room even for the header
+            self._failed(self.path, e)
+            assert self.failure is not None
+            raise self.failure from None
+
+    def remove_if_unborn(self) -> bool:
+        """After the run: if the record was never written (missing or empty), remove it, its
+        journal and raw log, which hold nothing to resume and would block a retry."""
+        try:
+            if self.path.exists() and self.path.stat().st_size > 0:
+                return False
+            for p in (self.path, journal_path(self.path), raw_log_path(self.path)):
+                p.unlink(missing_ok=True)
+        except OSError:
+            return False
+        return True
 
     def append(self) -> str | None:
         """Reopen the record to continue it; returns where a torn last line was saved."""

@@ -339,6 +339,11 @@ class Acquisition:
                 summary=asdict(s),
             )
             rec.close()
+            if self.resume_state is None and rec.remove_if_unborn():
+                s.message += (
+                    "; nothing was recorded: the run's files were removed, so the same "
+                    "record can be started again"
+                )
             if self.report is not None:
                 self.report(s.format())
 
