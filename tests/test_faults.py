@@ -347,8 +347,8 @@ def test_acquire_on_a_disk_already_full_leaves_nothing_that_blocks_a_retry(tmp_p
             first = p.stdout.splitlines()[1]
             assert first == (
                 f"acquisition stopped (exit 1): cannot write {rec}: No space left on device; "
-                "nothing was recorded: the run's files were removed, so the same record can "
-                "be started again"
+                "nothing was recorded: the empty record and its journal were removed, so the "
+                "same record can be started again"
             )
             assert "levelled: yes" in p.stdout
             assert sorted(x.name for x in disk.iterdir()) == ["fill"]

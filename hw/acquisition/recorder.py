@@ -146,13 +146,17 @@ class Recorder:
             raise self.failure from None
 
     def remove_if_unborn(self) -> bool:
-        """After the run: if the record was never written (missing or empty), remove it, its
-        journal and raw log, which hold nothing to resume and would block a retry."""
+        """After the run: if the record was never written (missing or empty), remove it and
+        its journal, which hold nothing to resume and would block a retry; the raw log stays
+        if the devices said anything (a retry appends to it), else it goes too."""
+        raw = raw_log_path(self.path)
         try:
             if self.path.exists() and self.path.stat().st_size > 0:
                 return False
-            for p in (self.path, journal_path(self.path), raw_log_path(self.path)):
+            for p in (self.path, journal_path(self.path)):
                 p.unlink(missing_ok=True)
+            if raw.exists() and raw.stat().st_size == 0:
+                raw.unlink()
         except OSError:
             return False
         return True

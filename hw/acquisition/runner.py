@@ -341,8 +341,8 @@ class Acquisition:
             rec.close()
             if self.resume_state is None and rec.remove_if_unborn():
                 s.message += (
-                    "; nothing was recorded: the run's files were removed, so the same "
-                    "record can be started again"
+                    "; nothing was recorded: the empty record and its journal were removed, "
+                    "so the same record can be started again"
                 )
             if self.report is not None:
                 self.report(s.format())
