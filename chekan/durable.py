@@ -4,15 +4,20 @@
 - :func:`atomic_output` writes a whole file to a temporary file in the same folder and
   renames it into place, so an interrupted command never leaves a half-written result,
   certificate or record behind.
+- :func:`append_whole` appends to a streaming file (record, journal) whole writes only:
+  a write that fails part-way is cut back, so a full disk leaves no torn line.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import io
 import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import IO
 
 PathArg = str | os.PathLike[str]
 
@@ -68,3 +73,26 @@ def atomic_output(path: PathArg, mode: str = "w", **open_kw) -> Iterator:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def append_whole(f: IO[bytes] | io.RawIOBase, data: bytes, good: int) -> int:
+    """Write all of ``data`` to the unbuffered file ``f``; returns the new end of good data.
+
+    ``good`` is the offset where ``data`` starts (the end of the last complete write). If
+    the write fails part-way (a full disk, an I/O error), the file is cut back to ``good``
+    — a truncation needs no room — and the error is raised: the file never ends in a torn
+    line of our own making.
+    """
+    view = memoryview(data)
+    try:
+        while view:
+            n = f.write(view)
+            if n is None:  # non-blocking file: nothing written now
+                raise BlockingIOError(errno.EAGAIN, "write would block")
+            view = view[n:]
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.ftruncate(f.fileno(), good)
+            f.seek(good)
+        raise
+    return good + len(data)

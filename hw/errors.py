@@ -51,6 +51,25 @@ class GaveUp(HwError):
         )
 
 
+class StorageFailed(HwError):
+    """A file of the run (record, journal, raw log) cannot be written: a full disk, an I/O
+    error. Fatal: the run levels the platform and stops; the record ends at its last
+    complete row and can be resumed once the disk has room."""
+
+    def __init__(self, path: str, error: OSError, t_s_last: float | None):
+        self.path = path
+        self.error = error
+        self.t_s_last = t_s_last
+        why = error.strerror or str(error)
+        end = (
+            ""
+            if t_s_last is None
+            else f"; the record is closed with its last row at t_s {t_s_last:g} and can be "
+            "resumed (--resume) once the disk has room"
+        )
+        super().__init__(f"cannot write {path}: {why}{end}")
+
+
 class RunRefused(ChekanError):
     """A run cannot start as asked: the request is at fault, not a device."""
 

@@ -16,7 +16,7 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
-from chekan.durable import fsync_dir
+from chekan.durable import append_whole, fsync_dir
 from chekan.errors import ChekanError
 
 
@@ -39,7 +39,7 @@ class Journal:
         self.path = Path(path)
         self._utc = utc
         new = not self.path.exists()
-        self._f = open(self.path, "a", encoding="utf-8", newline="\n")
+        self._f = open(self.path, "ab", buffering=0)
         try:  # one runner per record: a second one (e.g. a resume) fails at once
             fcntl.flock(self._f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
@@ -51,6 +51,7 @@ class Journal:
             fsync_dir(self.path)  # the new name survives a crash
         else:
             self._cut_torn_tail()
+        self._good = os.fstat(self._f.fileno()).st_size
 
     def _cut_torn_tail(self) -> None:
         raw = self.path.read_bytes()
@@ -61,10 +62,17 @@ class Journal:
                 os.fsync(f.fileno())
 
     def write(self, event: str, **fields: object) -> dict:
+        """Append one event, whole and fsynced; a failed write (``OSError``) leaves no part
+        of it behind, so a later event may still be written."""
         rec = {"event": event, "utc": self._utc(), **fields}
-        self._f.write(json.dumps(rec, ensure_ascii=False, default=str) + "\n")
-        self._f.flush()
-        os.fsync(self._f.fileno())
+        line = json.dumps(rec, ensure_ascii=False, default=str) + "\n"
+        good = append_whole(self._f, line.encode("utf-8"), self._good)
+        try:
+            os.fsync(self._f.fileno())
+        except OSError:
+            os.ftruncate(self._f.fileno(), self._good)
+            raise
+        self._good = good
         return rec
 
     def close(self) -> None:

@@ -14,6 +14,7 @@ Clocks are injected: ``clock`` is monotonic seconds (timeouts, back-off),
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import serial
 
+from chekan.durable import append_whole
 from hw.errors import GaveUp, LinkLost
 from hw.nmea import HOST_TYPES, Parser, Sentence, SentenceParser
 
@@ -59,28 +61,38 @@ class RawLog:
 
     Lines look like ``sensor< $GRV,…*4A`` and ``platform> $PLQ,TILT,…*1C``; bytes
     that are not printable ASCII are escaped (``\\xNN``) so the log stays text and
-    can be re-parsed. Flushed at most every ``flush_interval_s`` and on close.
+    can be re-parsed. Written at most every ``flush_interval_s`` and on close, whole
+    lines only. A write that fails (a full disk) is cut back to the last whole line and
+    ends the log: the reader threads that feed it never raise; :attr:`error` holds the
+    failure for the acquisition to act on.
     """
 
     def __init__(
         self, path: str | Path, *, flush_interval_s: float = 0.5, clock: Clock = time.monotonic
     ):
         self.path = str(path)
-        self._f = open(self.path, "a", encoding="ascii", newline="\n")
+        self._f = open(self.path, "ab", buffering=0)
+        self._good = os.fstat(self._f.fileno()).st_size
+        self._pending: list[str] = []
         self._lock = threading.Lock()
         self._partial: dict[str, bytearray] = {}
         self._clock = clock
         self._flush_interval_s = flush_interval_s
         self._last_flush = clock()
+        self.error: OSError | None = None
 
-    def _write(self, text: str) -> None:
-        if self._f.closed:
+    def _write(self, text: str, force: bool = False) -> None:
+        if self._f.closed or self.error is not None:
             return
-        self._f.write(text)
+        self._pending.append(text)
         now = self._clock()
-        if now - self._last_flush >= self._flush_interval_s:
-            self._f.flush()
+        if force or now - self._last_flush >= self._flush_interval_s:
             self._last_flush = now
+            data, self._pending = "".join(self._pending).encode("ascii"), []
+            try:
+                self._good = append_whole(self._f, data, self._good)
+            except OSError as e:
+                self.error = e
 
     def received(self, port: str, data: bytes) -> None:
         with self._lock:
@@ -106,12 +118,12 @@ class RawLog:
 
     def close(self) -> None:
         with self._lock:
-            for port, buf in self._partial.items():
-                if buf:
-                    self._f.write(f"{port}<~ {_escape(bytes(buf))}\n")
+            tail = [
+                f"{port}<~ {_escape(bytes(buf))}\n" for port, buf in self._partial.items() if buf
+            ]
             self._partial.clear()
+            self._write("".join(tail), force=True)
             if not self._f.closed:
-                self._f.flush()
                 self._f.close()
 
 

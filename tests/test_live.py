@@ -417,9 +417,22 @@ def test_live_page_in_a_browser_end_to_end(tmp_path):
             b1 = page.locator(".map-b1").first.inner_text()
             assert re.match(r"\d+\.\d+ ± \d+\.\d+", b1), b1
             assert int(page.evaluate("document.body.dataset.points")) > 100
+            # issue 33 §5: the readings as numbers, the wall-clock end, each hold's axis
+            for rid in ("#r-m1", "#r-m2", "#r-tx", "#r-ty", "#r-temp"):
+                assert re.fullmatch(r"-?\d+\.\d+", page.locator(rid).inner_text()), rid
+            assert re.match(r"\d\d:\d\d", page.locator("#end").inner_text())
+            axes = page.locator("#holds tr.hold-row td:nth-child(4)").all_inner_texts()
+            assert axes and set(axes) == {"Y"}
+            assert "about Y" in page.locator("#step-label").inner_text() or (
+                page.locator("#step-label").inner_text().startswith("level")
+            )
             page.wait_for_timeout(500)
             for d in _screenshot_dirs(tmp_path):
                 page.screenshot(path=str(d / "live_page.png"), full_page=True)
+            page.set_viewport_size({"width": 1024, "height": 768})  # alarms above the fold
+            page.wait_for_timeout(300)
+            box = page.locator("#alarms").bounding_box()
+            assert box is not None and box["y"] + box["height"] <= 768, box
             ctx.close()
         code, out = run.finish()
         assert code == 0, out
@@ -471,3 +484,332 @@ def test_an_all_interfaces_bind_is_announced_with_a_warning(tmp_path):
         assert srv.url.startswith("http://127.0.0.1:")
     finally:
         srv.server_close()
+
+
+# ----------------------------------------------------------------------------- issue 33 §5
+
+
+class _Capture(calib.MapRunner):
+    """A runner that keeps the records it is given (the estimators' input)."""
+
+    def __init__(self):
+        super().__init__()
+        self.records = []
+
+    def submit(self, round_no, record):
+        self.records.append(record)
+
+
+def _quiet_state(path: Path, runner=None) -> LiveState:
+    """The state of a file that no longer grows (a finished record), alarms included."""
+    now = [0.0]
+    st = LiveState(path, map_runner=runner or _FakeRunner(), clock=lambda: now[0], stall_s=5.0)
+    st.update()
+    now[0] = 10.0
+    st.update()
+    return st
+
+
+def test_a_binary_file_raises_an_alarm_not_all_healthy(tmp_path):
+    p = tmp_path / "scope.bin"
+    p.write_bytes(bytes(range(256)) * 40)
+    s = _quiet_state(p).status()
+    assert s["state"] == "not a record" and s["n"] == 0
+    assert [a["level"] for a in s["alarms"]] == ["alarm"]
+    assert s["alarms"][0]["text"].startswith(f"{p}: ") and "format" in s["alarms"][0]["text"]
+    p2 = tmp_path / "noise.bin"
+    p2.write_bytes(b"\x01\x02" * 40_000)  # no line end at all
+    (a,) = _quiet_state(p2).status()["alarms"]
+    assert a["text"].startswith(f"{p2}: no line end") and a["level"] == "alarm"
+
+
+def test_a_record_running_backwards_is_named_with_its_line_and_not_calibrated(
+    short_session, tmp_path
+):
+    path, rec, _ = short_session
+    lines = path.read_bytes().split(b"\n")
+    header = next(i for i, ln in enumerate(lines) if ln.startswith(b"t_s"))
+    k = header + 1 + 3000  # the 3001st row goes back 100 s, and the rows after it
+    for i in range(k, len(lines) - 1):
+        f = lines[i].split(b",")
+        f[0] = str(float(f[0]) - 100).encode()
+        lines[i] = b",".join(f)
+    back = tmp_path / "mine.csv"
+    back.write_bytes(b"\n".join(lines))
+    runner = _Capture()
+    st = _quiet_state(back, runner)
+    s = st.status()
+    from chekan.errors import FormatError
+    from chekan.records import read_record
+
+    with pytest.raises(FormatError) as e:  # the page says what chekan calibrate would
+        read_record(back)
+    assert str(e.value).startswith(f"{back}:{k + 1}: t_s goes backwards")
+    assert {"level": "alarm", "text": str(e.value)} in s["alarms"]
+    assert st.classical is None and runner.records == []  # no numbers from a broken record
+    assert s["n"] == rec.n  # the plot still shows every row
+
+
+def test_a_finished_record_speaks_of_the_users_file(short_session, tmp_path):
+    """A record that ends without its closing level step: the classical note and every
+    record handed to the estimators name the user's file, never a temporary one."""
+    path, rec, _ = short_session
+    last_tilt = int(rec.step.max()) - 1  # drop the final level step
+    lines = path.read_text().splitlines(keepends=True)
+    header = next(i for i, ln in enumerate(lines) if ln.startswith("t_s"))
+    keep = [ln for ln in lines[header + 1 :] if int(ln.split(",")[5] or -1) <= last_tilt]
+    mine = tmp_path / "session 12.csv"
+    mine.write_text("".join(lines[: header + 1] + keep))
+    runner = _Capture()
+    st = _quiet_state(mine, runner)
+    texts = [a["text"] for a in st.status()["alarms"]]
+    assert (
+        f"{mine}: round 2: no level step after it; drift between level steps cannot be removed"
+        in texts
+    )
+    assert runner.records and {r.path for r in runner.records} == {str(mine)}
+    assert not any(
+        "partial" in t or "<live>" in t or "tmp" in t.replace(str(tmp_path), "") for t in texts
+    )
+
+
+def _journal(path: Path, events: list[dict]) -> None:
+    Path(f"{path}.journal.jsonl").write_text(
+        "".join(json.dumps(e) + "\n" for e in events), encoding="utf-8"
+    )
+
+
+def _plan(short_program) -> list[dict]:
+    from hw.acquisition import plan_from_program
+
+    return [vars(s) for s in plan_from_program(short_program)]
+
+
+def test_readings_end_time_and_the_error_state(short_session, short_program, tmp_path):
+    from datetime import UTC, datetime, timedelta
+
+    path, rec, _ = short_session
+    mine = tmp_path / "rec.csv"
+    n = 2000
+    text = path.read_text().splitlines(keepends=True)
+    header = next(i for i, ln in enumerate(text) if ln.startswith("t_s"))
+    mine.write_text("".join(text[: header + 1 + n]))
+    t0 = datetime(2026, 11, 25, 8, 0, tzinfo=UTC)
+
+    def stamp(t_s: float, pace: float = 2.0) -> str:  # the wall clock runs at half speed
+        return (t0 + timedelta(seconds=t_s * pace)).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+    plan = _plan(short_program)
+    events = [
+        {"event": "run_start", "utc": stamp(0), "plan": plan, "rate_hz": 1.0, "program": "p"},
+        {"event": "step_start", "utc": stamp(0), "step": 0, "round": 1, "kind": "level",
+         "label": "level", "dwell_samples": 300, "t_s": 0.0},
+        {"event": "hold", "utc": stamp(0), "step": 0, "t_s": 0.0},
+        {"event": "step_done", "utc": stamp(float(rec.t_s[n - 1])), "step": 0,
+         "t_s": float(rec.t_s[n - 1])},
+    ]  # fmt: skip
+    _journal(mine, events)
+    st = LiveState(mine, map_runner=_FakeRunner())
+    st.update()
+    s = st.status()
+    from chekan.records import read_record
+
+    mine_rec = read_record(mine)  # the numbers as the file holds them
+    for c in ("m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "temp_c"):
+        assert s["readings"][c] == float(getattr(mine_rec, c)[-1]), c
+    left = s["remaining_s"]
+    assert left > 0 and s["end"]["estimated"] and s["stopped"] is None
+    end = datetime.fromisoformat(s["end"]["utc"].replace("Z", "+00:00"))
+    want = datetime.now(UTC) + timedelta(seconds=2.0 * left)  # at the journal's pace
+    assert abs((end - want).total_seconds()) < 5
+    # the platform refused a TILT: the run stopped with exit 1
+    stop = stamp(float(rec.t_s[n - 1]) + 5)
+    with open(f"{mine}.journal.jsonl", "a") as f:
+        msg = "platform: TILT refused: RANGE"
+        ev = {"event": "run_stop", "utc": stop, "status": "device_error", "exit_code": 1}
+        f.write(json.dumps({**ev, "message": msg}) + "\n")
+    st.update()
+    s = st.status()
+    assert s["state"] == "device_error" and s["remaining_s"] is None
+    assert s["stopped"] == {
+        "status": "device_error",
+        "exit_code": 1,
+        "message": "platform: TILT refused: RANGE",
+    }
+    assert s["end"] == {"utc": stop[:19] + "Z", "estimated": False}
+    assert any("TILT refused" in a["text"] for a in s["alarms"])
+
+
+def _about_x_in_round_2(rec, path: Path, out: Path) -> None:
+    """The short session with its second round's tilts about X (tilt columns swapped)."""
+    from chekan.holds import segment_record
+    from chekan.records import write_record
+
+    holds = segment_record(rec, settle_s=200)
+    r2 = holds.rounds[1]
+    steps = {int(holds.step[i]) for i in r2.tilt_holds}
+    sel = np.isin(rec.step, sorted(steps))
+    tx, ty = rec.tilt_x_arcsec.copy(), rec.tilt_y_arcsec.copy()
+    tx[sel], ty[sel] = rec.tilt_y_arcsec[sel], rec.tilt_x_arcsec[sel]
+    import dataclasses
+
+    write_record(out, dataclasses.replace(rec, tilt_x_arcsec=tx, tilt_y_arcsec=ty))
+
+
+def test_the_axis_of_each_hold_from_the_record_and_from_the_plan(short_session, tmp_path):
+    from chekan.holds import segment_record
+    from chekan.records import read_record
+
+    path, rec, _ = short_session
+    xy = tmp_path / "xy.csv"
+    _about_x_in_round_2(rec, path, xy)
+    want = segment_record(read_record(xy), settle_s=200)
+    assert want.axis == "xy"
+    s = _quiet_state(xy).status()
+    axes = {h[2]: h[3] for h in s["holds"]}
+    assert axes == dict(zip(want.step.tolist(), want.hold_axis.tolist(), strict=True))
+    assert set(axes.values()) == {"x", "y"}
+    # with a journal the plan gives the axis at once (before a hold completes)
+    from chekan.live.state import _plan_axes
+
+    plan = [
+        {"index": 0, "kind": "level", "x_arcsec": 0.0, "y_arcsec": 0.0},
+        {"index": 1, "kind": "tilt", "x_arcsec": 0.0, "y_arcsec": 3600.0},
+        {"index": 2, "kind": "level", "x_arcsec": 0.0, "y_arcsec": 0.0},
+        {"index": 3, "kind": "tilt", "x_arcsec": -3600.0, "y_arcsec": 0.0},
+        {"index": 4, "kind": "level", "x_arcsec": 0.0, "y_arcsec": 0.0},
+    ]
+    assert _plan_axes(plan) == {0: "y", 1: "y", 2: "x", 3: "x", 4: "x"}
+
+
+def test_live_on_all_interfaces_prints_the_bound_address_and_a_warning(tmp_path):
+    """``chekan live REC --live 0.0.0.0:0`` (and ``acquire --live``, through start_beside):
+    the address actually bound, and that anyone on the network can read the page."""
+    from chekan.live import start_beside
+
+    rec = tmp_path / "rec.csv"
+    rec.write_text(HEADER + COLS)
+    p = subprocess.Popen(
+        [sys.executable, "-m", "chekan.cli", "live", str(rec), "--live", "0.0.0.0:0"],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=_env(),
+    )
+    try:
+        first, second = p.stdout.readline(), p.stdout.readline()
+    finally:
+        p.send_signal(signal.SIGINT)
+        p.wait(20)
+    assert re.match(
+        r"live page http://127\.0\.0\.1:(\d+)/ \(pid \d+, bound to 0\.0\.0\.0:\1,", first
+    )
+    assert second.startswith("warning: the live page listens on every interface (0.0.0.0:")
+    assert "anyone on the network can read it (read-only)" in second
+    proc, text = start_beside(rec, "0.0.0.0:0")
+    try:
+        assert proc is not None, text
+        lines = text.splitlines()
+        assert len(lines) == 2 and "bound to 0.0.0.0:" in lines[0]
+        assert lines[1].startswith("warning: the live page listens on every interface")
+    finally:
+        if proc is not None:
+            proc.kill()
+            proc.wait(10)
+
+
+def _serve_in_process(path: Path):
+    """The live page of ``path`` in this process (no MAP worker): (server, url)."""
+    import threading
+
+    from chekan.live.server import LiveServer
+
+    st = LiveState(path, map_runner=_FakeRunner(), stall_s=1.0)
+    srv = LiveServer(("127.0.0.1", 0), st)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    threading.Thread(target=srv.follow, kwargs={"poll_s": 0.1}, daemon=True).start()
+    return srv, srv.url
+
+
+@pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} absent (make browser)")
+@pytest.mark.timeout(300)
+def test_the_page_in_a_browser_shows_what_went_wrong(short_session, tmp_path):
+    """Issue 33 §5 in a real browser at 1024×768: a binary file, a record running backwards,
+    a run stopped by a device error, and a record holding rounds about X and Y."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    path, rec, _ = short_session
+    binary = tmp_path / "scope.bin"
+    binary.write_bytes(bytes(range(256)) * 40)
+    lines = path.read_bytes().split(b"\n")
+    header = next(i for i, ln in enumerate(lines) if ln.startswith(b"t_s"))
+    back_lines = list(lines)
+    for i in range(header + 3001, len(lines) - 1):
+        f = back_lines[i].split(b",")
+        f[0] = str(float(f[0]) - 100).encode()
+        back_lines[i] = b",".join(f)
+    back = tmp_path / "backwards.csv"
+    back.write_bytes(b"\n".join(back_lines))
+    stopped = tmp_path / "stopped.csv"
+    stopped.write_bytes(b"\n".join(lines[: header + 2001]) + b"\n")
+    _journal(
+        stopped,
+        [
+            {"event": "run_start", "utc": "2026-11-25T08:00:00.0Z", "plan": [], "rate_hz": 1.0},
+            {"event": "run_stop", "utc": "2026-11-25T08:33:20.0Z", "status": "device_error",
+             "exit_code": 1, "message": "platform: TILT (step 3: +1°50', round 1) refused: RANGE"},
+        ],
+    )  # fmt: skip
+    xy = tmp_path / "xy.csv"
+    _about_x_in_round_2(rec, path, xy)
+    profile = tempfile.mkdtemp(prefix="chekan-chromium-")
+    servers = []
+    try:
+        with sync_api.sync_playwright() as pw:
+            ctx = pw.chromium.launch_persistent_context(
+                profile,
+                executable_path=CHROMIUM,
+                args=CHROMIUM_ARGS,
+                headless=True,
+                viewport={"width": 1024, "height": 768},
+            )
+            page = ctx.new_page()
+
+            def show(p: Path) -> str:
+                srv, url = _serve_in_process(p)
+                servers.append(srv)
+                page.goto(url)
+                page.wait_for_function(
+                    "document.getElementById('alarms').textContent.length > 0", timeout=30_000
+                )
+                box = page.locator("#alarms").bounding_box()
+                assert box is not None and box["y"] + box["height"] <= 768, (p, box)
+                return page.locator("#alarms").inner_text()
+
+            text = show(binary)
+            assert "all healthy" not in text and f"{binary}: " in text and "format" in text
+            assert page.locator("#state").inner_text().lower() == "not a record"
+
+            text = show(back)
+            assert f"{back}:{header + 3002}: t_s goes backwards" in text, text
+            assert "partial" not in text and "<live>" not in text
+
+            text = show(stopped)
+            assert "TILT (step 3: +1°50', round 1) refused: RANGE" in text
+            assert page.locator("#remaining").inner_text() == "stopped: device error"
+            assert page.locator("#end-lbl").inner_text() == "stopped at"
+            assert re.match(r"\d\d:\d\d", page.locator("#end").inner_text())
+            assert re.fullmatch(r"-?\d+\.\d+", page.locator("#r-m1").inner_text())
+
+            show(xy)
+            page.wait_for_function(
+                "document.querySelectorAll('#holds tr.hold-row').length > 10", timeout=30_000
+            )
+            axes = page.locator("#holds tr.hold-row td:nth-child(4)").all_inner_texts()
+            assert set(axes) == {"X", "Y"} and axes.count("X") >= 8, axes
+            for d in _screenshot_dirs(tmp_path):
+                page.screenshot(path=str(d / "live_page_1024.png"))
+            ctx.close()
+    finally:
+        for srv in servers:
+            srv.stop()
+            srv.server_close()
+        shutil.rmtree(profile, ignore_errors=True)

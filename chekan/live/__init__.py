@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import selectors
 import subprocess
 import sys
@@ -79,7 +80,8 @@ def cmd_live(args: argparse.Namespace) -> int:
 
 def start_beside(record: str | Path, address: str, *, timeout_s: float = 30.0):
     """Start ``chekan live`` for ``record`` in its own process and session; return
-    ``(process, announce line)``, or ``(None, reason)`` if it did not come up.
+    ``(process, announce lines)`` (the address line, and the warning of a page open to the
+    network), or ``(None, reason)`` if it did not come up.
 
     The process outlives nothing: it leaves ``LINGER_S`` after the run's ``run_stop``
     (or after this process is gone and the record stopped). Its stderr goes to
@@ -98,17 +100,23 @@ def start_beside(record: str | Path, address: str, *, timeout_s: float = 30.0):
             cmd,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
+            bufsize=0,  # unbuffered: a line read leaves the next one for the selector to see
             stderr=log,
             start_new_session=True,  # Ctrl-C of the acquisition is not its business
         )
         log.close()
+        out = proc.stdout
+        assert out is not None
         sel = selectors.DefaultSelector()
-        sel.register(proc.stdout, selectors.EVENT_READ)
+        sel.register(out, selectors.EVENT_READ)
         line = b""
         if sel.select(timeout_s):
-            line = proc.stdout.readline()
+            line = out.readline()
+        if re.search(rb"bound to (0\.0\.0\.0|::):", line):
+            if sel.select(timeout_s):  # the warning that the page is open to the network
+                line += out.readline()
         sel.close()
-        proc.stdout.close()
+        out.close()
         text = line.decode("utf-8", "replace").strip()
         if not text.startswith("live page"):
             if proc.poll() is None:

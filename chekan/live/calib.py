@@ -27,8 +27,15 @@ from chekan.records import Record
 PARAMS = ("b1", "b2", "a")
 
 
-def partial_record(meta: dict[str, str], cols: dict[str, np.ndarray], complete: set[int]) -> Record:
-    """A :class:`Record` of the rows so far where only completed steps keep their index."""
+def partial_record(
+    meta: dict[str, str],
+    cols: dict[str, np.ndarray],
+    complete: set[int],
+    *,
+    path: str = "<live>",
+) -> Record:
+    """A :class:`Record` of the rows so far where only completed steps keep their index;
+    ``path`` is the user's file, so that every message of the estimators names it."""
     step = np.asarray(cols["step"], dtype=float)
     ok = np.isin(np.where(np.isfinite(step), step, -1).astype(np.int64), sorted(complete))
     step = np.where(ok & np.isfinite(step), step, -1)
@@ -42,7 +49,7 @@ def partial_record(meta: dict[str, str], cols: dict[str, np.ndarray], complete: 
         tilt_y_arcsec=cols["tilt_y_arcsec"],
         step=step,
         temp_c=temp if temp is not None and np.isfinite(temp).any() else None,
-        path="<live>",
+        path=path,
     )
 
 
@@ -81,6 +88,8 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
         return None
     rounds_done = sum(1 for r in holds.rounds if r.level_before is not None and r.level_after)
     return {
+        "hold_axis": {int(k): str(a) for k, a in zip(holds.step, holds.hold_axis, strict=True)},
+        "notes": [f"{record.path}: {w}" for w in holds.warnings],
         "pairs": int(paired.sum()),
         "rounds_complete": int(rounds_done),
         "rounds": [int(r) for r in table.rounds],

@@ -17,12 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
+from chekan.errors import FormatError
+from chekan.records.framing import read_frame
+from chekan.records.reader import FORMAT, REQUIRED_COLUMNS
 from hw.nmea import SentenceParser
 
 #: the columns the live page keeps, in this order (``temp_c`` may be absent: NaN)
 COLUMNS = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "step", "temp_c")
 
 _CHUNK = 8 << 20  # at most this many bytes per poll
+_MAX_HEADER = 64 << 10  # a header longer than this (or a line without an end) is no record
 
 
 class _Tail:
@@ -71,7 +75,11 @@ class RecordFollower:
     """Follows a ``chekan-record/1`` file: header first, then new rows on every :meth:`poll`.
 
     Malformed rows are counted in :attr:`bad_rows` and skipped (the page must not stop
-    on them; the analysis proper reports them with file and line).
+    on them; the analysis proper reports them with file and line). A file that is no
+    record (no ``# format: chekan-record/1`` header: a binary file, another CSV) or whose
+    ``t_s`` runs backwards sets :attr:`problem`, the reader's own message naming the file
+    and line (``rec.csv:519: t_s goes backwards (400.0 after 499.0)``); rows of a record
+    whose time runs backwards are still returned (for the plot).
     """
 
     def __init__(self, path: str | Path):
@@ -85,6 +93,22 @@ class RecordFollower:
         self._index: list[int | None] = []
         self.bad_rows = 0
         self.rows = 0
+        self.problem: str | None = None
+        self._header = bytearray()
+        self._line_no = 0  # physical lines read so far
+        self._last_t: float | None = None
+
+    def _check_header(self) -> None:
+        """The reader's checks of the header (format line, columns), its message on failure."""
+        try:
+            fr = read_frame(bytes(self._header), self.path, FORMAT)
+            missing = [c for c in REQUIRED_COLUMNS if c not in fr.columns]
+            if missing:
+                raise FormatError(
+                    self.path, fr.header_line, f"missing required column {missing[0]!r}"
+                )
+        except FormatError as e:
+            self.problem = str(e)
 
     @property
     def offset(self) -> int:
@@ -105,8 +129,12 @@ class RecordFollower:
             if raw == b"\x00reset":
                 self._clear()
                 return {"reset": np.array(True)}
+            self._line_no += 1
+            if self.problem is not None and self.columns is None:
+                continue  # not a record: nothing to read
             line = raw.rstrip(b"\r")
             if self.columns is None:
+                self._header += raw + b"\n"
                 if line.startswith(b"#"):
                     text = line.decode("utf-8", "replace")
                     m = re.match(r"#\s*([a-z0-9_]+):\s?(.*)$", text)
@@ -114,6 +142,9 @@ class RecordFollower:
                         self.meta[m[1]] = m[2]
                     continue
                 if not line.strip():
+                    continue
+                self._check_header()
+                if self.problem is not None:
                     continue
                 self.columns = tuple(c.strip() for c in line.decode("ascii", "replace").split(","))
                 pos = {c: i for i, c in enumerate(self.columns)}
@@ -126,9 +157,18 @@ class RecordFollower:
                 self.bad_rows += 1
                 continue
             try:
-                out.append([math.nan if i is None else _num(fields[i]) for i in self._index])
+                row = [math.nan if i is None else _num(fields[i]) for i in self._index]
             except ValueError:
                 self.bad_rows += 1
+                continue
+            t = row[0]
+            if self._last_t is not None and t < self._last_t and self.problem is None:
+                where = f"{self.path}:{self._line_no}"
+                self.problem = f"{where}: t_s goes backwards ({t!r} after {self._last_t!r})"
+            self._last_t = t if t == t else self._last_t
+            out.append(row)
+        if self.columns is None and self.problem is None and len(self._tail.pending) > _MAX_HEADER:
+            self.problem = f"{self.path}: no line end in {_MAX_HEADER} bytes (not a record)"
         if not out:
             return None
         arr = np.asarray(out, dtype=float)

@@ -206,12 +206,13 @@ def serve(
         srv = LiveServer((host, port), state)
     except OSError as e:
         raise ChekanError(f"--live {address}: cannot listen: {e}") from None
-    announce(f"live page {srv.url} (pid {os.getpid()}, bound to {srv.bound}, following {record})")
-    if srv.open_to_network:
-        announce(
-            f"warning: the live page listens on every interface ({srv.bound}): anyone on "
+    line = f"live page {srv.url} (pid {os.getpid()}, bound to {srv.bound}, following {record})"
+    if srv.open_to_network:  # one announcement: the acquisition relays both lines
+        line += (
+            f"\nwarning: the live page listens on every interface ({srv.bound}): anyone on "
             "the network can read it (read-only)"
         )
+    announce(line)
     threading.Thread(target=srv.serve_forever, name="live-http", daemon=True).start()
     follower = threading.Thread(target=srv.follow, name="live-follow", daemon=True)
     follower.start()

@@ -13,6 +13,7 @@ import math
 import os
 import threading
 import time
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,27 @@ CCD_MARGIN = 0.05  # fraction of the CCD range near either end that raises the a
 MOVE_ALARM_S = 180.0  # sample-clock seconds a step may wait for HOLD before the alarm
 
 _PLOT = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec")
+_READINGS = ("m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "temp_c")
+PACE_MIN_S = 30.0  # sample-clock seconds of journal before its pace replaces 1 s per s
+
+
+def _utc(text: object) -> datetime | None:
+    """A journal ``utc`` stamp (ISO 8601, ``Z``) as an aware datetime; None if unreadable."""
+    try:
+        return datetime.fromisoformat(str(text).replace("Z", "+00:00"))
+    except ValueError:
+        return None
+
+
+def _iso(d: datetime) -> str:
+    return d.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def step_axis(x_arcsec: float, y_arcsec: float) -> str:
+    """The axis a target tilts about ("x" when |x| > |y|, as :mod:`chekan.holds` classifies)."""
+    return "x" if abs(x_arcsec) > abs(y_arcsec) else "y"
+
+
 _DEC = {"t_s": 3, "m1_pix": 4, "m2_pix": 4, "tilt_x_arcsec": 2, "tilt_y_arcsec": 2}
 
 
@@ -91,6 +113,8 @@ class LiveState:
         self.sensor_status = "OK"
         self.hold_trouble: dict[int, list[str]] = {}
         self.classical: dict | None = None
+        self.plan_axes: dict[int, str] = {}  # step → axis, from the journal's plan
+        self.pace: tuple[tuple[datetime, float], tuple[datetime, float]] | None = None
         self._done_seen: set[int] = set()
         self._rounds_sent = 0
         self.expected: dict | None = None
@@ -153,9 +177,16 @@ class LiveState:
         self.events.append(ev)
         kind = ev["event"]
         h = self.health
+        t, utc = ev.get("t_s"), _utc(ev.get("utc"))
+        if isinstance(t, int | float) and utc is not None:  # wall clock against sample clock
+            first = self.pace[0] if self.pace else (utc, float(t))
+            self.pace = (first, (utc, float(t)))
+        if kind in (Event.RUN_START, Event.RESUME):
+            self.pace = None  # a new session: its own pace
         if kind == Event.RUN_START:
             self.run_start = ev
             self.plan = list(ev.get("plan") or [])
+            self.plan_axes = _plan_axes(self.plan)
             self.rate = float(ev.get("rate_hz") or 1.0)
             self.run_stop = None
             if self.plan and self.expected is None:
@@ -223,13 +254,13 @@ class LiveState:
 
     def _recalibrate(self) -> None:
         meta = self.record.meta
-        if not self.n or "g_local_mgal" not in meta:
-            return
+        if not self.n or "g_local_mgal" not in meta or self.record.problem:
+            return  # no calibration of a file that is no valid record (the alarm says why)
         done = self.complete_steps()
         if not done or done == self._done_seen:
             return  # the classical fit changes only when a step completes
         self._done_seen = set(done)
-        rec = calib.partial_record(meta, self.cols(), done)
+        rec = calib.partial_record(meta, self.cols(), done, path=str(self.path))
         snap = calib.classical_snapshot(rec)
         if snap is None:
             return
@@ -290,7 +321,7 @@ class LiveState:
         if not self.plan:
             return None
         if self.run_stop is not None:
-            return 0.0
+            return 0.0 if not self.run_stop.get("exit_code") else None  # stopped: no time left
         left = 0.0
         cur = step["index"] if step else None
         for s in self.plan:
@@ -310,8 +341,57 @@ class LiveState:
             return {p: {k: v for k, v in c.items() if v} for p, c in d.items()}
         return self.raw.dropped()
 
+    def readings(self) -> dict | None:
+        """The last row's readings (m1, m2, tilt X and Y, temperature; None where empty)."""
+        if not self.n:
+            return None
+        out: dict = {"t_s": float(self._cols["t_s"][-1])}
+        for c in _READINGS:
+            v = float(self._cols[c][-1])
+            out[c] = v if math.isfinite(v) else None
+        return out
+
+    def end(self, remaining_s: float | None) -> dict | None:
+        """When the run ended (``run_stop``'s stamp) or, running, when it should end: now plus
+        the program time left at the pace the journal shows (wall against sample clock)."""
+        if self.run_stop is not None:
+            at = _utc(self.run_stop.get("utc"))
+            return None if at is None else {"utc": _iso(at), "estimated": False}
+        if remaining_s is None or self.run_start is None:
+            return None
+        pace = 1.0
+        if self.pace is not None:
+            (u0, t0), (u1, t1) = self.pace
+            if t1 - t0 >= PACE_MIN_S:
+                pace = max((u1 - u0).total_seconds(), 0.0) / (t1 - t0)
+        at = datetime.now(UTC) + timedelta(seconds=remaining_s * pace)
+        return {"utc": _iso(at), "estimated": True}
+
+    def hold_axes(self) -> dict[int, str]:
+        """Axis ("x"/"y") of each step: the plan's, else the record's (``HoldTable.hold_axis``
+        of the completed holds, in the classical snapshot)."""
+        axes = dict((self.classical or {}).get("hold_axis") or {})
+        axes.update(self.plan_axes)
+        return axes
+
+    def finished(self) -> bool:
+        """The run is over: its ``run_stop`` is journalled, or (no journal) the file is quiet."""
+        if self.run_stop is not None:
+            return True
+        return self.run_start is None and self.n > 0 and self.quiet_s() > self.stall_s
+
     def alarms(self, step: dict | None) -> list[dict]:
         out: list[dict] = []
+        if self.record.problem:
+            out.append({"level": "alarm", "text": self.record.problem})
+        if self.record.bad_rows:
+            out.append(
+                {
+                    "level": "warn",
+                    "text": f"{self.path}: {self.record.bad_rows} malformed row(s) skipped "
+                    "(chekan calibrate names them)",
+                }
+            )
         running = self.run_stop is None and self.run_start is not None
         quiet = self._clock() - self.last_growth
         if running and self.n and quiet > self.stall_s:
@@ -362,6 +442,9 @@ class LiveState:
             )
         for e in self.map.errors[-2:]:
             out.append({"level": "warn", "text": f"running MAP failed: {e}"})
+        if self.finished() and self.classical:
+            for note in self.classical.get("notes") or []:
+                out.append({"level": "warn", "text": note})
         return out
 
     def _ccd_range(self) -> tuple[float, float]:
@@ -376,8 +459,14 @@ class LiveState:
 
     def status(self) -> dict:
         step = self._step_info()
+        axes = self.hold_axes()
+        if step and step.get("index") is not None:
+            step["axis"] = axes.get(int(step["index"]))
         meta = self.record.meta
-        if self.run_stop is not None:
+        remaining = self._remaining_s(step)
+        if self.record.problem and not self.n:
+            state = "not a record"
+        elif self.run_stop is not None:
             state = self.run_stop.get("status", "stopped")
         elif self.run_start is None and not self.n:
             state = "waiting for the record"
@@ -409,10 +498,25 @@ class LiveState:
             "n_steps": len(self.plan) or None,
             "steps_done": len(self.done_steps) if self.run_start else None,
             "step": step,
-            "remaining_s": self._remaining_s(step),
-            "holds": [r for r in self.runs if r[2] >= 0],
+            "remaining_s": remaining,
+            "end": self.end(remaining),
+            "stopped": None
+            if not (self.run_stop and self.run_stop.get("exit_code"))
+            else {
+                "status": self.run_stop.get("status"),
+                "exit_code": self.run_stop.get("exit_code"),
+                "message": self.run_stop.get("message"),
+            },
+            "readings": self.readings(),
+            "holds": [[*r, axes.get(r[2])] for r in self.runs if r[2] >= 0],
             "plan": [
-                {"index": s["index"], "kind": s["kind"], "label": s["label"]} for s in self.plan
+                {
+                    "index": s["index"],
+                    "kind": s["kind"],
+                    "label": s["label"],
+                    "axis": self.plan_axes.get(int(s["index"])),
+                }
+                for s in self.plan
             ],
             "health": h,
             "alarms": self.alarms(step),
@@ -423,3 +527,24 @@ class LiveState:
             "quiet_s": round(self._clock() - self.last_growth, 1),
             "pid": os.getpid(),
         }
+
+
+def _plan_axes(plan: list[dict]) -> dict[int, str]:
+    """Axis of every planned step: a tilt's own; a level step takes the next tilt's (the
+    last tilt's at the end), as ``HoldTable.hold_axis`` assigns level holds."""
+    axes: dict[int, str] = {}
+    pending: list[int] = []
+    last = "y"
+    for d in plan:
+        i = int(d["index"])
+        if d.get("kind") == "level":
+            pending.append(i)
+            continue
+        last = step_axis(float(d.get("x_arcsec", 0.0)), float(d.get("y_arcsec", 0.0)))
+        axes[i] = last
+        for j in pending:
+            axes[j] = last
+        pending = []
+    for j in pending:
+        axes[j] = last
+    return axes

@@ -221,3 +221,20 @@ def meta_float(
             path, lines.get(key), f"metadata {key}: {meta[key]!r} is not a finite number"
         )
     return v
+
+
+def count_rows(path: PathArg, chunk_bytes: int = 1 << 20) -> int:
+    """Data rows of a framed file (lines after the column header; a last line without its
+    newline counts), read in chunks: the memory used does not grow with the file."""
+    rows = 0
+    last = b"\n"
+    with open(path, "rb") as f:
+        for raw in f:  # metadata lines, then the header line
+            if not raw.removeprefix(BOM).startswith(b"#"):
+                break
+        while chunk := f.read(chunk_bytes):
+            rows += chunk.count(b"\n")
+            last = chunk[-1:]
+    if last != b"\n":
+        rows += 1
+    return rows

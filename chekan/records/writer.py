@@ -9,16 +9,18 @@ line is saved aside).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import os
 import re
 import time
 from collections.abc import Iterable, Sequence
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 import numpy as np
 
-from chekan.durable import fsync_dir
+from chekan.durable import append_whole, fsync_dir
 from chekan.errors import FormatError
 from chekan.records.framing import PathArg, read_frame
 from chekan.records.reader import DEFAULT_COLUMNS, FORMAT, REQUIRED_COLUMNS, Record
@@ -114,10 +116,13 @@ class RecordWriter:
     same value (metadata cannot be added once data follow). The column order of an
     appended file is the file's own; its set of columns must equal ``columns``.
 
-    Every line is flushed as written; ``os.fsync`` runs at most every
-    ``fsync_interval_s`` (monotonic clock) and on :meth:`close`. Rows whose time
-    would go backwards are refused (``ValueError``), so the file stays valid.
-    An existing file is never overwritten unless ``overwrite=True``.
+    Every batch of lines goes to the file as one unbuffered write; ``os.fsync`` runs at
+    most every ``fsync_interval_s`` (monotonic clock) and on :meth:`close`. Rows whose
+    time would go backwards are refused (``ValueError``), so the file stays valid. A write
+    that fails (``OSError``: a full disk, an I/O error) is cut back to the last complete
+    row, the file is closed and the error raised: the record stays a valid record that
+    ``append=True`` continues. An existing file is never overwritten unless
+    ``overwrite=True``.
     """
 
     def __init__(
@@ -143,7 +148,9 @@ class RecordWriter:
         self.last_t: float | None = None
         self.torn_path: str | None = None
         self.n_written = 0
-        self._f: BinaryIO | None = None
+        self.error: OSError | None = None  # the write that closed the writer
+        self._f: IO[bytes] | io.RawIOBase | None = None
+        self._good = 0  # end of the last complete write
         exists = os.path.exists(self.path) and os.path.getsize(self.path) > 0
         if append and exists:
             self.columns = self._open_append(meta, cols)
@@ -155,10 +162,14 @@ class RecordWriter:
             text = "".join(f"# {k}: {v}\n" for k, v in header_meta.items())
             text += ",".join(cols) + "\n"
             mode = "wb" if (overwrite or append) else "xb"
-            self._f = open(self.path, mode)
-            self._f.write(text.encode("utf-8"))
-            self._f.flush()
-            os.fsync(self._f.fileno())
+            fh = open(self.path, mode, buffering=0)
+            try:
+                self._good = append_whole(fh, text.encode("utf-8"), 0)
+                os.fsync(fh.fileno())
+            except OSError:
+                fh.close()
+                raise
+            self._f = fh
             fsync_dir(self.path)
         self._last_sync = time.monotonic()
 
@@ -205,26 +216,44 @@ class RecordWriter:
                 self.last_t = float(parts[j])
             except (IndexError, ValueError):
                 self.last_t = None
-        self._f = open(self.path, "r+b")
-        self._f.truncate(cut)
-        self._f.seek(cut)
-        if cut == len(raw) and not raw.endswith(b"\n"):  # complete header, no newline yet
-            self._f.write(b"\n")
-        self._f.flush()
-        os.fsync(self._f.fileno())
+        fa = open(self.path, "r+b", buffering=0)
+        try:
+            fa.truncate(cut)
+            fa.seek(cut)
+            self._good = cut
+            if cut == len(raw) and not raw.endswith(b"\n"):  # complete header, no newline yet
+                self._good = append_whole(fa, b"\n", cut)
+            os.fsync(fa.fileno())
+        except OSError:
+            fa.close()
+            raise
+        self._f = fa
         return tuple(fr.columns)
 
     # -- writing
 
     def _emit(self, data: bytes) -> None:
-        if self._f is None:
+        f = self._f
+        if f is None:
             raise ValueError(f"{self.path}: writer is closed")
-        self._f.write(data)
-        self._f.flush()
-        now = time.monotonic()
-        if now - self._last_sync >= self.fsync_interval_s:
-            os.fsync(self._f.fileno())
-            self._last_sync = now
+        try:
+            self._good = append_whole(f, data, self._good)
+            now = time.monotonic()
+            if now - self._last_sync >= self.fsync_interval_s:
+                os.fsync(f.fileno())
+                self._last_sync = now
+        except OSError as e:
+            self._fail(e)
+            raise
+
+    def _fail(self, e: OSError) -> None:
+        """Close after a failed write; the file ends at the last complete row."""
+        self.error = e
+        f, self._f = self._f, None
+        if f is not None:
+            with contextlib.suppress(OSError):
+                os.fsync(f.fileno())
+            f.close()
 
     def write_row(
         self,
@@ -287,11 +316,13 @@ class RecordWriter:
 
     def flush(self, fsync: bool = True) -> None:
         """Flush now (and fsync unless ``fsync=False``)."""
-        if self._f is not None:
-            self._f.flush()
-            if fsync:
+        if self._f is not None and fsync:
+            try:
                 os.fsync(self._f.fileno())
-                self._last_sync = time.monotonic()
+            except OSError as e:
+                self._fail(e)
+                raise
+            self._last_sync = time.monotonic()
 
     def close(self) -> None:
         """Flush, fsync and close (idempotent)."""
@@ -300,8 +331,9 @@ class RecordWriter:
         try:
             self.flush(fsync=True)
         finally:
-            self._f.close()
-            self._f = None
+            if self._f is not None:
+                self._f.close()
+                self._f = None
 
     @property
     def closed(self) -> bool:

@@ -33,7 +33,7 @@ from hw.acquisition.recorder import Recorder, record_meta
 from hw.acquisition.steps import StepMachine
 from hw.acquisition.summary import Summary
 from hw.drivers import LinkDown, PlatformInfo, Received, SensorInfo
-from hw.errors import DeviceError, GaveUp, HwError, LinkLost, ReplyTimeout
+from hw.errors import DeviceError, GaveUp, HwError, LinkLost, ReplyTimeout, StorageFailed
 from hw.events import Event
 from hw.nmea import Grv, Plt
 from hw.progress import Progress
@@ -88,6 +88,8 @@ class Acquisition:
         )
         self.steps = StepMachine(options, self.recorder.event, self._tilt, clock=clock)
         self._last_progress = 0.0
+        self._ending = False  # levelling at the end: a failed write no longer stops the pump
+        self._samples_broken = False  # a sample failed while levelling: record no more
 
     def _t_last(self) -> float | None:
         return None if self.samples is None else self.samples.t_last
@@ -102,7 +104,12 @@ class Acquisition:
             ev = None
         n = 0
         while ev is not None:
-            self._handle(ev)
+            try:
+                self._handle(ev)
+            except Exception:
+                if not self._ending:
+                    raise
+                self._samples_broken = True  # levelling goes on; no more rows
             n += 1
             if n >= MAX_EVENTS_PER_PUMP:
                 break
@@ -111,6 +118,9 @@ class Acquisition:
             except queue.Empty:
                 ev = None
         self.recorder.flush()
+        failure = self.recorder.check()
+        if failure is not None and not self._ending:
+            raise failure
         if watch and not self.steps.commanding:
             self.links.watch()
 
@@ -129,7 +139,7 @@ class Acquisition:
 
     def _on_sample(self, g: Grv, t_mono: float) -> None:
         clock, steps = self.samples, self.steps
-        if clock is None or not self.recorder.recording:
+        if clock is None or not self.recorder.recording or self._samples_broken:
             return
         if not clock.started and steps.status.angles is None:
             return  # the record starts with the first sample after a platform status
@@ -231,7 +241,8 @@ class Acquisition:
         self._show(force=True)
 
     def run(self) -> Summary:
-        """Run (or continue) the program; never raises for device or link trouble."""
+        """Run (or continue) the program; never raises for device, link or disk trouble
+        (a file that cannot be written stops the run: levelled, record closed, exit 1)."""
         status, code, message = "completed", EXIT_OK, ""
         try:
             self.recorder.open_journal()
@@ -246,6 +257,8 @@ class Acquisition:
                 self._run_step(st)
         except KeyboardInterrupt:
             status, code, message = "interrupted", EXIT_INTERRUPTED, "interrupted (Ctrl-C)"
+        except StorageFailed as e:
+            status, code, message = "stopped", EXIT_DEVICE, str(e)
         except DeviceError as e:
             status, code, message = "device_error", EXIT_DEVICE, str(e)
         except (GaveUp, LinkLost, ReplyTimeout) as e:
@@ -254,6 +267,8 @@ class Acquisition:
             status, code, message = "error", EXIT_CONFIG, str(e)
         except (HwError, OSError, ValueError) as e:
             status, code, message = "error", EXIT_DEVICE, f"{type(e).__name__}: {e}"
+        except Exception as e:  # any other fatal error: level and close first, then say it
+            status, code, message = "error", EXIT_DEVICE, f"unexpected {type(e).__name__}: {e}"
         finally:
             s = self.summary
             s.status, s.exit_code, s.message = status, code, message
@@ -313,12 +328,17 @@ class Acquisition:
 
     def _finish(self) -> None:
         s, rec = self.summary, self.recorder
+        self._ending = True
         try:
             if rec.recording or self.links.platform is not None:
                 self._level()
         finally:
             s.dropped.update(self.links.close())
             rec.close_record()
+            rec.close_raw_log()
+            failure = rec.check()
+            if failure is not None and s.exit_code == EXIT_OK:  # the raw log's last lines
+                s.status, s.exit_code, s.message = "error", EXIT_DEVICE, str(failure)
             self._collect()
             rec.event(
                 Event.RUN_STOP,
@@ -328,6 +348,11 @@ class Acquisition:
                 summary=asdict(s),
             )
             rec.close()
+            if self.resume_state is None and rec.remove_if_unborn():
+                s.message += (
+                    "; nothing was recorded: the empty record and its journal were removed, "
+                    "so the same record can be started again"
+                )
             if self.report is not None:
                 self.report(s.format())
 
