@@ -117,9 +117,9 @@ def _run(seed: int, quick: bool) -> list[Row]:
     )
     rows.append(
         Row(
-            f"MAP warm ({len(hist)} LM passes)",
+            f"MAP warm ({len(hist)} passes, EM between them)",
             f"{dt_warm:.2f} s",
-            note=f"{steps} LM steps, {model.n_holds} holds",
+            note=f"{steps} solver steps (Gauss–Newton, LM where it fails), {model.n_holds} holds",
             values={"seconds": dt_warm, "lm_passes": len(hist), "lm_steps": steps},
         )
     )

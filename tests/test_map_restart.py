@@ -72,32 +72,37 @@ _PASSES = {
 }
 
 
-def _fake_solve(calls: list):
-    def solve(lsq, args, zs, solver):
-        taus = [float(z[0]) for z in zs]
-        calls.append((list(args), taus, solver))
-        return [_Res(*_PASSES[(a, t, solver)]) for a, t in zip(args, taus, strict=True)]
+def _fake_solve(calls: list, passes: dict = _PASSES):
+    def solve(lsq, args, z, solver):
+        calls.append((args, float(z[0]), solver))
+        return _Res(*passes[(args, float(z[0]), solver)])
 
     return solve
 
 
-def test_first_pass_restarts_only_the_records_in_the_tails(monkeypatch):
+def _first_pass(record, solver="gn", hint=None):
+    return jmap._first_pass(_Prob(), record, {"tau_s": 30.0}, solver, hint)
+
+
+def test_first_pass_restarts_only_a_record_in_the_tails(monkeypatch):
     """A record inside the prior is never restarted. One in the tails is solved again from
     each restart τ with the fit's solver; a restart replaces the first pass only if it
     lowers the cost by more than RESTART_GAIN (the same mode found again keeps its
     numbers)."""
     calls: list = []
     monkeypatch.setattr(jmap, "_solve", _fake_solve(calls))
-    records = ["bulk", "tails", "same"]
-    inits = [{"tau_s": 30.0}] * 3
-    results, solvers = jmap._first_pass(_Prob(), records, inits, "gn")
+    got = [_first_pass(r) for r in ("bulk", "tails", "same")]
     assert calls == [
-        (records, [30.0] * 3, "gn"),
-        (["tails", "same"], [5.0, 5.0], "gn"),
-        (["tails", "same"], [120.0, 120.0], "gn"),
+        ("bulk", 30.0, "gn"),
+        ("tails", 30.0, "gn"),
+        ("tails", 5.0, "gn"),
+        ("tails", 120.0, "gn"),
+        ("same", 30.0, "gn"),
+        ("same", 5.0, "gn"),
+        ("same", 120.0, "gn"),
     ]
-    assert [r.cost for r in results] == [1.0, 10.0, 50.0]
-    assert solvers == ["gn", "gn", "gn"]
+    assert [r.cost for r, _ in got] == [1.0, 10.0, 50.0]
+    assert [s for _, s in got] == ["gn", "gn", "gn"]
 
 
 def test_first_pass_runs_lm_only_where_no_start_converged_in_the_prior(monkeypatch):
@@ -106,26 +111,24 @@ def test_first_pass_runs_lm_only_where_no_start_converged_in_the_prior(monkeypat
     from the starts where Gauss–Newton failed; a converged pass beats a failed one."""
     calls: list = []
     monkeypatch.setattr(jmap, "_solve", _fake_solve(calls))
-    results, solvers = jmap._first_pass(_Prob(), ["fails", "none"], [{"tau_s": 30.0}] * 2, "gn")
-    assert calls[-1] == (["none", "none"], [30.0, 120.0], "lm")
-    assert len(calls) == 4  # GN from the three starts, then one LM solve
-    assert results[0].cost == 12.0 and results[1].cost == 20.0  # 19.5 gains only 0.5
-    assert solvers == ["gn", "lm"]
+    fails, solver = _first_pass("fails")
+    assert [c[2] for c in calls] == ["gn", "gn", "gn"]  # GN from the three starts, no LM
+    assert fails.cost == 12.0 and solver == "gn"
+    calls.clear()
+    none, solver = _first_pass("none")
+    assert calls[3:] == [("none", 30.0, "lm"), ("none", 120.0, "lm")]
+    assert len(calls) == 5
+    assert none.cost == 20.0 and solver == "lm"  # 19.5 gains only 0.5
 
 
 def test_first_pass_with_lm_restarts_with_lm(monkeypatch):
     """``map_solver="lm"``: the restarts use LM too, and there is no other fallback."""
     calls: list = []
     passes = {(r, t, "lm"): v for (r, t, s), v in _PASSES.items() if s == "gn"}
-
-    def solve(lsq, args, zs, solver):
-        calls.append((list(args), [float(z[0]) for z in zs], solver))
-        return [_Res(*passes[(a, float(z[0]), solver)]) for a, z in zip(args, zs, strict=True)]
-
-    monkeypatch.setattr(jmap, "_solve", solve)
-    results, solvers = jmap._first_pass(_Prob(), ["tails"], [{"tau_s": 30.0}], "lm")
+    monkeypatch.setattr(jmap, "_solve", _fake_solve(calls, passes))
+    result, solver = _first_pass("tails", "lm")
     assert [c[2] for c in calls] == ["lm", "lm", "lm"]
-    assert results[0].cost == 10.0 and solvers == ["lm"]
+    assert result.cost == 10.0 and solver == "lm"
 
 
 def test_a_records_own_tau_is_tried_first_and_spares_the_other_restarts(monkeypatch):
@@ -139,17 +142,21 @@ def test_a_records_own_tau_is_tried_first_and_spares_the_other_restarts(monkeypa
     def never() -> float:
         raise AssertionError("the hint of a record that needs no restart was read")
 
-    records = ["bulk", "hinted", "hintbad"]
-    results, solvers = jmap._first_pass(
-        _Prob(), records, [{"tau_s": 30.0}] * 3, "gn", [never, lambda: 5.2, 100.0]
-    )
-    assert calls == [
-        (records, [30.0] * 3, "gn"),
-        (["hinted", "hintbad"], [5.2, 100.0], "gn"),
-        (["hintbad"], [5.0], "gn"),
+    got = [
+        _first_pass("bulk", hint=never),
+        _first_pass("hinted", hint=lambda: 5.2),
+        _first_pass("hintbad", hint=100.0),
     ]
-    assert [r.cost for r in results] == [1.0, 10.0, 10.0]
-    assert solvers == ["gn", "gn", "gn"]
+    assert calls == [
+        ("bulk", 30.0, "gn"),
+        ("hinted", 30.0, "gn"),
+        ("hinted", 5.2, "gn"),
+        ("hintbad", 30.0, "gn"),
+        ("hintbad", 100.0, "gn"),
+        ("hintbad", 5.0, "gn"),
+    ]
+    assert [r.cost for r, _ in got] == [1.0, 10.0, 10.0]
+    assert [s for _, s in got] == ["gn", "gn", "gn"]
 
 
 def test_tau_read_off_the_transients_of_simulated_sessions():

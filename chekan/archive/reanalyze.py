@@ -177,46 +177,25 @@ def _options(opts: dict[str, Any]):
     return CalibrationOptions(**opts)
 
 
-def solve_many_map(
-    paths: Sequence[str | os.PathLike], options=None, batched: bool | None = None
-) -> list[dict | Exception]:
-    """MAP calibration of many inputs → one result dict (or the exception raised) per path.
-
-    ``batched`` (default: on an accelerator, not on CPU): records are solved together
-    (:func:`chekan.joint.batch.estimate_map_many`: padded to one shape, one vmapped LM per
-    EM pass). On CPU a vmapped solve costs the sum of its lanes plus the padding, so one
-    record at a time is faster there (measured: 3.2 s against 1.3 s per short record).
-    Legacy protocols go one by one. A bad input fails on its own.
+def solve_many_map(paths: Sequence[str | os.PathLike], options=None) -> list[dict | Exception]:
+    """MAP calibration of many inputs → one result dict (or the exception raised) per path,
+    one at a time (records of one padded shape share the compiled solver). A bad input fails
+    on its own.
     """
-    if batched is None:
-        import jax
-
-        batched = jax.default_backend() != "cpu"
     from dataclasses import replace
 
+    from chekan.joint import estimate
     from chekan.pipeline import CalibrationOptions, classical_stage
 
     opts = replace(options or CalibrationOptions(), method="map", progress=False)
-    out: list[dict | Exception | None] = [None] * len(paths)
-    records = []  # (index, (record, classical fit, base result))
-    for i, p in enumerate(paths):
+    out: list[dict | Exception] = []
+    for p in paths:
         try:
             data, kind, cres, base = classical_stage(p, opts)
-            if kind == "record" and batched:
-                records.append((i, (data, cres, base)))
-            else:
-                from chekan.joint import estimate
-
-                out[i] = estimate(data, kind=kind, classical=cres, base=base, options=opts)
+            out.append(estimate(data, kind=kind, classical=cres, base=base, options=opts))
         except Exception as e:  # one bad input never spoils the chunk
-            out[i] = e
-    if records:
-        from chekan.joint.batch import estimate_map_many
-
-        results = estimate_map_many([x for _, x in records], opts)
-        for (i, _), r in zip(records, results, strict=True):
-            out[i] = r
-    return out  # type: ignore[return-value]
+            out.append(e)
+    return out
 
 
 def analyse_chunk(

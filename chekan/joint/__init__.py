@@ -10,13 +10,12 @@ module             what it does
 ``problem``        parameters and priors; MAP least squares; marginal density
 ``em``             between MAP passes: level re-centring, EM of hyperparameters
 ``start``          the MAP's start: classical θ; a τ read off the settling transients
-``map``            MAP + EM for one record or a batch → :class:`MapFit`
+``map``            MAP + EM of one record → :class:`MapFit`
 ``derived``        a, b₀, drift slope: one function for map, bayes and design
 ``budget``         the uncertainty budget of b and U (k = 2)
 ``sampling``       emcee on the marginal posterior
 ``predictive``     posterior predictive, drift curve, NetCDF
 ``estimate``       the ``map`` and ``bayes`` results
-``batch``          padded, vmapped MAP of many records (re-analysis)
 ``legacy``         the joint model of a legacy protocol (per-round characteristic)
 =================  ==========================================================
 """
@@ -25,7 +24,7 @@ from chekan.joint.binning import BIN_EDGES_S, prepare, prepare_record
 from chekan.joint.engine import clear_caches, engine_for, problem_for
 from chekan.joint.estimate import estimate, map_result, posterior_result
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel, padded_shape
-from chekan.joint.map import MapFit, fit_map_em, fit_map_em_many
+from chekan.joint.map import MapFit, fit_map_em
 from chekan.joint.problem import CalibrationProblem, default_hyper
 from chekan.joint.start import initial_values, tau_from_transients
 
@@ -41,7 +40,6 @@ __all__ = [
     "engine_for",
     "estimate",
     "fit_map_em",
-    "fit_map_em_many",
     "initial_values",
     "map_result",
     "padded_shape",

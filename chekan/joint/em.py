@@ -1,11 +1,20 @@
-"""What happens between two passes of the MAP: the level reference moves to its
-estimate and the hyperparameters go to their EM fixed point at fixed θ.
+"""The EM of the hyperparameters between two MAP passes, in one compiled function.
+
+The level reference moves to its estimate (m_ref ← m_ref + ĉ), then EM updates of the
+hyperparameters run to their fixed point at fixed θ (a ``lax.while_loop``; the noise
+M-step a projected Newton, :func:`inference.box_newton.minimise_in_box`). After
+``EM_UPDATES_BEFORE_NEWTON`` updates without convergence the fixed point h = EM(h) is
+solved for by optimistix's Newton in log h (EM creeps where a variance sits at its bound).
+Both MAP solvers use it (``map_solver`` only chooses the passes' solver). Measurements:
+``docs/tuning.md``.
 
 Every function returns new state; nothing it is handed is changed.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 from collections.abc import Callable
 
 import jax
@@ -15,10 +24,15 @@ import numpy as np
 from chekan.jaxconfig import device_array
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import dense_design, noise_var, solve_beta
-from chekan.joint.problem import Hyper, default_hyper, hyper_params
+from chekan.joint.problem import Hyper, hyper_params
+from inference.box_newton import minimise_in_box
+from inference.jacobian import jacobian_once
 
-HYPER_TOL = 1e-4  # EM at fixed θ stops when no log-hyperparameter moves more than this
-HYPER_MAX_UPDATES = 200  # ~8 ms each on a 9 h record
+HYPER_TOL = 1e-4  # EM stops when no log-hyperparameter moves more than this in an update
+HYPER_MAX_UPDATES = 200  # EM updates between two passes at most (Newton's steps counted)
+EM_UPDATES_BEFORE_NEWTON = 32  # then Newton on the fixed point (docs/tuning.md)
+NEWTON_TOL = 1e-8  # on the Newton step and on EM(h) − h, in log h
+NEWTON_MAX_STEPS = 32
 # the noise M-step: box of (log s₁, log s₂, log κ) and the priors of log s and log κ,
 # read from the sampled hyperparameters' definitions (chekan.joint.problem.hyper_params)
 NOISE_LOWER = np.log([0.05, 0.05, 1e-5])
@@ -30,6 +44,7 @@ K_LOC, K_SD = _PRIOR["slew_error"].loc, _PRIOR["slew_error"].scale
 SIGMA_THETA_BOUNDS_ARCSEC = (0.05, 30.0)
 SIGMA_HOLD_BOUNDS_PIX = (1e-3, 5.0)
 AT_BOUND_LOG = 1e-3  # a hyperparameter within this (in log) of an EM bound is "at the bound"
+_HYPER_KEYS = ("noise_scale", "sigma_theta_arcsec", "sigma_hold_pix", "slew_error")
 
 
 def hyper_at_bounds(h: Hyper) -> list[str]:
@@ -58,101 +73,160 @@ def hyper_at_bounds(h: Hyper) -> list[str]:
 
 
 def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:
-    """What follows every MAP pass but the last: :func:`recentre_level`, then
-    :func:`converge_hyper`. Returns the model with its moved level, the new
-    hyperparameters and the number of EM updates."""
-    model, _ = recentre_level(model, z, h)
-    h, n = converge_hyper(model, z, h)
-    return model, h, n
+    """What follows every MAP pass but the last, compiled (:func:`em_pass_fn`): the model
+    with its level moved to the estimate (m_ref ← m_ref + ĉ), the hyperparameters at their
+    EM fixed point given θ = z, and the number of EM updates.
 
-
-def recentre_level(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, np.ndarray]:
-    """The model with its level reference moved to the estimate, m_ref ← m_ref + ĉ, and ĉ
-    (pix).
-
-    The equilibrium Eₖ is computed about m_ref (its position φ_h = (m_ref − m₀)/K on the
-    torsion characteristic, and b is dG/dm there), while c only shifts the readings. The
-    classical m_h that m_ref starts from is biased when the level holds have not settled
-    (slow damping, short dwells: 17 pix at τ = 90 s on the 3 h program), and an additive
-    shift does not move the curvature with it: that bias went into b (≈ +0.5 sd). After
-    one pass ĉ is known to ~0.01 pix, so the next pass evaluates Eₖ about the estimated
-    level itself.
+    The equilibrium Eₖ is computed about m_ref (b is dG/dm there) while c only shifts the
+    readings; the classical m_h that m_ref starts from is biased where the level holds have
+    not settled (17 pix at τ = 90 s on the 3 h program), and that bias went into b (≈ +0.5
+    sd). After one pass ĉ is known to ~0.01 pix, so the next pass works about the estimate.
     """
-    _, beta, *_ = beta_at(model.structure, z, h, model.data)
-    c = np.asarray(beta)[model.structure.beta_blocks["c"]]
-    return model.with_level(np.asarray(model.data.m_ref) + c), c
+    from chekan.joint.engine import engine_for
+
+    em_pass = engine_for(model.structure).em_pass
+    m_ref, h_new, n = em_pass(device_array(z), h, model.data)
+    return model.with_level(np.asarray(m_ref)), h_new, int(n)
 
 
-def converge_hyper(model: RecordModel, z, h: Hyper) -> tuple[Hyper, int]:
-    """EM updates (:func:`em_update`) at fixed θ = z until no log-hyperparameter moves by
-    more than ``HYPER_TOL``: the hyperparameters of largest marginal likelihood given θ.
-    Returns them and the number of updates made."""
-    n, change = 0, np.inf
-    while change >= HYPER_TOL and n < HYPER_MAX_UPDATES:
-        new = em_update(model, z, h)
-        change = max(float(np.max(np.abs(np.log(new[k]) - np.log(h[k])))) for k in h)
-        h, n = new, n + 1
-    return h, n
+def prefetch(model: RecordModel) -> None:
+    """Start loading this structure's stored EM pass in the background."""
+    from chekan.joint.engine import EM_PASS, engine_for
+
+    engine_for(model.structure).prefetch(EM_PASS, model.data)
 
 
-def em_update(model: RecordModel, z, h: Hyper) -> Hyper:
-    """One EM update of the hyperparameters at θ = z (real holds and bins only):
-    σ_o² = mean(ô² + var o), σ_θ² = mean(δ̂² + var δ) with the conditional variances of β
-    from M⁻¹, and (s₁, s₂, κ) from the expected squared residuals r̂² + leverage."""
-    data = model.data
-    blocks = model.structure.beta_blocks
-    mask = np.asarray(data.mask)
-    hold = np.asarray(data.hold_mask)
-    rw, beta, var, base, trans, lev = beta_at(model.structure, z, h, data)
-    o_sel = blocks["hold_offset"][np.tile(hold, 2)]
-    d_sel = blocks["angle_error"][hold]
-    o, vo = beta[o_sel], var[o_sel]
-    d, vd = beta[d_sel], var[d_sel]
-    r = rw.reshape(mask.shape)
-    nv = base + (float(h["slew_error"]) * trans) ** 2
-    e2 = np.where(mask, (r**2 + lev) * nv, 0.0)  # E[squared residual | y] in pix²
-    scale, kappa = noise_m_step(e2, base / np.asarray(h["noise_scale"])[None, :] ** 2, trans, mask)
-    return default_hyper(
-        noise_scale=scale,
-        sigma_theta_arcsec=float(np.clip(np.sqrt(np.mean(d**2 + vd)), *SIGMA_THETA_BOUNDS_ARCSEC)),
-        sigma_hold_pix=float(np.clip(np.sqrt(np.mean(o**2 + vo)), *SIGMA_HOLD_BOUNDS_PIX)),
-        slew_error=kappa,
+def em_pass_fn(structure: ModelStructure, space) -> Callable:
+    """``(z, h, data) → (m_ref, h, updates)``: the level moved to its estimate, then EM to
+    its fixed point (Newton after ``EM_UPDATES_BEFORE_NEWTON``), traceable; compiled by
+    :class:`chekan.joint.engine.Engine`."""
+
+    def fn(z, h: Hyper, data: RecordData):
+        v = space.to_values(z)
+        _, beta, _ = solve_beta(v, h, structure, data)
+        m_ref = data.m_ref + beta[structure.beta_blocks["c"]]
+        data = dataclasses.replace(data, m_ref=m_ref)
+
+        def em_until(limit):
+            def cond(c):
+                _, n, change = c
+                return (change >= HYPER_TOL) & (n < limit)
+
+            return cond
+
+        def body(c):
+            h, n, _ = c
+            new = em_update(v, h, structure, data)
+            change = jnp.max(
+                jnp.stack([jnp.max(jnp.abs(jnp.log(new[k]) - jnp.log(h[k]))) for k in h])
+            )
+            return new, n + 1, change
+
+        c = jax.lax.while_loop(em_until(EM_UPDATES_BEFORE_NEWTON), body, (h, 0, jnp.inf))
+        newton = functools.partial(_newton, v, structure, data)
+        c = jax.lax.cond(c[2] >= HYPER_TOL, newton, lambda c: c, c)
+        h, n, _ = jax.lax.while_loop(em_until(HYPER_MAX_UPDATES), body, c)
+        return m_ref, h, n
+
+    return fn
+
+
+def _log_hyper(h: Hyper) -> jax.Array:
+    return jnp.concatenate([jnp.log(jnp.atleast_1d(h[k])) for k in _HYPER_KEYS])
+
+
+def _hyper(x: jax.Array) -> Hyper:
+    """:func:`_log_hyper` inverted (noise_scale (2,), then the three scalars)."""
+    return {
+        "noise_scale": jnp.exp(x[:2]),
+        "sigma_theta_arcsec": jnp.exp(x[2]),
+        "sigma_hold_pix": jnp.exp(x[3]),
+        "slew_error": jnp.exp(x[4]),
+    }
+
+
+def _newton(v: dict, structure: ModelStructure, data: RecordData, carry):
+    """The EM fixed point h = EM(h) by optimistix's Newton in log h, from the EM iterate
+    in ``carry`` = (h, updates, change); the carry unchanged where Newton fails (EM then
+    goes on), else (h*, updates + Newton steps, 0)."""
+    import optimistix as optx  # at trace time only: stored executables do not need it
+
+    h, n, change = carry
+
+    def em_map(x, args):
+        v_, data_ = args
+        return _log_hyper(em_update(v_, _hyper(x), structure, data_))
+
+    solver: optx.Newton = optx.Newton(rtol=NEWTON_TOL, atol=NEWTON_TOL)
+    sol: optx.Solution = optx.fixed_point(
+        jacobian_once(em_map),  # one copy of the EM map's tangent code, not two
+        solver,
+        _log_hyper(h),
+        (v, data),
+        max_steps=NEWTON_MAX_STEPS,
+        throw=False,
     )
+    ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(sol.value))
+    x = jnp.where(ok, sol.value, _log_hyper(h))
+    steps = sol.stats["num_steps"]
+    return _hyper(x), jnp.where(ok, n + steps, n), jnp.where(ok, 0.0, change)
 
 
-def noise_m_step(e2, b0, trans, mask) -> tuple[np.ndarray, float]:
-    """(s₁, s₂, κ) maximising Σ −½(log v + E[e²]/v) + log-priors, v = sⱼ² b₀ + κ² t².
+def em_update(v: dict, h: Hyper, structure: ModelStructure, data: RecordData) -> Hyper:
+    """One EM update of the hyperparameters at θ (values ``v``), real holds and bins only,
+    traceable.
 
-    All bins at once: settled bins (t = 0) fix sⱼ, the settling ones then fix κ. Priors
-    of log s and log κ from :func:`chekan.joint.problem.hyper_params`.
-    """
-    from scipy.optimize import minimize
+    σ_o² = mean(ô² + var o) and σ_θ² = mean(δ̂² + var δ) over the real holds, with the
+    conditional variances of β from M⁻¹; (s₁, s₂, κ) from the expected squared residuals
+    r̂² + leverage (:func:`noise_m_step`)."""
+    rw, beta, var, base, trans, lev = beta_moments(v, h, structure, data)
+    blocks = structure.beta_blocks
+    hold = data.hold_mask.astype(beta.dtype)
 
-    m = mask.astype(float)
+    def mean_square(ix, w):
+        return jnp.sum(w * (beta[ix] ** 2 + var[ix])) / jnp.sum(w)
+
+    nv = base + (h["slew_error"] * trans) ** 2
+    e2 = jnp.where(data.mask, (rw.reshape(data.mask.shape) ** 2 + lev) * nv, 0.0)
+    x0 = jnp.concatenate([jnp.log(h["noise_scale"]), jnp.log(h["slew_error"])[None]])
+    scale, kappa = noise_m_step(e2, base / h["noise_scale"][None, :] ** 2, trans, data.mask, x0)
+    return {
+        "noise_scale": scale,
+        "sigma_theta_arcsec": jnp.clip(
+            jnp.sqrt(mean_square(blocks["angle_error"], hold)), *SIGMA_THETA_BOUNDS_ARCSEC
+        ),
+        "sigma_hold_pix": jnp.clip(
+            jnp.sqrt(mean_square(blocks["hold_offset"], jnp.tile(hold, 2))),
+            *SIGMA_HOLD_BOUNDS_PIX,
+        ),
+        "slew_error": kappa,
+    }
+
+
+def noise_m_step(e2, b0, trans, mask, x0) -> tuple[jax.Array, jax.Array]:
+    """(s₁, s₂, κ) minimising Σ ½(log v + E[e²]/v) + log-priors, v = sⱼ² b₀ + κ² t², inside
+    the box ``NOISE_LOWER``…``NOISE_UPPER`` (traceable; started at ``x0`` = (log s₁, log s₂,
+    log κ)). Settled bins (t = 0) fix sⱼ, the settling ones then fix κ; priors of log s and
+    log κ from :func:`chekan.joint.problem.hyper_params`."""
+    m = mask.astype(e2.dtype)
     t2 = trans**2
 
     def f(x):
         ls, lk = x[:2], x[2]
-        v = np.exp(2 * ls)[None, :] * b0 + np.exp(2 * lk) * t2
-        v = np.where(mask, v, 1.0)
-        q = m * (1.0 / v - e2 / v**2)  # ∂(log v + e²/v)/∂v
-        val = 0.5 * np.sum(m * (np.log(v) + e2 / v))
-        val += 0.5 * np.sum(((ls - S_LOC) / S_SD) ** 2) + 0.5 * ((lk - K_LOC) / K_SD) ** 2
-        g_s = np.sum(q * np.exp(2 * ls)[None, :] * b0, axis=0) + (ls - S_LOC) / S_SD**2
-        g_k = np.sum(q * np.exp(2 * lk) * t2) + (lk - K_LOC) / K_SD**2
-        return val, np.concatenate([g_s, [g_k]])
+        v = jnp.exp(2 * ls)[None, :] * b0 + jnp.exp(2 * lk) * t2
+        v = jnp.where(mask, v, 1.0)
+        val = 0.5 * jnp.sum(m * (jnp.log(v) + e2 / v))
+        prior = 0.5 * jnp.sum(((ls - S_LOC) / S_SD) ** 2) + 0.5 * ((lk - K_LOC) / K_SD) ** 2
+        return val + prior
 
-    x0 = np.array([S_LOC, S_LOC, K_LOC])
-    bounds = list(zip(NOISE_LOWER, NOISE_UPPER, strict=True))
-    res = minimize(f, x0, jac=True, method="L-BFGS-B", bounds=bounds)
-    return np.exp(res.x[:2]), float(np.exp(res.x[2]))
+    x = minimise_in_box(f, x0, jnp.asarray(NOISE_LOWER), jnp.asarray(NOISE_UPPER)).x
+    return jnp.exp(x[:2]), jnp.exp(x[2])
 
 
 def beta_moments(v: dict, h: Hyper, structure: ModelStructure, data: RecordData):
     """Traceable: the whitened residuals, β̂ and its conditional variances diag(M⁻¹), the
     base noise variance, the transient amplitudes and the bins' leverages at θ (values
-    ``v``): what an EM update needs (here on the host, compiled in
-    :mod:`chekan.joint.em_compiled`)."""
+    ``v``): what an EM update needs."""
     rw, beta, L, (_, G, s, _, _, nv, trans, P) = solve_beta(v, h, structure, data, extras=True)
     Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
     # leverage of each bin: (Ã M⁻¹ Ãᵀ)ᵢᵢ with Ã the whitened design (E[r²] = r̂² + lev)
@@ -161,29 +235,3 @@ def beta_moments(v: dict, h: Hyper, structure: ModelStructure, data: RecordData)
     X = jnp.einsum("qp,njp->njq", Linv, A * sw[..., None])
     lev = jnp.sum(X**2, axis=-1)
     return rw, beta, jnp.sum(Linv**2, axis=0), noise_var(h, data), trans, lev
-
-
-def beta_moments_fn(structure: ModelStructure, space) -> Callable:
-    """``(z, h, data) →`` :func:`beta_moments` at θ = z, traceable; compiled by
-    :class:`chekan.joint.engine.Engine`."""
-
-    def fn(z, h, data: RecordData):
-        return beta_moments(space.to_values(z), h, structure, data)
-
-    return fn
-
-
-def prefetch(model: RecordModel) -> None:
-    """Start loading the stored β̂ executable of this model's structure in the background."""
-    from chekan.joint.engine import BETA_AT, engine_for
-
-    engine_for(model.structure).prefetch(BETA_AT, model.data)
-
-
-def beta_at(structure: ModelStructure, z, h: Hyper, data: RecordData):
-    """β̂, its conditional variances diag(M⁻¹), the whitened residuals, the base noise
-    variance, the transient amplitudes and the bins' leverages at θ = z."""
-    from chekan.joint.engine import engine_for
-
-    out = engine_for(structure).beta_at(device_array(z), h, data)
-    return tuple(np.asarray(x) for x in out)

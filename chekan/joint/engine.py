@@ -5,8 +5,7 @@
 stored name                 what it computes                            maths in
 ==========================  ==========================================  =======================
 ``map_<solver>_…``          the MAP solve over θ (β projected out)      :mod:`.problem`
-``em_between_passes``       level re-centring and EM between passes     :mod:`.em_compiled`
-``beta_at``                 β̂ and the EM moments (host EM of ``lm``)    :mod:`.em`
+``em_between_passes``       level re-centring and EM between passes     :mod:`.em`
 ``map_derived``             derived quantities and their Jacobians      :mod:`.derived`
 ``draws``                   every reported quantity per posterior draw  :mod:`.derived`
 ``predictive_equilibria``   equilibria of the posterior predictive      :mod:`.predictive`
@@ -35,7 +34,6 @@ from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.problem import CalibrationProblem, build_problem, default_hyper
 
 EM_PASS = "em_between_passes"
-BETA_AT = "beta_at"
 MAP_DERIVED = "map_derived"
 DRAWS = "draws"
 PREDICTIVE = "predictive_equilibria"
@@ -51,17 +49,10 @@ class Engine:
 
     @functools.cached_property
     def em_pass(self) -> Callable:
-        """``(z, h, data) → (m_ref, h, updates)``: :func:`.em_compiled.em_pass_fn`."""
-        from chekan.joint.em_compiled import em_pass_fn
+        """``(z, h, data) → (m_ref, h, updates)``: :func:`.em.em_pass_fn`."""
+        from chekan.joint.em import em_pass_fn
 
         return self.store.jit(EM_PASS, em_pass_fn(self.structure, self.problem.map_space))
-
-    @functools.cached_property
-    def beta_at(self) -> Callable:
-        """``(z, h, data) →`` β̂ and the EM moments: :func:`.em.beta_moments_fn`."""
-        from chekan.joint.em import beta_moments_fn
-
-        return self.store.jit(BETA_AT, beta_moments_fn(self.structure, self.problem.map_space))
 
     @functools.cached_property
     def map_derived(self) -> Callable:

@@ -1,8 +1,7 @@
 """``--method map|bayes`` on a record: from the record to the ``chekan-result/1`` dict.
 
 :func:`estimate` prepares the record, fits the MAP (:mod:`chekan.joint.map`), and hands
-the fit to :func:`map_result` or :func:`posterior_result`; batch re-analysis calls
-:func:`map_result` on fits from :func:`chekan.joint.map.fit_map_em_many`.
+the fit to :func:`map_result` or :func:`posterior_result`.
 """
 
 from __future__ import annotations
@@ -16,14 +15,14 @@ import numpy as np
 
 from chekan.holds import HoldTable
 from chekan.jaxconfig import single_threaded_blas
+from chekan.joint import em
 from chekan.joint.angles import angle_sensor_entry
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
 from chekan.joint.derived import map_derived, posterior_draws
 from chekan.joint.derived import prefetch as prefetch_map_derived
-from chekan.joint.em import hyper_at_bounds
 from chekan.joint.layout import padded_shape
-from chekan.joint.map import MapFit, em_steps, fit_map_em
+from chekan.joint.map import MapFit, fit_map_em
 from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.sampling import sample_posterior
 from chekan.joint.start import initial_values, tau_from_transients
@@ -69,7 +68,7 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         # per-hold outputs would carry the padding)
         model = model.pad(*padded_shape([model]))
     # a new process loads the stored executables it will need next while the MAP runs
-    em_steps(options.map_solver).prefetch(model)
+    em.prefetch(model)
     if options.method == "map":
         prefetch_map_derived(model)
     fit = fit_map_em(
@@ -105,7 +104,7 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         "not_identified": list(res.degenerate),
         "data": "bin means inside holds (lag modelled), β marginalised",
         "problems": ([] if res.converged else [f"MAP did not converge: {res.message}"])
-        + hyper_at_bounds(fit.hyper),
+        + em.hyper_at_bounds(fit.hyper),
     }
     return out, diag
 

@@ -53,7 +53,8 @@ def records():
 
 def snapshot(map_solver: str = "lm") -> dict[str, dict[str, float]]:
     """The figures now; ``map_solver`` "lm" is the MAP solver the snapshot was taken with
-    (0.3 made Gauss–Newton the default: tests/test_regression_snapshot.py compares both)."""
+    (0.3 made Gauss–Newton the default: tests/test_regression_snapshot.py compares both;
+    since issue 28 both run the same compiled EM between passes)."""
     from chekan.pipeline import CalibrationOptions, calibrate_file
 
     out: dict[str, dict[str, float]] = {}
