@@ -205,7 +205,7 @@ class ExecutableStore:
                 outs = compiled(*[leaves[i] for i in dyn])
                 if key in self.unproven:  # its first run: let a failure surface here
                     jax.block_until_ready(outs)
-            except jax.errors.JaxRuntimeError:
+            except (jax.errors.JaxRuntimeError, TypeError):
                 if key not in self.unproven:  # not a freshly loaded file: a real error
                     raise
                 # a stored executable that loads but cannot run: compile afresh (and
@@ -334,7 +334,11 @@ class ExecutableStore:
         lowered = jax.jit(flat_fn).lower(*[leaves[i] for i in dyn])
         out_tree = out_box[-1]
         # the same program under another fingerprint (code edited elsewhere): reuse it
-        program = hashlib.sha256(lowered.as_text().encode() + self._machine.encode())  # type: ignore[attr-defined]
+        # the argument tree is part of it: jit prunes unused (e.g. zero-size) arguments, so two
+        # trees can lower to one text, and an executable keeps the tree it was compiled for
+        program = hashlib.sha256(
+            lowered.as_text().encode() + str(treedef).encode() + self._machine.encode()  # type: ignore[attr-defined]
+        )
         by_program = self._path(f"program/{_FORMAT.replace('/', '-')}-{program.hexdigest()[:40]}")
         if reuse and by_program is not None and by_program.is_file():
             loaded = self._load(by_program, name, key)

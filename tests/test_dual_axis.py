@@ -100,6 +100,8 @@ def test_budget_has_a_line_per_angle_sensor_and_the_x_response(dual_fit):
     sensors = res["angle_sensors"]
     assert sensors["y"]["axis"] == "y" and sensors["x"]["axis"] == "x"
     assert sensors["x"]["bound_arcsec"] == 3.0
+    # a's interval is not validated on such programs: the result says so
+    assert any("rounds about X" in n for n in res["diagnostics"]["notes"])
 
 
 @pytest.mark.slow
@@ -110,8 +112,9 @@ def test_a_tighter_x_bound_shrinks_only_the_x_sensors_line(dual_fit):
         dataclasses.replace(rec, meta=meta), CalibrationOptions(method="map", progress=False)
     )
     before, after = res["uncertainty_budget"]["b1"], tight["uncertainty_budget"]["b1"]
-    assert after["angle_systematic_x"] < 0.7 * before["angle_systematic_x"]
-    assert after["angle_systematic_y"] == pytest.approx(before["angle_systematic_y"], rel=0.2)
+    x_ratio = after["angle_systematic_x"] / before["angle_systematic_x"]
+    y_ratio = after["angle_systematic_y"] / before["angle_systematic_y"]
+    assert x_ratio < 0.7 and x_ratio < 0.8 * y_ratio, (x_ratio, y_ratio)
     assert tight["angle_sensors"]["x"]["bound_arcsec"] == 0.5
 
 

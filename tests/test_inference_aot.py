@@ -302,3 +302,18 @@ def _tree_static_sig(args):
     dyn = [i for i, v in enumerate(leaves) if _is_array(v)]
     static = tuple((i, leaves[i]) for i in range(len(leaves)) if i not in dyn)
     return treedef, static, [_aval(leaves[i]) for i in dyn]
+
+
+def test_an_unused_leaf_does_not_fetch_another_trees_executable(tmp_path):
+    """jit prunes an unused (here zero-size) argument, so a tree with one more leaf lowers
+    to the same text: the store must not hand it the executable of the smaller tree (a
+    record model that gained a field met exactly that after an upgrade)."""
+
+    def f(d):
+        return jnp.sum(d["a"] * 2.0)
+
+    a = jnp.arange(3.0)
+    small = ExecutableStore(tmp_path, "v1").jit("f", f)
+    assert float(small({"a": a})) == 6.0
+    big = ExecutableStore(tmp_path, "v2").jit("f", f)  # other code: found by its program
+    assert float(big({"a": a, "z": jnp.zeros((3, 0))})) == 6.0

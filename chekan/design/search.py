@@ -24,17 +24,17 @@ the paper's (8 angles, 2 rounds about Y, 900 s)            337.8        279.9
 best at 3″, about Y only: 6 angles θ-spaced 1°50′…5°10′,   185.6        117.7
 zigzag, 12 rounds, dwell 181 s, settle 120 s
 best at 0 about Y only: 3 angles 3°10′…5°10′, 20 rounds    198.1        104.9
-best at 3″: 3 angles 4°30′, 4°51′, 5°10′, alternate,       77.7         35.5
+best at 3″: 3 angles 4°30′, 4°51′, 5°10′, alternate,       80.0         44.3
 20 rounds alternating Y and X, dwell 188 s, settle 120 s
-(b₂ 79.4 / 35.6; the paper's b₂ 346.6 / 287.2)
+(b₂ 82.3 / 45.9; the paper's b₂ 346.6 / 287.2; with the X response's nuisance)
 =========================================================  ===========  ==========
 
 About Y only, the systematic errors call for more distinct angles (6 rather than 3).
-With X tilts the model's gain is large (b₂ alike), because under tilts about X the two
-systems respond differently (ε, Δγ), which separates the scale errors from b — this rests
-on the forward model's response to tilts about X at the design ε and Δγ, which no
-measurement has checked yet, and the simulator and the estimator take one axis per
-record so far: treat "xy" programs as a design result to verify.
+With X tilts the model's gain is large (b₂ alike): the X rounds are read by the other
+angle sensor, whose errors are independent, and under tilts about X the pendulum's
+stiffness changes by g·θ/(bK), which ties K to the response. What eq. (6) may lack about X
+is a nuisance here as in the estimator (:mod:`chekan.joint.xresponse`); the simulated
+check is in ``docs/figures/validation_dual.md``.
 
 """
 

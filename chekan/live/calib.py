@@ -83,7 +83,8 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
             if not paired.any():
                 return None
             a_fixed = None if paired.any(axis=0).sum() >= 2 else 0.0
-            res = classical.fit_classical(table, a_fixed=a_fixed, preview=True)
+            # rounds about X are fitted apart; the preview shows what the certificate uses
+            res = classical.fit_by_axis(table, a_fixed=a_fixed, preview=True)
     except (ChekanError, ValueError, IndexError, np.linalg.LinAlgError):
         return None
     rounds_done = sum(1 for r in holds.rounds if r.level_before is not None and r.level_after)
@@ -92,8 +93,8 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
         "notes": [f"{record.path}: {w}" for w in holds.warnings],
         "pairs": int(paired.sum()),
         "rounds_complete": int(rounds_done),
-        "rounds": [int(r) for r in table.rounds],
-        "angles": list(table.angle_label),
+        "rounds": [int(r) for r in res.table.rounds],
+        "angles": list(res.table.angle_label),
         "dg_mgal": _fl(res.dg_mgal),  # (R, 2, n)
         "delta_g_mgal": _fl(res.delta_g_mgal),  # (R, 2, n)
         "b": _fl(res.b),  # (R, 2)
