@@ -72,10 +72,12 @@ def _cmd_simulate(args) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_record(out, rec)
-    print(f"wrote {out} ({rec.t_s.size} samples, {program.describe()})")
     if args.truth:
         write_truth(args.truth, truth)
-        print(f"wrote {args.truth} (true parameters)")
+    if not args.quiet:
+        print(f"wrote {out} ({rec.t_s.size} samples, {program.describe()})")
+        if args.truth:
+            print(f"wrote {args.truth} (true parameters)")
     return 0
 
 
@@ -187,6 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--serial", default="SIM-1", help="serial number written into the record")
     p.add_argument(
         "--random-truth", action="store_true", help="draw the instrument's parameters at random"
+    )
+    p.add_argument(
+        "-q", "--quiet", action="store_true", help="print nothing on success (errors still)"
     )
     p.set_defaults(func=_cmd_simulate)
 

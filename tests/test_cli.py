@@ -373,3 +373,27 @@ def test_end_process_cuts_short_an_unneeded_preload(tmp_path):
     t = time.perf_counter()
     r = _end_process_run(body, tmp_path)
     assert r.returncode == 5 and time.perf_counter() - t < 20
+
+
+def test_quiet_prints_nothing_on_success(tmp_path, capsys):
+    """-q: nothing on standard output when the command succeeds, in every command that
+    writes files (issue 33 §6), and the files are there."""
+    from chekan.cli import main
+
+    paper = Path(__file__).resolve().parents[2] / "shared" / "reference" / "calibr_46_protocol.csv"
+    res = tmp_path / "r.json"
+    prog = tmp_path / "p.toml"
+    prog.write_text('angles = ["2°30\'"]\ndwell_s = 60\nsettle_s = 20\nrounds = 1\n')
+    db = tmp_path / "a.sqlite"
+    runs = [
+        ["calibrate", "-q", str(paper), "-o", str(res)],
+        ["simulate", "-q", "--program", str(prog), "-o", str(tmp_path / "s.csv")],
+        ["report", "-q", str(res), "--out", str(tmp_path / "c.html")],
+        ["archive", "add", "-q", "--db", str(db), str(res)],
+        ["archive", "export", "-q", "--db", str(db), str(tmp_path / "e.csv")],
+    ]
+    for argv in runs:
+        assert main(argv) == 0, argv
+        assert capsys.readouterr().out == "", argv
+    for name in ("s.csv", "c.html", "a.sqlite", "e.csv"):
+        assert (tmp_path / name).stat().st_size > 0, name

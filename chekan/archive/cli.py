@@ -47,6 +47,12 @@ def _db(args: argparse.Namespace) -> Output:
 
 
 # ----------------------------------------------------------------------------- archive
+def _quiet_arg(q: argparse.ArgumentParser) -> None:
+    q.add_argument(
+        "-q", "--quiet", action="store_true", help="print nothing on success (errors still)"
+    )
+
+
 def _cmd_add(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
     from chekan.report.dcc_read import read_result_or_dcc as read_result  # JSON or DCC
@@ -62,7 +68,8 @@ def _cmd_add(args: argparse.Namespace) -> int:
                 print(f"chekan: error: {e}", file=sys.stderr)
                 bad += 1
                 continue
-            print(f"{path}: session {sid}")
+            if not args.quiet:
+                print(f"{path}: session {sid}")
     return 1 if bad else 0
 
 
@@ -130,7 +137,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
     check_outputs([db.path], [out])
     with Archive(db.path, readonly=True) as a:
         n = a.export_csv(out, args.serial)
-    print(f"wrote {out} ({n} parameter rows)")
+    if not args.quiet:
+        print(f"wrote {out} ({n} parameter rows)")
     return 0
 
 
@@ -151,6 +159,7 @@ def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
         help="a result whose numbers differ from the archived session of the same input, "
         "method and version replaces it (without: reported, not added, exit 1)",
     )
+    _quiet_arg(q)
     _db_arg(q)
     q.set_defaults(func=_cmd_add)
     q = asub.add_parser("list", help="list archived sessions")
@@ -164,6 +173,7 @@ def add_archive_parser(sub: Any) -> argparse.ArgumentParser:
     q.set_defaults(func=_cmd_show)
     q = asub.add_parser("export", help="parameters of every session as CSV (one row each)")
     q.add_argument("out", nargs="?", help="CSV file to write (or -o/--out)")
+    _quiet_arg(q)
     q.add_argument("-o", "--out", dest="out_opt", metavar="OUT", help="CSV file to write")
     q.add_argument("--serial", help="only this instrument")
     _db_arg(q)

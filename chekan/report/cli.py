@@ -34,7 +34,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
         lab=args.lab,
         customer=args.customer,
     )
-    print(f"wrote {written}")
+    if not args.quiet:
+        print(f"wrote {written}")
     return 0
 
 
@@ -81,5 +82,8 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--record", help="the record, when not at the path the result names")
     p.add_argument("--netcdf", help="the posterior NetCDF, when not at the path the result names")
     p.add_argument("--figures", help="also write the figure PNGs into this folder")
+    p.add_argument(
+        "-q", "--quiet", action="store_true", help="print nothing on success (errors still)"
+    )
     p.set_defaults(func=_cmd_report)
     return p
