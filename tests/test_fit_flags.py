@@ -51,3 +51,21 @@ def test_typical_sessions_are_not_flagged(short_program):
         rec, _ = simulate_session(short_program, random_truth(np.random.default_rng(i)), seed=i)
         r = calibrate(rec, CalibrationOptions(method="map", progress=False))
         assert r["diagnostics"]["problems"] == [], (i, r["diagnostics"]["problems"])
+
+
+def test_residuals_the_model_does_not_describe_are_flagged(short_program, tmp_path, capsys):
+    """An effect the model leaves out (here a 0.6 pix oscillation of system 1 with a 25 min
+    period, which the cubic drift cannot follow) leaves residuals several times the
+    samples' own scatter: flagged, and --strict exits 3 (issue 33 §3)."""
+    import dataclasses
+
+    rec, _ = simulate_session(short_program, random_truth(np.random.default_rng(0)), seed=0)
+    wavy = dataclasses.replace(rec, m1_pix=rec.m1_pix + 0.6 * np.sin(2 * np.pi * rec.t_s / 1500))
+    path = tmp_path / "wavy.csv"
+    write_record(path, wavy)
+    out = tmp_path / "r.json"
+    assert main(["calibrate", str(path), "--method", "map", "--json", str(out), "-q"]) == 0
+    problems = json.loads(out.read_text())["diagnostics"]["problems"]
+    assert any("residuals of system 1" in p for p in problems), problems
+    assert not any("residuals of system 2" in p for p in problems), problems
+    assert main(["calibrate", str(path), "--method", "map", "--strict", "-q"]) == 3

@@ -72,6 +72,23 @@ def hyper_at_bounds(h: Hyper) -> list[str]:
     return out
 
 
+MISFIT_SCALE = 2.0  # residuals this many times the samples' own scatter: a misfit
+
+
+def residual_misfit(h: Hyper) -> list[str]:
+    """The systems whose residuals the model does not describe, in words: the bin means
+    scatter about the fit sⱼ times more than the record's own sample-to-sample noise says
+    (sⱼ > ``MISFIT_SCALE``): an effect the model leaves out (a jump, a drift the polynomial
+    cannot follow), and the sd that rests on the fit may be too small."""
+    s = np.asarray(h["noise_scale"], dtype=float).reshape(-1)
+    return [
+        f"residuals of system {j + 1} are {v:.3g}× the scatter of its own samples: the model "
+        "does not describe this record (an unmodelled effect); its uncertainty may be too small"
+        for j, v in enumerate(s[:2])
+        if v > MISFIT_SCALE
+    ]
+
+
 def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:
     """What follows every MAP pass but the last, compiled (:func:`em_pass_fn`): the model
     with its level moved to the estimate (m_ref ← m_ref + ĉ), the hyperparameters at their

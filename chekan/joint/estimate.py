@@ -104,7 +104,8 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         "not_identified": list(res.degenerate),
         "data": "bin means inside holds (lag modelled), β marginalised",
         "problems": ([] if res.converged else [f"MAP did not converge: {res.message}"])
-        + em.hyper_at_bounds(fit.hyper),
+        + em.hyper_at_bounds(fit.hyper)
+        + em.residual_misfit(fit.hyper),
     }
     if model.structure.n_x_response:  # docs/figures/validation_dual.md
         diag["notes"] = [
