@@ -385,15 +385,19 @@ def test_quiet_prints_nothing_on_success(tmp_path, capsys):
     prog = tmp_path / "p.toml"
     prog.write_text('angles = ["2°30\'"]\ndwell_s = 60\nsettle_s = 20\nrounds = 1\n')
     db = tmp_path / "a.sqlite"
+    folder = tmp_path / "old"
+    folder.mkdir()
+    shutil.copy(paper, folder / "calibr_46.csv")
     runs = [
         ["calibrate", "-q", str(paper), "-o", str(res)],
         ["simulate", "-q", "--program", str(prog), "-o", str(tmp_path / "s.csv")],
         ["report", "-q", str(res), "--out", str(tmp_path / "c.html")],
         ["archive", "add", "-q", "--db", str(db), str(res)],
         ["archive", "export", "-q", "--db", str(db), str(tmp_path / "e.csv")],
+        ["reanalyze", "-q", "-j", "1", str(folder), "--db", str(tmp_path / "b.sqlite")],
     ]
     for argv in runs:
         assert main(argv) == 0, argv
         assert capsys.readouterr().out == "", argv
-    for name in ("s.csv", "c.html", "a.sqlite", "e.csv"):
+    for name in ("s.csv", "c.html", "a.sqlite", "e.csv", "b.sqlite"):
         assert (tmp_path / name).stat().st_size > 0, name

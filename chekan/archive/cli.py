@@ -198,7 +198,8 @@ def _cmd_reanalyze(args: argparse.Namespace) -> int:
         options={"quick": True} if args.quick else None,
         progress=not args.no_progress,
     )
-    print(rep.summary())
+    if not args.no_progress or rep.failed:  # -q: nothing on success
+        print(rep.summary())
     if rep.found == 0 and not rep.failed:
         raise ChekanError(
             f"{args.dir}: no chekan-record/1 or chekan-protocol/1 file found (searched "
@@ -233,7 +234,7 @@ def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
         "--no-progress",
         dest="no_progress",
         action="store_true",
-        help="no progress bar",
+        help="no progress bar, and nothing printed on success (failures still listed)",
     )
     _db_arg(p)
     p.set_defaults(func=_cmd_reanalyze)
