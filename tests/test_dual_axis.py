@@ -141,3 +141,37 @@ def test_x_rounds_tilt_about_x_and_hold_y_near_zero():
     sel = np.isin(rec.step, x_steps)
     assert np.nanmax(np.abs(rec.tilt_x_arcsec[sel])) > 4.4 * 3600
     assert np.nanmax(np.abs(rec.tilt_y_arcsec[sel])) < 30
+
+
+def test_posterior_predictive_of_a_two_axis_record_is_the_y_rounds_table(dual_fit):
+    """bayes on a record with rounds about both axes crashed writing its predictive δg
+    table (6 columns from all rounds against the 3 of the certified Y rounds): the
+    replicated sessions go through the classical method as it reports, Y rounds only."""
+    from chekan.classical import calibrate_record
+    from chekan.joint.binning import prepare
+    from chekan.joint.predictive import posterior_predictive_delta_g
+
+    rec, truth, _res = dual_fit
+    cres, holds = calibrate_record(rec, settle_s=120.0)
+    _, model = prepare(rec, 120.0)
+    t = truth.derived()
+    one = {
+        "b1": t["b1"],
+        "b2": t["b2"],
+        "a": t["a"],
+        "eps1_arcmin": t["eps1_arcmin"],
+        "eps2_arcmin": t["eps2_arcmin"],
+        "dgamma_arcmin": t["dgamma_arcmin"],
+        "m_level_pix": np.asarray(truth.m_level_pix),
+        "drift_coeffs": np.zeros((2, model.drift_degree)),
+        "sigma_hold_pix": 0.05,
+        "sigma_theta_arcsec": 1.0,
+        "sigma1_pix": 0.1,
+        "sigma2_pix": 0.1,
+    }
+    draws = {k: np.broadcast_to(np.asarray(v, float), (1, 4, *np.shape(v))) for k, v in one.items()}
+    rep = posterior_predictive_delta_g(
+        holds, rec.g_local_mgal, draws, model, np.random.default_rng(0)
+    )
+    assert rep.shape[1:] == np.asarray(cres.delta_g_mgal).shape  # (R_y, 2, n) of the Y rounds
+    assert rep.shape[1] == 2  # 4 rounds alternating: 2 about Y

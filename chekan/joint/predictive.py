@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from chekan import model as fm
-from chekan.classical import fit_classical, increments_from_holds
+from chekan.classical import fit_by_axis, increments_from_holds
 from chekan.joint.problem import K_DESIGN
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
@@ -21,7 +21,8 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
 
     For each draw: ŷₖⱼ = Eₖⱼ(θ) + cⱼ + driftⱼ(tₖ) + õₖⱼ − Sₖⱼ δ̃ₖ + noise/√nₖ with fresh
     hold offsets and angle errors (a replicated session), then pairs, level
-    interpolation and the least squares of eq. (21) exactly as the classical method.
+    interpolation and the least squares of eq. (21) exactly as the classical method (whose
+    table is the rounds about Y where a record has both axes).
     """
     n = draws["b1"].size
     take = rng.choice(n, size=min(n, n_max), replace=False)
@@ -44,7 +45,8 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
         noise = rng.normal(0, 1, E.shape) * np.array([flat["sigma1_pix"][i], flat["sigma2_pix"][i]])
         y = E + drift + o - S * d[:, None] + noise / np.sqrt(np.maximum(holds.n_used, 1))[:, None]
         rep = holds.__class__(**{**holds.__dict__, "m_mean_pix": y})
-        cres = fit_classical(increments_from_holds(rep, g), a_fixed=a_fixed)
+        # as the classical method reports it: the rounds about Y (X rounds fitted apart)
+        cres = fit_by_axis(increments_from_holds(rep, g), a_fixed=a_fixed)
         reps.append(cres.delta_g_mgal)
     return np.stack(reps)  # (draws, R, 2, n)
 
