@@ -187,7 +187,7 @@ def timed_reanalyze(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> 
     t = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t
-    if proc.returncode != 0:
+    if proc.returncode not in (0, 1):  # 1: some inputs failed, the others were archived
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         raise RuntimeError(f"chekan reanalyze exited {proc.returncode}: {' | '.join(tail)}")
     inner = []
@@ -195,7 +195,14 @@ def timed_reanalyze(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> 
         s = json.loads(p.read_text(encoding="utf-8")).get("diagnostics", {}).get("seconds")
         if s is not None:
             inner.append(float(s))
-    return {"seconds": wall, "sessions": len(inner), "result_seconds": inner, "jobs": jobs}
+    return {
+        "seconds": wall,
+        "sessions": len(inner),
+        "result_seconds": inner,
+        "jobs": jobs,
+        "exit_status": proc.returncode,
+        "summary": proc.stdout.strip().splitlines()[-6:],
+    }
 
 
 def _ratio(x: float, bare: float) -> float:
@@ -239,7 +246,16 @@ def _record_row(r: Run, bare: float, hours: dict[str, float]) -> Row:
     )
 
 
-def _summary_rows(runs: list[Run], bare: float) -> list[Row]:
+def _failed_row(case: str, method: str, hours: dict[str, float], why: str) -> Row:
+    return Row(
+        f"`calibrate --method {method}`, {case} ({hours[case]:.1f} h), new process",
+        "FAILED",
+        note=why,
+        values={"case": case, "failed": why},
+    )
+
+
+def _summary_rows(runs: list[Run], bare: float, failed: list[str] | None = None) -> list[Row]:
     method = runs[0].method
     secs = [r.seconds for r in runs]
     worst = max(runs, key=lambda r: r.seconds)
@@ -267,8 +283,10 @@ def _summary_rows(runs: list[Run], bare: float) -> list[Row]:
             f"({worst.ess_min[0]})"
         )
         values.update(all_converged=conv, worst_ess_bulk_min=worst.ess_min[1])
+    if failed:
+        note += f"; FAILED, not counted: {', '.join(failed)}"
     note += " — " + ("met" if met else "NOT met")
-    values["target_met"] = met
+    values.update(target_met=met, failed=list(failed or []))
     rows = [
         Row(
             f"`calibrate --method {method}` over {len(runs)} records, new processes",
@@ -307,6 +325,8 @@ def _reanalyze_row(r: dict[str, Any], n_records: int) -> Row:
         f"{r['sessions']}/{n_records} sessions in {r['seconds']:.1f} s, {r['jobs']} workers, "
         "new process, fresh archive, worker start-up included"
     )
+    if r.get("exit_status"):
+        note += f"; exit {r['exit_status']}, some failed: {' | '.join(r.get('summary', []))}"
     if inner:
         med = statistics.median(inner)
         r["warm_sessions_per_s_estimate"] = r["jobs"] / med
@@ -328,8 +348,10 @@ def run(
     jobs: int = 2,
     skip_bayes: bool = False,
     nuts: bool = False,
+    keep: str | None = None,
 ) -> list[Row]:
-    """Measure the figures (see the module docstring); returns the rows."""
+    """Measure the figures (see the module docstring); returns the rows. ``keep``: a folder
+    that keeps the records and results (it must not exist yet)."""
     from chekan.demo import demo_program
 
     rows: list[Row] = []
@@ -338,6 +360,9 @@ def run(
     methods = ("map",) if skip_bayes else ("map", "bayes")
     with tempfile.TemporaryDirectory(prefix="chekan-bench-records-") as tmp_:
         tmp = Path(tmp_)
+        if keep:
+            tmp = Path(keep)
+            tmp.mkdir(parents=True)
         env = _env()
         recs_dir = tmp / "records"
         recs_dir.mkdir()
@@ -353,10 +378,14 @@ def run(
             )
         )
         runs: dict[str, list[Run]] = {m: [] for m in methods}
+        failed: dict[str, list[Row]] = {m: [] for m in methods}
         for case, path in recs.items():
             for m in methods:
-                runs[m].append(timed_calibrate(case, path, m, tmp, env))
-        bares = [r.bare_seconds for m in methods for r in runs[m]]
+                try:
+                    runs[m].append(timed_calibrate(case, path, m, tmp, env))
+                except RuntimeError as e:  # the other records' figures still stand
+                    failed[m].append(_failed_row(case, m, hours, str(e)))
+        bares = [r.bare_seconds for m in methods for r in runs[m]] or [bare_start(env)]
         bare = statistics.median(bares)
         rows.append(
             Row(
@@ -369,8 +398,9 @@ def run(
             )
         )
         for m in methods:
-            rows += [_record_row(r, bare, hours) for r in runs[m]]
-            rows += _summary_rows(runs[m], bare)
+            rows += [_record_row(r, bare, hours) for r in runs[m]] + failed[m]
+            if runs[m]:
+                rows += _summary_rows(runs[m], bare, [r.values["case"] for r in failed[m]])
         if not skip_bayes:
             rows.append(_reanalyze_row(timed_reanalyze(recs_dir, tmp, jobs, env), len(recs)))
             if nuts:
@@ -460,10 +490,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skip-bayes", action="store_true", help="only --method map")
     ap.add_argument("--nuts", action="store_true", help="NUTS agreement on the slowest record")
     ap.add_argument("--json", help="also write the figures here")
+    ap.add_argument("--keep", help="keep the records and results in this new folder")
     args = ap.parse_args(argv)
     env = environment()
     t = time.perf_counter()
-    rows = run(args.seed, args.quick, args.jobs, args.skip_bayes, args.nuts)
+    rows = run(args.seed, args.quick, args.jobs, args.skip_bayes, args.nuts, args.keep)
     print(format_table(rows, f"several records ({time.perf_counter() - t:.0f} s)"))
     print(environment_line(env))
     if args.json:
