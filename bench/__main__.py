@@ -31,9 +31,11 @@ where there is no reference tool):
 
 All figures, with their raw numbers and the machine's description (the load average
 matters on a shared machine), go to ``--json``. About 10 minutes on 2 cores with a warm JAX
-cache; ``--quick`` (about 5 minutes): the 3 h record, the CLI's map rows only, the posterior
-bench on the 3 h record, 40 archive sessions, classical only (``--archive-map-n 2`` adds MAP:
-its workers compile for minutes on a cold cache).
+cache, and the several-records bench about 12 more on a loaded machine; ``--quick`` (about 5
+minutes, and about 10 for the several-records bench on a loaded machine): the 3 h record, the
+CLI's map rows only, the posterior bench on the 3 h record, 40 archive sessions, classical
+only (``--archive-map-n 2`` adds MAP: its workers compile for minutes on a cold cache), the
+several-records bench on 3 h records.
 """
 
 from __future__ import annotations

@@ -212,10 +212,23 @@ def test_several_records_table_from_stubbed_runs(monkeypatch):
 
 
 @pytest.mark.slow
-def test_several_records_quick_runs_the_new_processes():
-    """``--quick`` for real: four short records through new ``calibrate`` processes (map and
-    bayes) and ``reanalyze --method bayes``; the rows exist and hold finite numbers (their
+def test_several_records_quick_map_runs_the_new_processes():
+    """``--quick --skip-bayes`` for real: four short records through new ``calibrate --method
+    map`` processes beside bare JAX starts; the rows exist and hold finite numbers (their
     speed is not asserted)."""
+    from bench.several_records import run
+
+    _check_several_records_rows(run(seed=0, quick=True, skip_bayes=True), methods=("map",))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(
+    not __import__("os").environ.get("CHEKAN_TEST_BENCH_BAYES"),
+    reason="four bayes processes and a reanalyze take minutes on 2 cores "
+    "(set CHEKAN_TEST_BENCH_BAYES=1)",
+)
+def test_several_records_quick_runs_bayes_and_reanalyze():
+    """``--quick`` for real, bayes and ``reanalyze --method bayes`` included."""
     from bench.several_records import run
 
     _check_several_records_rows(run(seed=0, quick=True))
