@@ -403,7 +403,7 @@ def run(
                 rows += _summary_rows(runs[m], bare, [r.values["case"] for r in failed[m]])
         if not skip_bayes:
             rows.append(_reanalyze_row(timed_reanalyze(recs_dir, tmp, jobs, env), len(recs)))
-            if nuts:
+            if nuts and runs["bayes"]:
                 worst = max(runs["bayes"], key=lambda r: r.seconds)
                 rows.append(nuts_agreement(recs[worst.case], worst.case, seed, quick))
     return rows
