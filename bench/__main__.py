@@ -1,7 +1,7 @@
 """``python -m bench``: every benchmark in one run, one table, ``bench_results.json``.
 
     python -m bench [--quick] [--skip-bayes] [--fresh-cache] [--archive-n N]
-                    [--archive-map-n M] [--jobs J] [--seed S] [--json PATH]
+                    [--archive-map-n M] [--jobs J] [--nuts] [--seed S] [--json PATH]
 
 Each figure is printed beside its reference measured in the same run (or the issue's goal
 where there is no reference tool):
@@ -20,13 +20,22 @@ where there is no reference tool):
   ESS/s of both and the agreement of the posterior means (within 0.1 sd) and sds (10 %)
   (skipped by ``--skip-bayes``; ``--quick`` runs it on the 3 h record with fewer draws);
 - ``bench/archive_bench.py``: re-analysis sessions/s, classical and MAP, against a plain
-  ``calibrate_file`` loop.
+  ``calibrate_file`` loop;
+- ``bench/several_records.py``: ``calibrate --method bayes`` and ``--method map`` as new
+  processes on four independent records (typical, misaligned and slow-damping platforms on
+  the paper's program, and a dual-axis program): per record the wall time, converged, τ_max,
+  bulk ESS and ESS/s per parameter; the median and the worst beside a bare JAX start measured
+  in the same run (ratio, the issue's targets); ``reanalyze --method bayes`` sessions/s over
+  them on ``--jobs`` workers (``--skip-bayes``: map rows only; ``--quick``: 3 h records and a
+  6-round dual-axis one; ``--nuts``: NUTS against emcee on the slowest record).
 
 All figures, with their raw numbers and the machine's description (the load average
 matters on a shared machine), go to ``--json``. About 10 minutes on 2 cores with a warm JAX
-cache; ``--quick`` (about 5 minutes): the 3 h record, the CLI's map rows only, the posterior
-bench on the 3 h record, 40 archive sessions, classical only (``--archive-map-n 2`` adds MAP:
-its workers compile for minutes on a cold cache).
+cache, and the several-records bench about 12 more on a loaded machine; ``--quick`` (about 5
+minutes, and about 10 for the several-records bench on a loaded machine): the 3 h record, the
+CLI's map rows only, the posterior bench on the 3 h record, 40 archive sessions, classical
+only (``--archive-map-n 2`` adds MAP: its workers compile for minutes on a cold cache), the
+several-records bench on 3 h records.
 """
 
 from __future__ import annotations
@@ -39,7 +48,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import archive_bench, calibration_bench, cli_bench, nuts_bench
+from bench import archive_bench, calibration_bench, cli_bench, nuts_bench, several_records
 from bench.table import Row, environment, environment_line, format_table, write_json
 
 
@@ -68,6 +77,9 @@ def main(argv: list[str] | None = None) -> int:
         "--archive-map-n", type=int, help="of which by MAP (default 4; quick 0: skipped)"
     )
     ap.add_argument("--jobs", type=int, default=default_jobs(), help="worker processes")
+    ap.add_argument(
+        "--nuts", action="store_true", help="NUTS against emcee on the slowest of the records"
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default="bench_results.json", help="where to write the figures")
     args = ap.parse_args(argv)
@@ -93,6 +105,16 @@ def main(argv: list[str] | None = None) -> int:
             "archive",
             lambda: archive_bench.run(archive_n, args.jobs, map_n, seed=args.seed),
         ),
+        (
+            "several-records",
+            lambda: several_records.run(
+                args.seed,
+                quick=args.quick,
+                jobs=args.jobs,
+                skip_bayes=args.skip_bayes,
+                nuts=args.nuts,
+            ),
+        ),
     )
     failed = 0
     for name, fn in sections:
@@ -114,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         "archive_n": archive_n,
         "archive_map_n": map_n,
         "jobs": args.jobs,
+        "nuts": args.nuts,
         "seed": args.seed,
     }
     path = write_json(args.json, rows, environment=env, settings=settings, seconds=seconds)

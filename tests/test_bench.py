@@ -33,18 +33,19 @@ def test_table_is_aligned():
 
 
 def test_main_prints_every_section(monkeypatch, tmp_path, capsys):
-    """``python -m bench`` runs the CLI, calibration, posterior and archive benches into one
-    table (each stubbed here; the slow tests below run the real ones)."""
+    """``python -m bench`` runs the CLI, calibration, posterior, archive and several-records
+    benches into one table (each stubbed here; the slow tests below run the real ones)."""
     import bench.__main__ as bm
 
     def stub(name):
         return lambda *a, **k: [Row(f"{name} row", "1 s", "2 s ref.")]
 
-    for mod in ("cli_bench", "calibration_bench", "nuts_bench", "archive_bench"):
+    mods = ("cli_bench", "calibration_bench", "nuts_bench", "archive_bench", "several_records")
+    for mod in mods:
         monkeypatch.setattr(getattr(bm, mod), "run", stub(mod))
     assert bm.main(["--quick", "--json", str(tmp_path / "r.json")]) == 0
     out = capsys.readouterr().out
-    for mod in ("cli_bench", "calibration_bench", "nuts_bench", "archive_bench"):
+    for mod in mods:
         assert f"{mod} row" in out
     assert bm.main(["--skip-bayes", "--json", str(tmp_path / "r.json")]) == 0
     assert "nuts_bench row" not in capsys.readouterr().out
@@ -118,3 +119,116 @@ def test_nuts_bench_smallest_settings_prints_its_rows():
     assert "ESS/s" in labels[2] and rows[2].figure.endswith("/s emcee")
     assert rows[3].note in ("AGREE", "DISAGREE (beyond the tolerances)")
     assert np.isfinite(rows[3].values["max_abs_dmean_over_sd"])
+
+
+def _check_several_records_rows(rows, methods=("map", "bayes")):
+    """The several-records table: a bare start, four records per method, the median and the
+    worst beside the bare start, ESS/s per parameter, reanalyze throughput; finite values."""
+    from bench.several_records import CASES
+
+    labels = [r.label for r in rows]
+    assert labels[0].startswith("simulate the 4 records")
+    bare = rows[1]
+    assert bare.label.startswith("bare JAX start") and np.isfinite(bare.values["seconds"])
+    assert bare.values["seconds"] > 0
+    for m in methods:
+        rec_rows = [r for r in rows if r.label.startswith(f"`calibrate --method {m}`, ")]
+        assert sorted(r.values["case"] for r in rec_rows) == sorted(CASES)
+        per = [r for r in rec_rows if r.figure != "FAILED"]
+        failed = [r.values["case"] for r in rec_rows if r.figure == "FAILED"]
+        assert per, "every record failed"
+        for r in per:
+            assert np.isfinite(r.values["seconds"]) and r.values["seconds"] > 0
+            assert r.values["ratio_to_bare"] == r.values["seconds"] / bare.values["seconds"]
+        over = f"`calibrate --method {m}` over {len(per)} records"
+        (summ,) = [r for r in rows if r.label.startswith(over)]
+        v = summ.values
+        assert v["failed"] == failed and all(c in summ.note for c in failed)
+        assert v["worst_seconds"] == max(r.values["seconds"] for r in per)
+        assert v["median_seconds"] == float(np.median([r.values["seconds"] for r in per]))
+        assert np.isfinite(v["worst_ratio_to_bare"]) and np.isfinite(v["median_ratio_to_bare"])
+        assert ("— met" in summ.note) == v["target_met"]
+        if m == "bayes":
+            for r in per:
+                assert np.isfinite(r.values["tau_max"]) and r.values["n_steps"] > 0
+                ess = r.values["ess_bulk"]
+                assert "b1" in ess and all(np.isfinite(x) and x > 0 for x in ess.values())
+                assert r.values["ess_per_s"]["b1"] == ess["b1"] / r.values["seconds"]
+            (rate,) = [r for r in rows if r.label.startswith("bulk ESS per second")]
+            worst = rate.values["worst_ess_per_s"]
+            assert all(np.isfinite(x) for x in worst.values())
+            assert worst["b1"] == min(r.values["ess_per_s"]["b1"] for r in per)
+    if "bayes" in methods:
+        (re,) = [r for r in rows if r.label.startswith("`reanalyze --method bayes`")]
+        assert 1 <= re.values["sessions"] <= 4 and np.isfinite(re.values["sessions_per_s"])
+
+
+def test_several_records_table_from_stubbed_runs(monkeypatch):
+    """Median, worst, ratios and ESS/s computed from the runs (processes stubbed: no timing)."""
+    import bench.several_records as sr
+    from chekan.parameters import PARAMETER_UNITS
+
+    secs = {"typical": 10.0, "misaligned": 14.0, "slow": 30.0, "dual-axis": 12.0}
+
+    def fake_calibrate(case, rec, method, tmp, env):
+        k = 1.0 if method == "bayes" else 0.1
+        run = sr.Run(case, method, secs[case] * k, 0.5 + 0.1 * len(case), 5.0, True)
+        if method == "bayes":
+            run.tau_max, run.n_steps = 6.0, 200
+            run.ess = {n: 1000.0 + 10 * i for i, n in enumerate(PARAMETER_UNITS)}
+        return run
+
+    monkeypatch.setattr(sr, "write_records", lambda d, s, q: {c: d / c for c in sr.CASES})
+    monkeypatch.setattr(sr, "timed_calibrate", fake_calibrate)
+    monkeypatch.setattr(
+        sr,
+        "timed_reanalyze",
+        lambda *a: {"seconds": 8.0, "sessions": 4, "result_seconds": [3, 4, 5, 6], "jobs": 2},
+    )
+    rows = sr.run(quick=True)
+    _check_several_records_rows(rows)
+    bare = np.median([0.5 + 0.1 * len(c) for c in sr.CASES for _ in range(2)])
+    (summ,) = [r for r in rows if r.label.startswith("`calibrate --method bayes` over")]
+    assert summ.values["worst_case"] == "slow"
+    assert summ.values["worst_ratio_to_bare"] == pytest.approx(30.0 / bare)
+    assert summ.values["median_seconds"] == 13.0
+    assert summ.values["target_met"] is False  # 30 s is beyond 6× a ~1 s start
+    (re,) = [r for r in rows if r.label.startswith("`reanalyze")]
+    assert re.values["sessions_per_s"] == 0.5
+    assert re.values["warm_sessions_per_s_estimate"] == 2 / 4.5
+
+    def failing(case, rec, method, tmp, env):
+        if case == "slow" and method == "bayes":
+            raise RuntimeError("chekan calibrate slow.csv exited 1: ValueError: boom")
+        return fake_calibrate(case, rec, method, tmp, env)
+
+    monkeypatch.setattr(sr, "timed_calibrate", failing)
+    rows = sr.run(quick=True)
+    _check_several_records_rows(rows)
+    (bad,) = [r for r in rows if r.figure == "FAILED"]
+    assert bad.label.startswith("`calibrate --method bayes`, slow") and "boom" in bad.note
+    (summ,) = [r for r in rows if r.label.startswith("`calibrate --method bayes` over 3")]
+    assert summ.values["worst_case"] == "misaligned" and summ.values["median_seconds"] == 12.0
+
+
+@pytest.mark.slow
+def test_several_records_quick_map_runs_the_new_processes():
+    """``--quick --skip-bayes`` for real: four short records through new ``calibrate --method
+    map`` processes beside bare JAX starts; the rows exist and hold finite numbers (their
+    speed is not asserted)."""
+    from bench.several_records import run
+
+    _check_several_records_rows(run(seed=0, quick=True, skip_bayes=True), methods=("map",))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(
+    not __import__("os").environ.get("CHEKAN_TEST_BENCH_BAYES"),
+    reason="four bayes processes and a reanalyze take minutes on 2 cores "
+    "(set CHEKAN_TEST_BENCH_BAYES=1)",
+)
+def test_several_records_quick_runs_bayes_and_reanalyze():
+    """``--quick`` for real, bayes and ``reanalyze --method bayes`` included."""
+    from bench.several_records import run
+
+    _check_several_records_rows(run(seed=0, quick=True))

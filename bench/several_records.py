@@ -1,0 +1,508 @@
+"""``calibrate --method bayes`` and ``--method map`` as a NEW process on several records, beside
+a bare JAX start measured in the same run; ``reanalyze --method bayes`` throughput.
+
+    python bench/several_records.py [--seed 0] [--quick] [--jobs J] [--skip-bayes] [--nuts]
+
+The records (simulated once into a temporary folder, fixed seeds; each an independent
+instrument drawn by :func:`chekan.validate_scenario.session_truth` with the default
+:class:`~chekan.validate_scenario.Scenario`, simulated by
+:func:`chekan.simulate.simulate_session`):
+
+- ``typical``, ``misaligned`` (|ε| 8–10′, |Δγ| 15–20′) and ``slow`` (τ = 90 s): the paper's
+  9 h program (``--quick``: the same angles with 300 s dwells, 3 h);
+- ``dual-axis``: the designer's best 9 h program about both axes (the angles 4°30′, 4°51′,
+  5°10′, rounds alternating Y and X, ± order alternating, 20 rounds of 188 s dwells,
+  120 s settling; ``--quick``: 6 rounds), a ``typical`` instrument.
+
+Per record and method, what a user waits for: ``python -m chekan.cli calibrate REC --method M
+-q --json OUT`` as a subprocess (start-up, imports, loading the stored executables, the
+solve, writing the result). A run that added entries to the persistent JAX cache compiled
+something; it is run once more and the second run is reported (the issue's figures are for a
+warm cache), the first in the note. Before each such run a bare JAX start (``import jax``,
+float64, one array, a new process) is timed; the ratio is to the median of those.
+
+From ``bayes``'s result JSON: ``diagnostics.converged``, ``tau_max``, ``n_steps`` and each
+reported parameter's bulk ESS; ESS per second is that bulk ESS over the process's wall
+seconds (the user's wait). Printed: one row per record, then the median and the worst record
+(the slowest; for ESS/s the lowest) beside the bare start and the issue's targets (bayes
+≤ 6× the bare start on the worst record, converged, bulk ESS ≥ 1 000 for every parameter;
+map ≤ 2×).
+
+``reanalyze --method bayes --jobs J`` (a new process, a fresh archive) over the same records:
+sessions per second, worker start-up included (few sessions: start-up weighs), beside the
+goal ≥ 1/s; the note gives the warm-worker estimate J / median in-process seconds.
+
+``--nuts``: blackjax NUTS on the slowest record's posterior, as ``calibrate`` builds it
+(the record's angle-sensor model), against emcee: means within 0.1 sd, sds within 10 %
+(:mod:`bench.nuts_bench`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.cli_bench import _entries, _env, cache_dir
+from bench.table import Row, environment, environment_line, format_table
+
+PLATFORM_CASES = ("typical", "misaligned", "slow")
+DUAL = "dual-axis"
+CASES = (*PLATFORM_CASES, DUAL)
+BARE_JAX = (
+    "import jax; jax.config.update('jax_enable_x64', True); jax.numpy.ones(3).block_until_ready()"
+)
+TARGET_RATIO = {"bayes": 6.0, "map": 2.0}
+TARGET_ESS = 1000.0
+TARGET_REANALYZE_PER_S = 1.0
+SEED_BASE = 3100  # record i of seed s is simulated with seed SEED_BASE + 10·s + i
+
+
+@dataclass
+class Run:
+    """One timed ``chekan calibrate`` process and what its result says."""
+
+    case: str
+    method: str
+    seconds: float
+    bare_seconds: float
+    result_seconds: float | None
+    converged: bool | None
+    first_seconds: float | None = None  # the run before it, when that one compiled
+    tau_max: float | None = None
+    n_steps: int | None = None
+    ess: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def ess_per_s(self) -> dict[str, float]:
+        return {k: v / self.seconds for k, v in self.ess.items()}
+
+    @property
+    def ess_min(self) -> tuple[str, float]:
+        name = min(self.ess, key=lambda k: self.ess[k])
+        return name, self.ess[name]
+
+
+def dual_axis_program(quick: bool):
+    """The designer's best 9 h program about both axes (6 rounds, ≈ 2.6 h, for ``quick``)."""
+    from chekan.program import build_program
+
+    return build_program(
+        [4.5, 4 + 51 / 60, 5 + 10 / 60],
+        name="design-best-xy" + ("-short" if quick else ""),
+        axis="xy",
+        order="alternate",
+        rounds=6 if quick else 20,
+        dwell_s=188.0,
+        settle_s=120.0,
+    )
+
+
+def write_records(folder: Path, seed: int, quick: bool) -> dict[str, Path]:
+    """Simulate the four records into ``folder``; ``{case: path}``."""
+    import numpy as np
+
+    from chekan.demo import demo_program
+    from chekan.records import write_record
+    from chekan.simulate import simulate_session
+    from chekan.validate_scenario import Scenario, session_truth
+
+    out = {}
+    for i, case in enumerate(CASES):
+        s = SEED_BASE + 10 * seed + i
+        program = dual_axis_program(quick) if case == DUAL else demo_program(quick)
+        truth = session_truth(
+            "typical" if case == DUAL else case, np.random.default_rng(s), i, Scenario()
+        )
+        rec, _ = simulate_session(program, truth, seed=s)
+        path = folder / f"{case}.csv"
+        write_record(path, rec)
+        out[case] = path
+    return out
+
+
+def bare_start(env: dict[str, str]) -> float:
+    """Wall seconds of a new process that imports JAX, enables float64, makes one array."""
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-c", BARE_JAX], env=env, check=True, capture_output=True)
+    return time.perf_counter() - t
+
+
+def _calibrate_once(rec: Path, method: str, out: Path, env: dict[str, str]):
+    cache = cache_dir(env)
+    before = _entries(cache)
+    cmd = [sys.executable, "-m", "chekan.cli", "calibrate", str(rec), "--method", method]
+    cmd += ["-q", "--json", str(out)]
+    t = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    if proc.returncode != 0:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise RuntimeError(
+            f"chekan calibrate {rec.name} exited {proc.returncode}: {' | '.join(tail)}"
+        )
+    return wall, _entries(cache) - before, json.loads(out.read_text(encoding="utf-8"))
+
+
+def timed_calibrate(case: str, rec: Path, method: str, tmp: Path, env: dict[str, str]) -> Run:
+    """A bare JAX start, then ``chekan calibrate`` as a new process (again, once, when the
+    first run added entries to the persistent cache)."""
+    out = tmp / f"{case}.{method}.json"
+    bare = bare_start(env)
+    wall, added, res = _calibrate_once(rec, method, out, env)
+    first = None
+    if added > 0:
+        first = wall
+        bare = bare_start(env)
+        wall, _, res = _calibrate_once(rec, method, out, env)
+    diag = res.get("diagnostics", {})
+    run = Run(case, method, wall, bare, diag.get("seconds"), diag.get("converged"), first)
+    if method == "bayes":
+        run.tau_max = diag.get("tau_max")
+        run.n_steps = diag.get("n_steps")
+        run.ess = {
+            k: float(v["ess_bulk"])
+            for k, v in res.get("parameters", {}).items()
+            if v.get("ess_bulk") is not None
+        }
+    return run
+
+
+def timed_reanalyze(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> dict[str, Any]:
+    """``chekan reanalyze FOLDER --method bayes --jobs J`` as a new process, a fresh archive."""
+    store = tmp / "archive"
+    shutil.rmtree(store, ignore_errors=True)
+    cmd = [sys.executable, "-m", "chekan.cli", "reanalyze", str(folder), "--method", "bayes"]
+    cmd += ["--jobs", str(jobs), "-q", "--db", str(store / "archive.sqlite")]
+    t = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    if proc.returncode not in (0, 1):  # 1: some inputs failed, the others were archived
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
+        raise RuntimeError(f"chekan reanalyze exited {proc.returncode}: {' | '.join(tail)}")
+    inner = []
+    for p in sorted((store / "results").glob("*.json")):
+        s = json.loads(p.read_text(encoding="utf-8")).get("diagnostics", {}).get("seconds")
+        if s is not None:
+            inner.append(float(s))
+    return {
+        "seconds": wall,
+        "sessions": len(inner),
+        "result_seconds": inner,
+        "jobs": jobs,
+        "exit_status": proc.returncode,
+        "summary": proc.stdout.strip().splitlines()[-6:],
+    }
+
+
+def _ratio(x: float, bare: float) -> float:
+    return x / bare if bare > 0 else float("nan")
+
+
+def _record_row(r: Run, bare: float, hours: dict[str, float]) -> Row:
+    label = f"`calibrate --method {r.method}`, {r.case} ({hours[r.case]:.1f} h), new process"
+    note = f"result's own {r.result_seconds:.1f} s" if r.result_seconds is not None else ""
+    if r.first_seconds is not None:
+        note += f"; first run {r.first_seconds:.1f} s compiled (cache entries added), rerun"
+    values: dict[str, Any] = {
+        "case": r.case,
+        "seconds": r.seconds,
+        "bare_seconds": r.bare_seconds,
+        "ratio_to_bare": _ratio(r.seconds, bare),
+        "result_seconds": r.result_seconds,
+        "first_run_seconds": r.first_seconds,
+        "converged": r.converged,
+    }
+    if r.method == "bayes":
+        name, ess = r.ess_min
+        note = (
+            f"{'converged' if r.converged else 'NOT converged'}, τ_max {r.tau_max:.1f}, "
+            f"{r.n_steps} steps; min bulk ESS {ess:.0f} ({name}) = {ess / r.seconds:.0f}/s; " + note
+        )
+        values.update(
+            tau_max=r.tau_max,
+            n_steps=r.n_steps,
+            ess_bulk=r.ess,
+            ess_per_s=r.ess_per_s,
+            ess_bulk_min=ess,
+            ess_bulk_min_parameter=name,
+        )
+    return Row(
+        label,
+        f"{r.seconds:.1f} s ({_ratio(r.seconds, bare):.1f}× bare)",
+        f"bare JAX {r.bare_seconds:.2f} s before it",
+        note,
+        values,
+    )
+
+
+def _failed_row(case: str, method: str, hours: dict[str, float], why: str) -> Row:
+    return Row(
+        f"`calibrate --method {method}`, {case} ({hours[case]:.1f} h), new process",
+        "FAILED",
+        note=why,
+        values={"case": case, "failed": why},
+    )
+
+
+def _summary_rows(runs: list[Run], bare: float, failed: list[str] | None = None) -> list[Row]:
+    method = runs[0].method
+    secs = [r.seconds for r in runs]
+    worst = max(runs, key=lambda r: r.seconds)
+    med = statistics.median(secs)
+    goal = TARGET_RATIO[method]
+    rw = _ratio(worst.seconds, bare)
+    note = f"worst record: {worst.case}; target ≤ {goal:g}× the bare start on the worst record"
+    met = rw <= goal
+    values: dict[str, Any] = {
+        "median_seconds": med,
+        "worst_seconds": worst.seconds,
+        "worst_case": worst.case,
+        "bare_seconds_median": bare,
+        "median_ratio_to_bare": _ratio(med, bare),
+        "worst_ratio_to_bare": rw,
+        "target_ratio": goal,
+    }
+    if method == "bayes":
+        conv = all(bool(r.converged) for r in runs)
+        ess_ok = worst.ess_min[1] >= TARGET_ESS
+        met = met and bool(worst.converged) and ess_ok
+        note += (
+            f", converged, bulk ESS ≥ {TARGET_ESS:.0f} for every parameter; "
+            f"all converged: {conv}; worst record's min bulk ESS {worst.ess_min[1]:.0f} "
+            f"({worst.ess_min[0]})"
+        )
+        values.update(all_converged=conv, worst_ess_bulk_min=worst.ess_min[1])
+    if failed:
+        note += f"; FAILED, not counted: {', '.join(failed)}"
+    note += " — " + ("met" if met else "NOT met")
+    values.update(target_met=met, failed=list(failed or []))
+    rows = [
+        Row(
+            f"`calibrate --method {method}` over {len(runs)} records, new processes",
+            f"median {med:.1f} s, worst {worst.seconds:.1f} s",
+            f"bare JAX {bare:.2f} s: {_ratio(med, bare):.1f}× / {rw:.1f}×",
+            note,
+            values,
+        )
+    ]
+    if method == "bayes":
+        rows.append(_ess_rate_row(runs))
+    return rows
+
+
+def _ess_rate_row(runs: list[Run]) -> Row:
+    """Bulk ESS per second per parameter: the median over the records and the worst."""
+    names = list(runs[0].ess)
+    med = {n: statistics.median(r.ess_per_s[n] for r in runs if n in r.ess) for n in names}
+    low = {n: min(r.ess_per_s[n] for r in runs if n in r.ess) for n in names}
+    worst_name = min(low, key=lambda n: low[n])
+    worst_case = min(runs, key=lambda r: r.ess_per_s.get(worst_name, float("inf"))).case
+    listing = ", ".join(f"{n} {med[n]:.0f}/{low[n]:.0f}" for n in names)
+    return Row(
+        "bulk ESS per second per parameter (median/worst record)",
+        f"median {statistics.median(med.values()):.0f}/s, worst {low[worst_name]:.0f}/s",
+        "—",
+        f"lowest: {worst_name} on {worst_case}; ESS over the process's wall seconds; {listing}",
+        {"median_ess_per_s": med, "worst_ess_per_s": low, "worst_parameter": worst_name},
+    )
+
+
+def _reanalyze_row(r: dict[str, Any], n_records: int) -> Row:
+    rate = r["sessions"] / r["seconds"] if r["seconds"] > 0 else float("nan")
+    inner = r["result_seconds"]
+    note = (
+        f"{r['sessions']}/{n_records} sessions in {r['seconds']:.1f} s, {r['jobs']} workers, "
+        "new process, fresh archive, worker start-up included"
+    )
+    if r.get("exit_status"):
+        note += f"; exit {r['exit_status']}, some failed: {' | '.join(r.get('summary', []))}"
+    if inner:
+        med = statistics.median(inner)
+        r["warm_sessions_per_s_estimate"] = r["jobs"] / med
+        note += f"; median {med:.1f} s per session inside: {r['jobs']} warm workers ≈ "
+        note += f"{r['jobs'] / med:.2f}/s"
+    r["sessions_per_s"] = rate
+    return Row(
+        f"`reanalyze --method bayes` over the {n_records} records",
+        f"{rate:.2f} sessions/s",
+        f"goal ≥ {TARGET_REANALYZE_PER_S:g}/s",
+        note,
+        r,
+    )
+
+
+def run(
+    seed: int = 0,
+    quick: bool = False,
+    jobs: int = 2,
+    skip_bayes: bool = False,
+    nuts: bool = False,
+    keep: str | None = None,
+) -> list[Row]:
+    """Measure the figures (see the module docstring); returns the rows. ``keep``: a folder
+    that keeps the records and results (it must not exist yet)."""
+    from chekan.demo import demo_program
+
+    rows: list[Row] = []
+    hours = {c: demo_program(quick).duration_s / 3600.0 for c in PLATFORM_CASES}
+    hours[DUAL] = dual_axis_program(quick).duration_s / 3600.0
+    methods = ("map",) if skip_bayes else ("map", "bayes")
+    with tempfile.TemporaryDirectory(prefix="chekan-bench-records-") as tmp_:
+        tmp = Path(tmp_)
+        if keep:
+            tmp = Path(keep)
+            tmp.mkdir(parents=True)
+        env = _env()
+        recs_dir = tmp / "records"
+        recs_dir.mkdir()
+        t = time.perf_counter()
+        recs = write_records(recs_dir, seed, quick)
+        dt = time.perf_counter() - t
+        rows.append(
+            Row(
+                f"simulate the {len(recs)} records",
+                f"{dt:.1f} s",
+                note=", ".join(f"{c} {hours[c]:.1f} h" for c in recs),
+                values={"seconds": dt, "hours": hours},
+            )
+        )
+        runs: dict[str, list[Run]] = {m: [] for m in methods}
+        failed: dict[str, list[Row]] = {m: [] for m in methods}
+        for case, path in recs.items():
+            for m in methods:
+                try:
+                    runs[m].append(timed_calibrate(case, path, m, tmp, env))
+                except RuntimeError as e:  # the other records' figures still stand
+                    failed[m].append(_failed_row(case, m, hours, str(e)))
+        bares = [r.bare_seconds for m in methods for r in runs[m]] or [bare_start(env)]
+        bare = statistics.median(bares)
+        rows.append(
+            Row(
+                "bare JAX start (import jax, float64, one array), new process",
+                f"{bare:.2f} s median",
+                "—",
+                f"{len(bares)} starts, one before each calibrate: "
+                f"{min(bares):.2f}–{max(bares):.2f} s",
+                {"seconds": bare, "all_seconds": bares},
+            )
+        )
+        for m in methods:
+            rows += [_record_row(r, bare, hours) for r in runs[m]] + failed[m]
+            if runs[m]:
+                rows += _summary_rows(runs[m], bare, [r.values["case"] for r in failed[m]])
+        if not skip_bayes:
+            rows.append(_reanalyze_row(timed_reanalyze(recs_dir, tmp, jobs, env), len(recs)))
+            if nuts and runs["bayes"]:
+                worst = max(runs["bayes"], key=lambda r: r.seconds)
+                rows.append(nuts_agreement(recs[worst.case], worst.case, seed, quick))
+    return rows
+
+
+def nuts_agreement(path: Path, case: str, seed: int, quick: bool) -> Row:
+    """emcee (as ``calibrate --method bayes`` samples) against NUTS on the same posterior of
+    the record at ``path``, the model built as ``calibrate`` builds it."""
+    from chekan.jaxconfig import single_threaded_blas
+
+    with single_threaded_blas():
+        return _nuts_agreement(path, case, seed, quick)
+
+
+def _nuts_agreement(path: Path, case: str, seed: int, quick: bool) -> Row:
+    import functools
+
+    import numpy as np
+
+    from bench.nuts_bench import MEAN_TOL_SD, SD_TOL, agreement, laplace_start, nuts
+    from chekan.classical import calibrate_record
+    from chekan.joint import fit_map_em, initial_values, prepare, problem_for
+    from chekan.joint.sampling import sample_posterior
+    from chekan.joint.start import tau_from_transients
+    from chekan.options import CalibrationOptions
+    from chekan.records import read_record
+    from inference.diagnostics import ess_bulk
+
+    rec = read_record(path)
+    opts = CalibrationOptions(method="bayes", progress=False, seed=seed)
+    name = str(path)
+    holds, model = prepare(
+        rec,
+        None,
+        angle_spec=opts.angle_spec(rec.meta, name, rec.angle_calibration),
+        angle_spec_x=opts.angle_spec(rec.meta, name, rec.angle_calibration, axis="x"),
+    )
+    cres, _ = calibrate_record(rec)
+    fit = fit_map_em(
+        model,
+        initial_values(cres, rec.g_local_mgal),
+        tau_hint_s=functools.partial(tau_from_transients, rec, holds),
+    )
+    samp = sample_posterior(fit, opts)
+    prob = problem_for(fit.model.structure)
+    z0, cov = laplace_start(fit, prob)
+    chains, warmup, draws = (1, 200, 300) if quick else (2, 300, 2000)
+    zs, t_compile, t_run, info = nuts(
+        prob, fit.model.data, z0, cov, seed=seed, chains=chains, warmup=warmup, draws=draws
+    )
+    dmean, dsd = agreement(samp.draws, zs)
+    agree = dmean <= MEAN_TOL_SD and dsd <= SD_TOL
+    ess_n = float(np.min(ess_bulk(zs)))
+    ess_e = float(np.min(ess_bulk(samp.draws)))
+    return Row(
+        f"emcee vs NUTS on the slowest record ({case}, {prob.bayes_space.size} coords)",
+        f"|Δmean| ≤ {dmean:.3f} sd, |Δsd| ≤ {dsd * 100:.1f} %",
+        f"tol. {MEAN_TOL_SD:g} sd, {SD_TOL * 100:.0f} %",
+        ("AGREE" if agree else "DISAGREE (beyond the tolerances)")
+        + f"; emcee min bulk ESS {ess_e:.0f}; NUTS {chains} chain(s) × ({warmup} + {draws}), "
+        f"min bulk ESS {ess_n:.0f}, {info['divergences']} divergent, run {t_run:.0f} s, "
+        f"compile {t_compile:.0f} s",
+        {
+            "case": case,
+            "max_abs_dmean_over_sd": dmean,
+            "max_abs_dsd_over_sd": dsd,
+            "agree": agree,
+            "ess_bulk_min": ess_e,
+            "reference_ess_bulk_min": ess_n,
+            "reference": {"chains": chains, "warmup": warmup, "draws": draws, **info},
+        },
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog=__doc__.split("\n\n", 2)[2],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--quick", action="store_true", help="3 h records, a 6-round dual-axis one")
+    ap.add_argument("--jobs", type=int, default=2, help="reanalyze workers (default 2)")
+    ap.add_argument("--skip-bayes", action="store_true", help="only --method map")
+    ap.add_argument("--nuts", action="store_true", help="NUTS agreement on the slowest record")
+    ap.add_argument("--json", help="also write the figures here")
+    ap.add_argument("--keep", help="keep the records and results in this new folder")
+    args = ap.parse_args(argv)
+    env = environment()
+    t = time.perf_counter()
+    rows = run(args.seed, args.quick, args.jobs, args.skip_bayes, args.nuts, args.keep)
+    print(format_table(rows, f"several records ({time.perf_counter() - t:.0f} s)"))
+    print(environment_line(env))
+    if args.json:
+        from bench.table import write_json
+
+        write_json(args.json, rows, environment=env, settings=vars(args))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
