@@ -212,6 +212,11 @@ def test_several_records_table_from_stubbed_runs(monkeypatch):
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(
+    not __import__("os").environ.get("CHEKAN_TEST_BENCH_BAYES"),
+    reason="four new map processes each compile a record shape: minutes on 2 cores "
+    "(set CHEKAN_TEST_BENCH_BAYES=1); the stubbed test covers the table",
+)
 def test_several_records_quick_map_runs_the_new_processes():
     """``--quick --skip-bayes`` for real: four short records through new ``calibrate --method
     map`` processes beside bare JAX starts; the rows exist and hold finite numbers (their
