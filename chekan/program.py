@@ -107,6 +107,11 @@ class TiltProgram:
             f"(settle {self.settle_s:g} s), {self.n_steps} steps, {self.duration_s / 3600:.2f} h"
         )
 
+    @property
+    def tilt_axes(self) -> tuple[str, ...]:
+        """The axes its rounds tilt about, Y first: ("y",), ("x",) or ("y", "x")."""
+        return tuple(a for a in ("y", "x") if a in self.round_axes)
+
     def axes_text(self) -> str:
         """The axes of the rounds in words: "Y", "X", "Y and X (alternate rounds)", or the
         axis of each round ("Y, X, X, Y") for a program given per round."""

@@ -178,7 +178,7 @@ def session_systematic(truth: Truth, program: TiltProgram, seed: int, axis: str 
     program's first) in session ``seed`` of ``truth`` on ``program``: drawn from its own
     stream, so the other draws do not move (a program about one axis uses the first
     stream whichever its axis; the X sensor of a two-axis program the second)."""
-    axes = _program_axes(program)
+    axes = program.tilt_axes
     axis = axis or axes[0]
     theta = np.array([s.theta_rad for s in program.steps if s.axis == axis] or [0.0])
     second = axis == "x" and "y" in axes
@@ -192,12 +192,6 @@ def session_systematic(truth: Truth, program: TiltProgram, seed: int, axis: str 
         np.random.default_rng([seed, 0x5158 if second else 0x5157]),
         truth.angle_systematic_peak,
     )
-
-
-def _program_axes(program: TiltProgram) -> list[str]:
-    """The axes of the program's tilts, Y first."""
-    axes = {s.axis for s in program.steps if s.kind == "tilt"}
-    return [a for a in ("y", "x") if a in axes] or [program.axis[:1]]
 
 
 def random_truth(rng: np.random.Generator, serial: str = "SIM-1", **overrides) -> Truth:
@@ -250,7 +244,7 @@ def program_timeline(
     fns = systematic_fn if isinstance(systematic_fn, dict) else None
     err = np.asarray(truth.angle_error_arcsec, dtype=float)
     if err.size == 0:
-        if truth.angle_error_sd_x_arcsec is None or len(_program_axes(program)) == 1:
+        if truth.angle_error_sd_x_arcsec is None or len(program.tilt_axes) == 1:
             err = rng.normal(0.0, truth.angle_error_sd_arcsec, n_steps)
         else:
             sd = [_random_sd(truth, s.axis) for s in program.steps]
@@ -360,7 +354,7 @@ def simulate_session(
     truth = truth or Truth()
     systematic = None
     fns: dict = {}
-    axes = _program_axes(program)
+    axes = program.tilt_axes
     if not truth.angle_error_arcsec:
         fns = {a: session_systematic(truth, program, seed, a) for a in axes}
         theta = np.array([s.theta_rad for s in program.steps])

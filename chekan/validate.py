@@ -660,7 +660,7 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
         from chekan.program import load_program
 
         program = load_program(args.program)
-    about_x = program is not None and any(st.axis == "x" for st in program.steps)
+    about_x = program is not None and "x" in program.tilt_axes
     cases = args.cases or [c for c in CASES if about_x or c != "x_response"]
     s = run_study(
         args.sessions,

@@ -104,11 +104,11 @@ def session_calibration(truth, program, seed: int, u_expanded_arcsec: float):
     of the session's systematic error every 5′ over the program's range (and 10′ beyond),
     each with an independent residual error N(0, (U/2)²), stated as U at k = 2."""
     from chekan.anglecal import AngleCalibration, AxisTable
-    from chekan.simulate import _program_axes, session_systematic
+    from chekan.simulate import session_systematic
     from chekan.units import ARCSEC_PER_RAD
 
     tables = {}
-    for axis in _program_axes(program):
+    for axis in program.tilt_axes:
         fn = session_systematic(truth, program, seed, axis)
         theta = np.array([s.theta_rad for s in program.steps if s.axis == axis])
         t_max = float(np.max(np.abs(theta))) * ARCSEC_PER_RAD

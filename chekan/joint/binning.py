@@ -138,6 +138,7 @@ def _angle_bases(
     mv_tx,
     mv_ty,
     mv_mask,
+    slew_axis: np.ndarray,
     L: int,
     specs: dict[str, AngleSensorSpec | None],
 ):
@@ -152,7 +153,7 @@ def _angle_bases(
     enc = np.polynomial.legendre.legvander(theta / tmax, L)[:, 1:] if L else np.zeros((H, 0))
     basis, prior_var = [enc], [np.full(L, 4.0)]
     mv_basis = [np.zeros((*mv_tx.shape, L))]  # the legacy terms act at the holds only
-    hold_axis, slew_axis = np.asarray(holds.hold_axis), _slew_axis(holds)
+    hold_axis = np.asarray(holds.hold_axis)
     n_x = 0
     for axis in ("x", "y"):
         spec = specs.get(axis)
@@ -220,12 +221,15 @@ def prepare_record(
     P = np.polynomial.legendre.legvander(s, drift_degree)[:, 1:]  # no constant
     L = 3 if encoder else 0
     specs = {"y": angle_spec, "x": angle_spec_x}
-    basis, prior_var, mv_basis, S, S_x = _angle_bases(holds, mv_tx, mv_ty, mv_mask, L, specs)
+    slew_axis = _slew_axis(holds)
+    basis, prior_var, mv_basis, S, S_x = _angle_bases(
+        holds, mv_tx, mv_ty, mv_mask, slew_axis, L, specs
+    )
     x_basis, x_prior_var = x_response_basis(
         holds.theta_rad, holds.hold_axis, float(record.g_local_mgal)
     )
     mv_x_basis = x_response_path(
-        holds.theta_rad, holds.hold_axis, mv_tx, (_slew_axis(holds) == "x")[:, None] & mv_mask
+        holds.theta_rad, holds.hold_axis, mv_tx, (slew_axis == "x")[:, None] & mv_mask
     )
     # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
     arrays = {
@@ -235,7 +239,7 @@ def prepare_record(
         "hold_tx": np.asarray(holds.tilt_x_rad),
         "hold_ty": np.asarray(holds.tilt_y_rad),
         "hold_dir": _directions(holds.hold_axis),
-        "mv_dir": _directions(_slew_axis(holds)),
+        "mv_dir": _directions(slew_axis),
         "x_basis": x_basis,
         "x_prior_var": x_prior_var,
         "mv_x_basis": mv_x_basis,

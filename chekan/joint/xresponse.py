@@ -28,6 +28,7 @@ and θ_r the largest one:
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -41,10 +42,23 @@ GROUP_ARCSEC = 30.0  # X angles closer than this are one angle (as the angle sen
 LEVEL_RAD = float(np.deg2rad(0.1))  # below this a hold is level (:mod:`chekan.holds`)
 
 
-def _groups(theta: np.ndarray, on: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Group key of every angle and the sorted keys of the X holds' magnitudes."""
+class _XAngles(NamedTuple):
+    """The X holds of a record: which they are, each angle's group key, the groups' keys
+    (sorted) and the largest X angle θ_r."""
+
+    on: np.ndarray
+    key: np.ndarray
+    groups: np.ndarray
+    theta_r: float
+
+
+def _x_angles(theta: np.ndarray, hold_axis: np.ndarray) -> _XAngles | None:
+    """The X holds of ``theta`` (signed tilts about each hold's axis), or None."""
+    on = (np.asarray(hold_axis) == "x") & (np.abs(theta) > LEVEL_RAD)
+    if not np.any(on):
+        return None
     key = np.round(np.abs(theta) * ARCSEC_PER_RAD / GROUP_ARCSEC).astype(np.int64)
-    return key, np.unique(key[on])
+    return _XAngles(on, key, np.unique(key[on]), float(np.max(np.abs(theta[on]))))
 
 
 def x_response_path(
@@ -55,18 +69,16 @@ def x_response_path(
     the X holds' magnitudes, clamped beyond the ends; sin θ and 1 − cos θ vanish at
     level), where ``path_on`` (the slew moves about X)."""
     theta = np.asarray(theta_rad, dtype=float)
-    on = (np.asarray(hold_axis) == "x") & (np.abs(theta) > LEVEL_RAD)
     path = np.asarray(path_rad, dtype=float)
-    if not np.any(on):
+    x = _x_angles(theta, hold_axis)
+    if x is None:
         return np.zeros((*path.shape, 0))
-    key, groups = _groups(theta, on)
-    nodes = np.array([np.abs(theta[on & (key == a)]).mean() for a in groups])
-    th_r = float(np.max(np.abs(theta[on])))
-    odd = np.sin(path) / math.sin(th_r)
-    even = (1.0 - np.cos(path)) / (1.0 - math.cos(th_r))
-    eye = np.eye(groups.size)
+    nodes = np.array([np.abs(theta[x.on & (x.key == a)]).mean() for a in x.groups])
+    odd = np.sin(path) / math.sin(x.theta_r)
+    even = (1.0 - np.cos(path)) / (1.0 - math.cos(x.theta_r))
+    eye = np.eye(x.groups.size)
     cols = []
-    for a in range(groups.size):
+    for a in range(x.groups.size):
         hat = np.interp(np.abs(path), nodes, eye[a]) * path_on
         cols += [hat * odd, hat * even]
     return np.stack(cols, axis=-1)
@@ -79,18 +91,16 @@ def x_response_basis(
     of the X holds (zero at Y and level holds), and their prior variances (2A,) in pix²;
     (H, 0) and (0,) when no hold tilts about X."""
     theta = np.asarray(theta_rad, dtype=float)
-    on = (np.asarray(hold_axis) == "x") & (np.abs(theta) > LEVEL_RAD)
-    if not np.any(on):
+    x = _x_angles(theta, hold_axis)
+    if x is None:
         return np.zeros((theta.size, 0)), np.zeros(0)
-    th_r = float(np.max(np.abs(theta[on])))
-    key, groups = _groups(theta, on)
-    odd = np.sin(theta) / math.sin(th_r)
-    even = (1.0 - np.cos(theta)) / (1.0 - math.cos(th_r))
+    odd = np.sin(theta) / math.sin(x.theta_r)
+    even = (1.0 - np.cos(theta)) / (1.0 - math.cos(x.theta_r))
     cols = []
-    for a in groups:
-        member = on & (key == a)
+    for a in x.groups:
+        member = x.on & (x.key == a)
         cols += [np.where(member, odd, 0.0), np.where(member, even, 0.0)]
-    sd_odd = g_mgal * math.sin(th_r) * M0_TOLERANCE_PIX
+    sd_odd = g_mgal * math.sin(x.theta_r) * M0_TOLERANCE_PIX
     sd_odd /= B_NOMINAL_MGAL_PER_PIX * K_NOMINAL_PIX_PER_RAD
     sd_even = EVEN_BOUND_MGAL / math.sqrt(3.0) / B_NOMINAL_MGAL_PER_PIX
-    return np.stack(cols, axis=1), np.tile([sd_odd**2, sd_even**2], groups.size)
+    return np.stack(cols, axis=1), np.tile([sd_odd**2, sd_even**2], x.groups.size)
