@@ -73,7 +73,12 @@ class IndependenceMove(emcee.moves.MHMove):
 
 def moves_for(kind: str, proposal: tuple[np.ndarray, np.ndarray] | None = None, df: float = 5.0):
     """emcee's moves for :attr:`SamplerConfig.moves <inference.sampling.SamplerConfig>`
-    ``kind`` (``proposal``: the independence move's mean and covariance)."""
+    ``kind`` (``proposal``: the independence move's mean and covariance; for
+    ``"adaptive-independence"`` a fitted :class:`inference.proposal.MixtureProposal`)."""
+    if kind == "adaptive-independence":
+        if proposal is None:
+            raise ValueError("the independence move needs a fitted proposal")
+        return MixtureIndependenceMove(proposal)
     if kind == "de-independence":
         if proposal is None:
             raise ValueError("the independence move needs a proposal (mean, covariance)")
@@ -84,3 +89,17 @@ def moves_for(kind: str, proposal: tuple[np.ndarray, np.ndarray] | None = None, 
     if kind == "de-snooker":
         return [(emcee.moves.DEMove(), 0.8), (SnookerMove(), 0.2)]
     return emcee.moves.DEMove()
+
+
+class MixtureIndependenceMove(emcee.moves.MHMove):
+    r"""Independence Metropolis–Hastings with a fitted proposal
+    (:class:`inference.proposal.MixtureProposal`): every walker proposes
+    :math:`x' \sim q` and accepts with :math:`\min(1, \pi(x')q(x)/\pi(x)q(x'))`."""
+
+    def __init__(self, proposal):
+        self.proposal = proposal
+        super().__init__(self._propose, ndim=proposal.mean0.size)
+
+    def _propose(self, x0: np.ndarray, random) -> tuple[np.ndarray, np.ndarray]:
+        x = self.proposal.sample(x0.shape[0], random)
+        return x, self.proposal.log_q(x0) - self.proposal.log_q(x)
