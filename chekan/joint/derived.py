@@ -31,7 +31,7 @@ from chekan.joint.likelihood import (
 )
 from chekan.joint.map import MapFit
 from chekan.parameters import PHYSICAL
-from inference.normal_eq import draw_beta_normal
+from inference.normal_eq import draw_beta_banded
 
 
 def at_level(sp: fm.SensorParams):
@@ -139,7 +139,8 @@ def draws_fn(structure: ModelStructure, space) -> Callable:
     def one(z, key, data: RecordData, dur_h):
         v = space.to_values(z)
         ne, (_, G, s_ang, r, _, nv, _, P) = normal_equations(v, v, structure, data)
-        beta = draw_beta_normal(key, ne, beta_prior_var(v, structure, data))
+        # block elimination of the holds' terms (as the log-density): N(M⁻¹g, M⁻¹) as before
+        beta = draw_beta_banded(key, ne, beta_prior_var(v, structure, data), structure.hold_bands)
         # pointwise log-likelihood of each bin mean given this draw's (θ, β): conditional,
         # because the marginal over β does not factorise over bins
         res_b = r - apply_A(beta, G, s_ang, structure, data, P)

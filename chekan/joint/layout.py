@@ -53,6 +53,16 @@ class ModelStructure:
         )
 
     @property
+    def hold_bands(self) -> np.ndarray:
+        """(H, 3) β indices of each hold's (o₁ₖ, o₂ₖ, δₖ): the normal equations couple them
+        only with the same and the neighbouring holds (a bin's lag mixes its own hold and the
+        one before), so in this order they form a block-tridiagonal part
+        (:func:`inference.normal_eq.banded_factor`)."""
+        b = self.beta_blocks
+        H = self.n_holds
+        return np.stack([b["hold_offset"][:H], b["hold_offset"][H:], b["angle_error"]], axis=1)
+
+    @property
     def n_q(self) -> int:
         """Columns per system that do not go through the holds: cⱼ, dⱼ, νⱼ."""
         return 1 + self.drift_degree + self.n_x_response
