@@ -105,25 +105,31 @@ def drift_curve(draws, model, hp: float, n: int = 60) -> dict:
 
 
 def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
+    """The ArviZ NetCDF of the posterior (:func:`inference.arviz_io.save_posterior_netcdf`:
+    the InferenceData layout written without importing ArviZ or xarray)."""
     from chekan.durable import fsync_dir
-    from inference.arviz_io import save_netcdf, to_inference_data
+    from inference.arviz_io import save_posterior_netcdf
 
     C, Dn = samp.draws.shape[:2]
     post = {k: v for k, v in draws.items() if not k.startswith("_")}
     y = np.asarray(model.data.y)
     mask = np.asarray(model.data.mask)
     nrep = rep.shape[0]
-    idata = to_inference_data(
-        post,
-        sample_stats={"lp": samp.log_prob},
-        observed_data={"bin_mean_pix": np.where(mask, y, np.nan)},
-        posterior_predictive={
+    groups = {
+        "posterior": post,
+        "posterior_predictive": {
             "delta_g_mgal": np.broadcast_to(
                 rep.reshape(1, nrep, len(cols) // 2, 2, -1).reshape(1, nrep, len(cols), -1),
                 (1, nrep, len(cols), rep.shape[-1]),
             )
         },
-        log_likelihood={"bin_mean_pix": draws["_loglik"]},
+        "log_likelihood": {"bin_mean_pix": draws["_loglik"]},
+        "sample_stats": {"lp": samp.log_prob},
+        "observed_data": {"bin_mean_pix": np.where(mask, y, np.nan)},
+    }
+    return save_posterior_netcdf(
+        path,
+        groups,
         coords={"hold": [int(s) for s in model.hold_steps], "system": [1, 2], "column": cols},
         dims={
             "angle_error_arcsec": ["hold"],
@@ -134,5 +140,5 @@ def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
             "delta_g_mgal": ["column", "angle"],
         },
         attrs={"model": "chekan.joint", "draws": f"{C}×{Dn}"},
+        sync_dir=fsync_dir,
     )
-    return save_netcdf(idata, path, sync_dir=fsync_dir)
