@@ -4,6 +4,8 @@ built on the Laplace fit."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import emcee
 import numpy as np
 from emcee.moves.red_blue import RedBlueMove
@@ -71,14 +73,19 @@ class IndependenceMove(emcee.moves.MHMove):
         return x, self.log_q(x0) - self.log_q(x)
 
 
-def moves_for(kind: str, proposal: tuple[np.ndarray, np.ndarray] | None = None, df: float = 5.0):
+def moves_for(kind: str, proposal: Any = None, df: float = 5.0, de_weight: float = 0.0):
     """emcee's moves for :attr:`SamplerConfig.moves <inference.sampling.SamplerConfig>`
     ``kind`` (``proposal``: the independence move's mean and covariance; for
     ``"adaptive-independence"`` a fitted :class:`inference.proposal.MixtureProposal`)."""
     if kind == "adaptive-independence":
         if proposal is None:
             raise ValueError("the independence move needs a fitted proposal")
-        return MixtureIndependenceMove(proposal)
+        if de_weight <= 0:
+            return MixtureIndependenceMove(proposal)
+        return [
+            (MixtureIndependenceMove(proposal), 1.0 - de_weight),
+            (emcee.moves.DEMove(), de_weight),
+        ]
     if kind == "de-independence":
         if proposal is None:
             raise ValueError("the independence move needs a proposal (mean, covariance)")

@@ -13,13 +13,13 @@ mixture of :math:`K` Gaussians to the weighted points by EM,
            \Sigma_k = \frac{\sum_i w_i r_{ik}(x_i-\mu_k)(x_i-\mu_k)^\top}{\sum_i w_i r_{ik}}
                       + \lambda\,\mathrm{diag}\,\Sigma,
 
-with the component covariances inflated by :math:`c^2` and the start as a *defensive*
-component of weight :math:`\alpha` (Hesterberg 1995):
-:math:`q = \alpha q_0 + (1-\alpha)\sum_k \pi_k N(\mu_k, c^2\Sigma_k)`, so
-:math:`\pi/q \le \pi/(\alpha q_0)`: the tails stay at least as well covered as by
-:math:`q_0`. The sampler's target is unchanged (the proposal only sets the acceptance
-rate); the points, their log densities and the weights are returned for the walkers'
-start (:class:`inference.moves.IndependenceMove` takes the mixture).
+with the component covariances inflated by :math:`c^2` and the start, widened
+(:math:`\tilde q_0`: covariance × ``tail_scale``², ``tail_df`` degrees of freedom), as a
+*defensive* component of weight :math:`\alpha` (Hesterberg 1995):
+:math:`q = \alpha \tilde q_0 + (1-\alpha)\sum_k \pi_k N(\mu_k, c^2\Sigma_k)`, so
+:math:`\pi/q \le \pi/(\alpha \tilde q_0)`: the tails stay covered. The sampler's target
+is unchanged (the proposal only sets the acceptance rate).
+:class:`inference.moves.MixtureIndependenceMove` takes the mixture.
 """
 
 from __future__ import annotations
@@ -159,11 +159,16 @@ def fit_proposal(
     inflate: float = 1.1,
     shrink: float = 0.01,
     em_iters: int = 100,
+    tail_scale: float = 1.0,
+    tail_df: float | None = None,
 ) -> tuple[MixtureProposal, np.ndarray, np.ndarray, dict]:
     """Fit the mixture proposal (module docstring) from ``n_points`` draws of the t start
     ``t_df(mean, cov)``. ``log_density``: (n, d) → (n,), −inf outside the support.
 
-    Returns ``(proposal, points, log_density(points), info)``; ``info["ess_fraction"]``:
+    ``tail_scale``, ``tail_df``: the defensive component is the start widened (covariance
+    × ``tail_scale``², ``tail_df`` degrees of freedom, default ``df``), so that it covers a
+    tail the start and the fitted Gaussians miss. Returns ``(proposal, points,
+    log_density(points), info)``; ``info["ess_fraction"]``:
     the importance sampling's effective fraction (Σw)²/(nΣw²) of the start, a measure of
     how far the Laplace approximation was from the posterior.
     """
@@ -180,5 +185,6 @@ def fit_proposal(
         return q0, x, lp, info
     pis, mus, covs = _weighted_em(x[keep], w[keep], components, rng, em_iters, shrink)
     chols = np.stack([np.linalg.cholesky(c * inflate**2) for c in covs])
-    prop = MixtureProposal(q0.mean0, q0.chol0, q0.df, alpha, pis, mus, chols)
+    tdf = q0.df if tail_df is None else float(tail_df)
+    prop = MixtureProposal(q0.mean0, q0.chol0 * tail_scale, tdf, alpha, pis, mus, chols)
     return prop, x, lp, info

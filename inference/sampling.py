@@ -96,6 +96,14 @@ class SamplerConfig:
     """``"adaptive-independence"``: importance draws that fit the proposal
     (:func:`inference.proposal.fit_proposal`)."""
     proposal_components: int = 3
+    proposal_alpha: float = 0.15
+    """``"adaptive-independence"``: weight of the defensive t component (the start, its
+    covariance × ``proposal_tail_scale``², ``proposal_tail_df`` degrees of freedom)."""
+    proposal_tail_scale: float = 1.0
+    proposal_tail_df: float | None = None
+    de_weight: float = 0.0
+    """``"adaptive-independence"``: share of emcee's DEMove among the moves (local moves
+    that let a walker caught where the proposal is thin walk back to the bulk)."""
     stop_rule: Literal["emcee", "bulk"] = "emcee"
     """``"emcee"``: emcee's estimate C·W·(n − burn)/τ_max ≥ ``target_ess``; ``"bulk"``: the
     rank-normalised bulk ESS of every coordinate of the draws that would be retained (burn-in,
@@ -382,6 +390,9 @@ def _ensembles(
             n_points=config.proposal_points,
             components=config.proposal_components,
             df=config.proposal_df,
+            alpha=config.proposal_alpha,
+            tail_scale=config.proposal_tail_scale,
+            tail_df=config.proposal_tail_df,
         )
         proposal = fitted
     samplers, states = [], []
@@ -391,7 +402,7 @@ def _ensembles(
         else:
             coords, lp = _initial_walkers(lnp, start, cov, nw, rng)
         rs = np.random.RandomState(rng.integers(2**31 - 1))
-        moves = moves_for(config.moves, proposal, config.proposal_df)
+        moves = moves_for(config.moves, proposal, config.proposal_df, config.de_weight)
         samplers.append(emcee.EnsembleSampler(nw, ndim, lnp_sampler, moves=moves, vectorize=True))
         states.append(emcee.State(coords, log_prob=lp, random_state=rs.get_state()))
     return samplers, states
