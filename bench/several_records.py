@@ -19,7 +19,9 @@ Per record and method, what a user waits for: ``python -m chekan.cli calibrate R
 solve, writing the result). A run that added entries to the persistent JAX cache compiled
 something; it is run once more and the second run is reported (the issue's figures are for a
 warm cache), the first in the note. Before each such run a bare JAX start (``import jax``,
-float64, one array, a new process) is timed; the ratio is to the median of those.
+float64, one array, a new process) is timed; the ratio is to the median of those. Each row
+also gives the process's CPU time (user + system, the OS's accounting of the finished
+child) beside the bare start's: on a shared machine wall seconds include waiting.
 
 From ``bayes``'s result JSON: ``diagnostics.converged``, ``tau_max``, ``n_steps`` and each
 reported parameter's bulk ESS; ESS per second is that bulk ESS over the process's wall
@@ -79,6 +81,8 @@ class Run:
     result_seconds: float | None
     converged: bool | None
     first_seconds: float | None = None  # the run before it, when that one compiled
+    cpu_seconds: float | None = None  # user + system of the process
+    bare_cpu_seconds: float | None = None
     tau_max: float | None = None
     n_steps: int | None = None
     ess: dict[str, float] = field(default_factory=dict)
@@ -131,11 +135,23 @@ def write_records(folder: Path, seed: int, quick: bool) -> dict[str, Path]:
     return out
 
 
-def bare_start(env: dict[str, str]) -> float:
-    """Wall seconds of a new process that imports JAX, enables float64, makes one array."""
-    t = time.perf_counter()
+def _children_cpu() -> float:
+    """User + system seconds of this process's finished children so far."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def bare_start(env: dict[str, str], cpu: list[float] | None = None) -> float:
+    """Wall seconds of a new process that imports JAX, enables float64, makes one array
+    (its user + system seconds appended to ``cpu``)."""
+    c, t = _children_cpu(), time.perf_counter()
     subprocess.run([sys.executable, "-c", BARE_JAX], env=env, check=True, capture_output=True)
-    return time.perf_counter() - t
+    wall = time.perf_counter() - t
+    if cpu is not None:
+        cpu.append(_children_cpu() - c)
+    return wall
 
 
 def _calibrate_once(rec: Path, method: str, out: Path, env: dict[str, str]):
@@ -143,30 +159,34 @@ def _calibrate_once(rec: Path, method: str, out: Path, env: dict[str, str]):
     before = _entries(cache)
     cmd = [sys.executable, "-m", "chekan.cli", "calibrate", str(rec), "--method", method]
     cmd += ["-q", "--json", str(out)]
-    t = time.perf_counter()
+    c, t = _children_cpu(), time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t
+    cpu = _children_cpu() - c
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         raise RuntimeError(
             f"chekan calibrate {rec.name} exited {proc.returncode}: {' | '.join(tail)}"
         )
-    return wall, _entries(cache) - before, json.loads(out.read_text(encoding="utf-8"))
+    return wall, cpu, _entries(cache) - before, json.loads(out.read_text(encoding="utf-8"))
 
 
 def timed_calibrate(case: str, rec: Path, method: str, tmp: Path, env: dict[str, str]) -> Run:
     """A bare JAX start, then ``chekan calibrate`` as a new process (again, once, when the
     first run added entries to the persistent cache)."""
     out = tmp / f"{case}.{method}.json"
-    bare = bare_start(env)
-    wall, added, res = _calibrate_once(rec, method, out, env)
+    bare_cpu: list[float] = []
+    bare = bare_start(env, bare_cpu)
+    wall, cpu, added, res = _calibrate_once(rec, method, out, env)
     first = None
     if added > 0:
         first = wall
-        bare = bare_start(env)
-        wall, _, res = _calibrate_once(rec, method, out, env)
+        bare = bare_start(env, bare_cpu)
+        wall, cpu, _, res = _calibrate_once(rec, method, out, env)
     diag = res.get("diagnostics", {})
     run = Run(case, method, wall, bare, diag.get("seconds"), diag.get("converged"), first)
+    run.cpu_seconds = cpu
+    run.bare_cpu_seconds = bare_cpu[-1]
     if method == "bayes":
         run.tau_max = diag.get("tau_max")
         run.n_steps = diag.get("n_steps")
@@ -214,9 +234,13 @@ def _record_row(r: Run, bare: float, hours: dict[str, float]) -> Row:
     note = f"result's own {r.result_seconds:.1f} s" if r.result_seconds is not None else ""
     if r.first_seconds is not None:
         note += f"; first run {r.first_seconds:.1f} s compiled (cache entries added), rerun"
+    if r.cpu_seconds is not None:
+        note += f"; CPU (user + sys) {r.cpu_seconds:.1f} s, bare start's {r.bare_cpu_seconds:.2f} s"
     values: dict[str, Any] = {
         "case": r.case,
         "seconds": r.seconds,
+        "cpu_seconds": r.cpu_seconds,
+        "bare_cpu_seconds": r.bare_cpu_seconds,
         "bare_seconds": r.bare_seconds,
         "ratio_to_bare": _ratio(r.seconds, bare),
         "result_seconds": r.result_seconds,
