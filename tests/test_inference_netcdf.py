@@ -60,3 +60,16 @@ def test_direct_netcdf_reads_back_as_arviz_writes_it(tmp_path) -> None:
             k: x for k, x in db.attrs.items() if k not in drop
         }, g
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_direct_netcdf_refuses_before_writing_without_room(tmp_path, monkeypatch) -> None:
+    import shutil
+    from collections import namedtuple
+
+    import pytest
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(1, 1, 1000))
+    with pytest.raises(OSError, match="no room for the posterior") as e:
+        save_posterior_netcdf(tmp_path / "post.nc", {"posterior": {"x": np.zeros((2, 1000))}})
+    assert e.value.errno == 28 and list(tmp_path.iterdir()) == []
