@@ -305,18 +305,18 @@ def test_bound_zero_reproduces_the_old_information():
     for name, prog in _old_programs().items():
         Mgg, *_ = d.information_blocks(prog, vals)
         prec = d.expected_precision(prog, vals)
-        if name == "x":
-            assert Mgg.shape == (15 + 2 * 2 * 3, 15 + 2 * 2 * 3)
+        if name == "x":  # odd and even per system: 3 X angles at the holds, 7 slew types
+            assert Mgg.shape == (15 + 2 * 2 * 3 + 2 * 2 * 7, 15 + 2 * 2 * 3 + 2 * 2 * 7)
             for k, old in OLD_SD[name].items():
                 assert prec.sd[k] >= old * (1 - 1e-9), (name, k)
             continue
         assert Mgg.shape == (15, 15)
         for k, old in OLD_SD[name].items():
             assert prec.sd[k] == pytest.approx(old, rel=1e-9), (name, k)
-    # the default carries the paper's 3″: one ζ per signed commanded angle (level included)
-    # and a scale ξ for the one sensor of a Y program
+    # the default carries the paper's 3″: one ζ per signed commanded angle (level included),
+    # a scale ξ and one η per slew type (17) for the one sensor of a Y program
     Mgg, *_ = d.information_blocks(_old_programs()["paper"], d.DesignValues())
-    assert Mgg.shape == (15 + 17 + 1, 15 + 17 + 1)
+    assert Mgg.shape == (15 + 17 + 1 + 17, 15 + 17 + 1 + 17)
 
 
 def test_systematic_errors_do_not_average_over_rounds():
@@ -379,8 +379,10 @@ def test_tilts_about_x_use_the_other_sensor():
     y, xy = default_program(), default_program(axis="xy")
     assert [s.axis for s in xy.steps if s.round == 2] == ["x"] * 18
     Mgg, *_ = d.information_blocks(xy, d.DesignValues())
-    # ζ per signed angle and ξ per sensor (2 × 18), the X response per system and angle (2·2·8)
-    assert Mgg.shape == (15 + 2 * 18 + 32, 15 + 2 * 18 + 32)
+    # ζ per signed angle and ξ per sensor (2 × 18), η per slew type and sensor (2 × 17), the
+    # X response per system at the 8 angles and along the 17 slew types about X (2·2·25)
+    n = 15 + 2 * 18 + 2 * 17 + 2 * 2 * (8 + 17)
+    assert Mgg.shape == (n, n)
     sys = {}
     for name, prog in (("y", y), ("xy", xy)):
         full = d.expected_precision(prog).sd["b1"]

@@ -35,9 +35,13 @@ transient still present in the bin. W_j = diag(1/var e_{·j}); Λ the prior cova
 δₖ + (Bζ)ₖ, B the estimator's basis built per axis sensor (:func:`systematic_basis`):
 an indicator per distinct commanded signed angle (level included) and the scale θₖ/θ_max,
 for the Y sensor's holds and, separately, the X sensor's (a program with ``axis="xy"``
-alternates rounds about Y and X). ζ enters like δ, through G·diag(s_j)·B, as global
-columns with the specification's Type B prior (u²/2 each for the 3″ default);
-``angle_bound_arcsec=0`` leaves them out (the previous model exactly).
+alternates rounds about Y and X); along the slews the scale error and one term per slew
+type (:mod:`chekan.joint.slews`). These terms, shared by all rounds, and the X response
+beyond eq. (6) (:func:`x_response_columns`) enter as global columns exactly as the
+equilibria they shift: through the lag state after each slew and the unsettled carry
+across holds (:func:`lagged_means` on their columns, as the estimator does), with the
+specification's Type B prior (u²/2 each for the 3″ default); ``angle_bound_arcsec=0``
+leaves them out (the previous model exactly).
 
 The Jacobian ∂f/∂θ is exact for the instrument parameters (f is linear in E, so
 ∂f/∂u = f evaluated on ∂E/∂u, from JAX forward-mode on a fixed grid of attitudes and a
@@ -79,10 +83,11 @@ from scipy.interpolate import CubicSpline
 import chekan.jaxconfig  # noqa: F401  (float64 before any array)
 from chekan import model as fm
 from chekan.design.layout import DesignValues, Lagged, Layout, lagged_means, program_layout
-from chekan.joint.angles import systematic_basis as angle_systematic_basis
+from chekan.joint.angles import sensor_terms
 from chekan.joint.derived import at_level
 from chekan.joint.problem import nonlinear_params
-from chekan.joint.xresponse import x_response_basis
+from chekan.joint.slews import slew_types, types_about
+from chekan.joint.xresponse import x_response_terms
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
@@ -264,28 +269,55 @@ def _local_columns(values: DesignValues, layout: Layout, lag: Lagged, s_ang, j: 
 _BAND = 5  # the unknowns of hold k touch those of hold k − 1 only: |row − column| ≤ 5
 
 
-def systematic_basis(layout: Layout, values: DesignValues) -> tuple[np.ndarray, np.ndarray]:
-    """The systematic angle-error basis B (H, Q) in arcsec per unit and its prior variances
-    (Q,): for each axis sensor the program uses, an indicator column per distinct commanded
-    signed angle (level included) and the scale column θₖ/θ_max of that sensor's holds
-    (:func:`chekan.joint.angles.systematic_basis`, the estimator's basis, per sensor: a
-    tilt about X is read by the other sensor, whose errors are independent). Empty when
-    ``angle_bound_arcsec`` is 0."""
+def systematic_basis(
+    layout: Layout, values: DesignValues
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The systematic angle-error terms at the holds B (H, Q) and along the slews
+    (H, M, Q), in arcsec per unit, and their prior variances (Q,): for each axis sensor the
+    program uses, the estimator's terms (:func:`chekan.joint.angles.sensor_terms`: one per
+    distinct commanded signed angle, level included, the scale error, and one per slew
+    type along the slews; a tilt about X is read by the other sensor, whose errors are
+    independent). Empty when ``angle_bound_arcsec`` is 0."""
     H = layout.theta_hold_rad.size
     if values.angle_bound_arcsec == 0.0:
-        return np.zeros((H, 0)), np.zeros(0)
+        return np.zeros((H, 0)), np.zeros((*layout.slew_theta_rad.shape, 0)), np.zeros(0)
     spec = values.angle_spec
-    blocks, variances = [], []
-    for axis in ("y", "x"):
+    types = slew_types(layout.theta_hold_rad, layout.hold_axis, layout.slew_mask.any(axis=1))
+    holds, paths, variances = [], [], []
+    for axis in ("x", "y"):
         on = layout.hold_axis == axis
         if not on.any():
             continue
-        basis, var = angle_systematic_basis(layout.theta_hold_rad[on], spec)
-        full = np.zeros((H, basis.shape[1]))
-        full[on] = basis
-        blocks.append(full)
+        kinds, T = types_about(types, layout.hold_axis, axis)
+        path_on = (layout.hold_axis == axis)[:, None] & layout.slew_mask
+        hold, path, var = sensor_terms(
+            layout.theta_hold_rad, on, layout.slew_theta_rad, path_on, kinds, T, spec
+        )
+        holds.append(hold)
+        paths.append(path)
         variances.append(var)
-    return np.concatenate(blocks, axis=1), np.concatenate(variances)
+    return (
+        np.concatenate(holds, axis=1),
+        np.concatenate(paths, axis=-1),
+        np.concatenate(variances),
+    )
+
+
+def x_response_columns(layout: Layout, truth: Truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The estimator's X-response terms (:func:`chekan.joint.xresponse.x_response_terms`)
+    at the holds (H, C), along the slews (H, M, C) and their prior variances (C,)."""
+    types = slew_types(layout.theta_hold_rad, layout.hold_axis, layout.slew_mask.any(axis=1))
+    kinds, T = types_about(types, layout.hold_axis, "x")
+    path_on = (layout.hold_axis == "x")[:, None] & layout.slew_mask
+    return x_response_terms(
+        layout.theta_hold_rad,
+        layout.hold_axis,
+        truth.g_local_mgal,
+        layout.slew_theta_rad,
+        path_on,
+        kinds,
+        T,
+    )
 
 
 def _hold_sensitivities(layout: Layout, truth: Truth):
@@ -319,7 +351,7 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     layout = program_layout(program, values)
     H = layout.theta_hold_rad.size
     tau = float(truth.tau_s)
-    sens, (E_h, dE_h, S_h), (E_s, dE_s, _) = _hold_sensitivities(layout, truth)
+    sens, (E_h, dE_h, S_h), (E_s, dE_s, S_s) = _hold_sensitivities(layout, truth)
     cols_h = np.concatenate([E_h[..., None], dE_h], axis=-1)  # (H, 2, 1 + 6)
     cols_s = np.concatenate([E_s[..., None], dE_s], axis=-1)  # (H, M, 2, 1 + 6)
     lag = lagged_means(layout, tau, cols_h, cols_s)
@@ -332,8 +364,24 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     W = 1.0 / var
     s_ang = -S_h / ARCSEC_PER_RAD  # (H, 2) pix per arcsec of readout error
 
-    B, B_var = systematic_basis(layout, values)
-    Phi, Phi_var = x_response_basis(layout.theta_hold_rad, layout.hold_axis, truth.g_local_mgal)
+    B, B_path, B_var = systematic_basis(layout, values)
+    Phi, Phi_path, Phi_var = x_response_columns(layout, truth)
+    # the shared terms move the bins exactly as the equilibria they shift (f: the lag state
+    # after each slew and the unsettled carry across holds), per system
+    if B.shape[1]:
+        sys_f = lagged_means(
+            layout,
+            tau,
+            s_ang[:, :, None] * B[:, None, :],
+            (-S_s / ARCSEC_PER_RAD)[..., None] * B_path[:, :, None, :],
+        ).f  # (N, 2, Q)
+    if Phi.shape[1]:
+        x_f = lagged_means(
+            layout,
+            tau,
+            np.broadcast_to(Phi[:, None, :], (H, 2, Phi.shape[1])),
+            np.broadcast_to(Phi_path[:, :, None, :], (*Phi_path.shape[:2], 2, Phi.shape[1])),
+        ).f  # (N, 2, X)
     n_old = 9 + 2 * (values.drift_degree if values.drift else 0)
     nx = Phi.shape[1]
     ng = n_old + B.shape[1] + 2 * nx
@@ -341,18 +389,13 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     Mgg = np.zeros((ng, ng))
     Mgb = np.zeros((ng, nb))
     bb_pos, bb_w = [], []
-    k_own, k_prev = layout.bin_hold, np.maximum(layout.bin_hold - 1, 0)
     for j in range(2):
         X = _global_columns(values, layout, lag.f[..., 1:], df_dlogtau, j)
-        if B.shape[1]:  # ζ, ξ enter like δ: G·diag(sⱼ)·B
-            X_sys = (lag.g_own * s_ang[k_own, j])[:, None] * B[k_own]
-            X_sys += (lag.g_prev * s_ang[k_prev, j])[:, None] * B[k_prev]
-            X = np.concatenate([X, X_sys], axis=1)
+        if B.shape[1]:  # ζ, ξ, η: angle errors, shared by both systems
+            X = np.concatenate([X, sys_f[:, j, :]], axis=1)
         if nx:  # the X response beyond eq. (6), per system, settling in with the lag
             X_x = np.zeros((X.shape[0], 2 * nx))
-            X_x[:, j * nx : (j + 1) * nx] = (
-                lag.g_own[:, None] * Phi[k_own] + lag.g_prev[:, None] * Phi[k_prev]
-            )
+            X_x[:, j * nx : (j + 1) * nx] = x_f[:, j, :]
             X = np.concatenate([X, X_x], axis=1)
         idx, val = _local_columns(values, layout, lag, s_ang, j)
         Wj = W[:, j]

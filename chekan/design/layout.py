@@ -35,8 +35,9 @@ class DesignValues:
     ``angle_bound_arcsec``: the platform angle sensors' specification bound U (the paper:
     3″, :data:`chekan.joint.angles.DEFAULT_BOUND_ARCSEC`), read as the systematic error
     per commanded angle and the scale error of each axis's sensor
-    (:class:`chekan.joint.angles.AngleSensorSpec`, ``angle_scale_share`` of u² = U²/3 to
-    the scale); 0: no systematic error (the random δ only, as before).
+    (:class:`chekan.joint.angles.AngleSensorSpec`: each with the full u² = U²/3 by default,
+    or ``angle_scale_share`` of it to the scale and the rest to the per-angle part);
+    0: no systematic error (the random δ only, as before).
     """
 
     truth: Truth = field(default_factory=Truth)
@@ -49,7 +50,7 @@ class DesignValues:
     estimate_tau: bool = True
     priors: bool = True
     angle_bound_arcsec: float = DEFAULT_BOUND_ARCSEC
-    angle_scale_share: float = 0.5
+    angle_scale_share: float | None = None
 
     @property
     def angle_spec(self) -> AngleSensorSpec:

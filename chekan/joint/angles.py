@@ -17,10 +17,15 @@ platform that the specification admits, including one whose error reaches the bo
 (validation: with the triangular reading, U/√6, 95 % intervals covered 0.80 of such
 platforms; ``docs/figures/validation_edge.md``). ``distribution="triangular"`` remains for
 a platform whose maker shows that its error sums several independent contributions.
-u is split equally between the per-angle part and the scale part at the largest angle,
-ζ_a ~ N(0, u²/2) and ξ ~ N(0, u²/2), so that the systematic error at θ_max has standard
-uncertainty u. A scale error of the sensor acts on b one to one (b ∝ 1/θ²:
-δb/b = −2ξ/θ_max), which is why it is kept as its own term.
+The bound does not say how the error depends on the angle: a pure scale error reaching
+U at θ_max and errors independent from angle to angle, each reaching U, are both admitted.
+Both extremes are carried, each with the full u² (as for a calibration table, below):
+ζ_a ~ N(0, u²) and ξ ~ N(0, u²). A scale error of the sensor acts on b one to one
+(b ∝ 1/θ²: δb/b = −2ξ/θ_max), which is why it is its own term; with the full u² on it the
+expanded uncertainty (k = 2) of b still covers a platform whose error is a pure scale
+error at the bound (2/√3 > 1), which a split of u² between the two parts did not
+(validation of the designer's program at the edge of the specification, issue 30: |z| up
+to 2.8 on such platforms; ``docs/figures/validation_dual.md``).
 
 **Prior from the platform's own calibration** (:mod:`chekan.anglecal`). The corrections
 are applied to the measured angles; what is left is the calibration's uncertainty,
@@ -38,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from chekan.errors import ChekanError
+from chekan.joint.slews import type_indicator
 from chekan.units import ARCSEC_PER_RAD
 
 DEFAULT_BOUND_ARCSEC = 3.0  # the paper: the platform reads its angles with an error ≤ 3″
@@ -57,11 +63,13 @@ DEFAULT_SOURCE = "the paper's specification of the platform (3″)"
 class AngleSensorSpec:
     """What is known of one angle sensor's systematic error: the specification's bound U
     (arcsec) and how it is read, or the platform's own calibration table of that axis
-    (which then replaces the bound); the share of the variance given to the scale error at
-    the largest angle; where the knowledge comes from (stated in the result)."""
+    (which then replaces the bound); ``scale_share``: None (both extremes, each with the
+    full u², the default) or the share of u² given to the scale error, the rest to the
+    per-angle part (constructed cases: 1.0 a pure scale error, 0.0 none); where the
+    knowledge comes from (stated in the result)."""
 
     bound_arcsec: float = DEFAULT_BOUND_ARCSEC
-    scale_share: float = 0.5
+    scale_share: float | None = None
     distribution: str = "rectangular"  # or "triangular" (GUM 4.3.7, 4.3.9)
     axis: str = "y"
     source: str = DEFAULT_SOURCE
@@ -70,7 +78,7 @@ class AngleSensorSpec:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.bound_arcsec) and self.bound_arcsec >= 0):
             raise ChekanError(f"angle-sensor bound must be ≥ 0 arcsec, got {self.bound_arcsec}")
-        if not 0.0 <= self.scale_share <= 1.0:
+        if self.scale_share is not None and not 0.0 <= self.scale_share <= 1.0:
             raise ChekanError(f"scale share must be in [0, 1], got {self.scale_share}")
         if self.distribution not in DIVISORS:
             raise ChekanError(f"distribution must be one of {sorted(DIVISORS)}")
@@ -112,11 +120,12 @@ class AngleSensorSpec:
 
     @property
     def shares(self) -> tuple[float, float]:
-        """Fractions of u² given to the per-angle part and to the scale part. A bound: split
-        (1 − share, share), so that the error at θ_max has u. A calibration table states u at
-        every angle but not the correlation between angles: both extremes are taken, an
-        independent part and a fully correlated scale part, each with the full u² (1, 1)."""
-        if self.table is not None:
+        """Fractions of u² given to the per-angle part and to the scale part. Neither a bound
+        nor a calibration table states how the errors of different angles correlate: both
+        extremes are taken, an independent part and a fully correlated scale part, each
+        with the full u² (1, 1) (module docstring). A ``scale_share`` s splits it instead,
+        (1 − s, s): constructed cases only."""
+        if self.table is not None or self.scale_share is None:
             return (1.0, 1.0)
         return (1.0 - self.scale_share, self.scale_share)
 
@@ -208,6 +217,55 @@ class SystematicBasis:
         angle_share, scale_share = spec.shares
         var = np.concatenate([u_nodes**2 * angle_share, [u_max**2 * scale_share]])
         return np.maximum(var, 1e-12)
+
+
+def slew_error_columns(
+    path_theta_rad: np.ndarray, kinds: np.ndarray, on: np.ndarray, n_types: int
+) -> np.ndarray:
+    """The sensor's error along the slews (H, M, T), one term per slew type t (arcsec):
+    ηₜ·sign(θ) on the samples of the slews of that type (:mod:`chekan.joint.slews`).
+
+    What lies between two commanded angles is not known from the sensor's errors there (a
+    periodic or graduation error), so the holds' terms are not continued along the slews
+    and no shape is assumed. Along a slew the error adds Σₘ wₘ Sₘ e(θₘ) to the lag state
+    (Sₘ = ∂E/∂θ, odd in θ); with |e| ≤ U this is at most U·Σₘ wₘ|Sₘ|, reached by
+    e = U·sign(θ): the column taken, with the prior of one commanded angle's error
+    (:attr:`AngleSensorSpec.per_angle_var`) — the bound's Type B uncertainty of the slew's
+    contribution, with no credit for cancellation between its two sides of level.
+    """
+    hit = type_indicator(kinds, on, n_types)
+    return np.where(hit, np.sign(np.asarray(path_theta_rad, dtype=float))[..., None], 0.0)
+
+
+def sensor_terms(
+    theta_rad: np.ndarray,
+    on: np.ndarray,
+    path_theta_rad: np.ndarray,
+    path_on: np.ndarray,
+    kinds: np.ndarray,
+    n_types: int,
+    spec: AngleSensorSpec,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One sensor's systematic terms at the holds (H, A + 1 + T), along the slews
+    (H, M, A + 1 + T) and their prior variances: ζ at its A commanded angles (the holds it
+    reads, ``on``: :class:`SystematicBasis`), the scale error ξ·θ/θ_max (at those holds and
+    along its slews, ``path_on``: linear in θ everywhere), and the slews' own terms, one per
+    slew type (``kinds``, :mod:`chekan.joint.slews`; :func:`slew_error_columns`). Shared by
+    the estimator (:mod:`chekan.joint.binning`) and the design."""
+    theta = np.asarray(theta_rad, dtype=float)
+    sb = SystematicBasis.for_holds(theta[on])
+    A, H = sb.size - 1, theta.size
+    hold = np.concatenate([sb.at(theta) * on[:, None], np.zeros((H, n_types))], axis=1)
+    path = np.concatenate(
+        [
+            np.zeros((*np.shape(path_theta_rad), A)),
+            sb.at(path_theta_rad)[..., A:] * path_on[..., None],
+            slew_error_columns(path_theta_rad, kinds, path_on, n_types),
+        ],
+        axis=-1,
+    )
+    var = np.concatenate([sb.prior_var(spec), np.full(n_types, max(spec.per_angle_var, 1e-12))])
+    return hold, path, var
 
 
 def systematic_basis(theta_rad: np.ndarray, spec: AngleSensorSpec) -> tuple[np.ndarray, np.ndarray]:

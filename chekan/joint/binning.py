@@ -17,9 +17,10 @@ import numpy as np
 
 from chekan.holds import HoldTable, segment_record
 from chekan.jaxconfig import device_arrays
-from chekan.joint.angles import AngleSensorSpec, SystematicBasis
+from chekan.joint.angles import AngleSensorSpec, sensor_terms
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
-from chekan.joint.xresponse import x_response_basis, x_response_path
+from chekan.joint.slews import slew_types, types_about
+from chekan.joint.xresponse import x_response_terms
 from chekan.units import ARCSEC_PER_RAD
 
 BIN_EDGES_S = (0.0, 15.0, 40.0, 90.0, 180.0)
@@ -139,14 +140,18 @@ def _angle_bases(
     mv_ty,
     mv_mask,
     slew_axis: np.ndarray,
+    types: np.ndarray,
     L: int,
     specs: dict[str, AngleSensorSpec | None],
 ):
     """The shared angle-error columns at the holds and along the slews, their prior
     variances, how many are systematic and how many of those are the X sensor's: ``L``
-    legacy encoder terms (N(0, 2″)), then the systematic basis of :mod:`.angles` of each
-    sensor that reads holds of this record (X first, then Y; a sensor's columns are zero
-    at the other sensor's holds and slews)."""
+    legacy encoder terms (N(0, 2″)), then of each sensor that reads holds of this record
+    (X first, then Y; a sensor's columns are zero at the other sensor's holds and slews)
+    the systematic basis of :mod:`.angles` at the holds (one term per commanded angle, the
+    scale error) and the slews' own terms, one per slew type (``types``,
+    :func:`chekan.joint.angles.slew_error_columns`); the scale error, linear in θ, acts
+    along the slews too."""
     theta = holds.theta_rad
     tmax = max(np.max(np.abs(theta)), 1e-9)
     H = theta.shape[0]
@@ -160,14 +165,16 @@ def _angle_bases(
         on = hold_axis == axis
         if spec is None or not np.any(on & ~holds.is_level):
             continue
-        sb = SystematicBasis.for_holds(theta[on])
-        basis.append(sb.at(theta) * on[:, None])
-        prior_var.append(sb.prior_var(spec))
         mv_theta = mv_tx if axis == "x" else mv_ty
-        mv_on = (slew_axis == axis)[:, None] & mv_mask
-        mv_basis.append(sb.at(mv_theta) * mv_on[..., None])
+        kinds, T = types_about(types, slew_axis, axis)
+        hold, path, var = sensor_terms(
+            theta, on, mv_theta, (slew_axis == axis)[:, None] & mv_mask, kinds, T, spec
+        )
+        basis.append(hold)
+        mv_basis.append(path)
+        prior_var.append(var)
         if axis == "x":
-            n_x = sb.size
+            n_x = hold.shape[1]
     S = sum(b.shape[1] for b in basis) - L
     return (
         np.concatenate(basis, axis=1),
@@ -222,14 +229,19 @@ def prepare_record(
     L = 3 if encoder else 0
     specs = {"y": angle_spec, "x": angle_spec_x}
     slew_axis = _slew_axis(holds)
+    types = slew_types(holds.theta_rad, slew_axis, mv_mask.any(axis=1))
     basis, prior_var, mv_basis, S, S_x = _angle_bases(
-        holds, mv_tx, mv_ty, mv_mask, slew_axis, L, specs
+        holds, mv_tx, mv_ty, mv_mask, slew_axis, types, L, specs
     )
-    x_basis, x_prior_var = x_response_basis(
-        holds.theta_rad, holds.hold_axis, float(record.g_local_mgal)
-    )
-    mv_x_basis = x_response_path(
-        holds.theta_rad, holds.hold_axis, mv_tx, (slew_axis == "x")[:, None] & mv_mask
+    x_kinds, x_types = types_about(types, slew_axis, "x")
+    x_basis, mv_x_basis, x_prior_var = x_response_terms(
+        holds.theta_rad,
+        holds.hold_axis,
+        float(record.g_local_mgal),
+        mv_tx,
+        (slew_axis == "x")[:, None] & mv_mask,
+        x_kinds,
+        x_types,
     )
     # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
     arrays = {

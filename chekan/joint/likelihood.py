@@ -157,26 +157,43 @@ class SlewColumns(NamedTuple):
         return self.weight[:, None] * jnp.einsum("hqj,q->hj", self.per_hold, zeta)[self.own]
 
 
-def slew_angle_terms(v: dict, data: RecordData, slews: SlewPath | None = None) -> SlewColumns:
-    """How the shared angle-error terms move each bin through the slews (factored).
+def slew_angle_terms(v: dict, data: RecordData, s, slews: SlewPath | None = None) -> SlewColumns:
+    """How the shared terms (angle errors ζ, X response ν) move each bin through the lag
+    state after every slew (factored by hold).
 
-    The slews are read by the same angle sensor, so its systematic error is in the
-    measured slew path too: the lag state after slew k, Mvₖ = Σₘ wₖₘ E(θₖₘ), becomes
-    Σₘ wₖₘ E(θₖₘ − Σ_q B_q(θₖₘ) ζ_q), whose ζ-derivative Uₖ = ∂Mvₖ/∂ζ enters the bins as
-    Pᵢ = wᵢ · U_{k(i)}. B along the path (``data.mv_angle_basis``) is the hold basis
-    continued between the commanded angles (piecewise linear; the scale term θ/θ_max).
+    The slews are read by the same angle sensor, so its error is in the measured slew path
+    too: the lag state after slew k, Mvₖ = Σₘ wₖₘ E(θₖₘ), becomes
+    Σₘ wₖₘ E(θₖₘ − Σ_q B_q(θₖₘ) ζ_q), whose ζ-derivative ∂Mvₖ/∂ζ enters the bins as
+    Pᵢ = wᵢ · U_{k(i)}; B along the path is ``data.mv_angle_basis`` (the scale term θ/θ_max
+    and the slews' own terms, :mod:`chekan.joint.angles`). Uₖ also holds ∂Rₖ/∂ζ, the
+    unsettled carry (:func:`_unsettled_carry`) of the holds' shifts sₖ·Bₖ ζ and the slews':
+    the hold-mixing G carries a hold's terms one hold on, as if it had settled, while the
+    equilibria in f are carried exactly; a term shared by all rounds must move the
+    prediction exactly as the equilibria it shifts, or where holds do not settle the data
+    would seem to tell it apart from b (a scale error of the angle sensor looked measured
+    at τ = 90 s). ``s`` (H, 2): the holds' angle sensitivity per arcsec (:func:`linear_terms`).
     """
     wm, _, dEm = slew_path(v, data) if slews is None else slews  # dEm (2, H, M) per rad
+    tau = v["tau_s"]
     dMv = jnp.einsum("hm,jhm,hmq->hqj", wm, -dEm / ARCSEC_PER_RAD, data.mv_angle_basis)
-    w = lag_weights(v["tau_s"], data)
+    wprev, rho = 1.0 - wm.sum(axis=1), jnp.exp(-data.hold_T / tau)
+    H, Q = dMv.shape[:2]
+    dE = s[:, None, :] * data.angle_basis[:, :, None]  # (H, Q, 2) the holds' shifts
+    carry = _unsettled_carry(dE.reshape(H, -1), dMv.reshape(H, -1), wprev, rho)
+    w = lag_weights(tau, data)
     own = jnp.argmax(data.own, axis=1)  # the bin's hold (a row of zeros: padding)
     x_mv = jnp.einsum("hm,hmx->hx", wm, data.mv_x_basis)
-    return SlewColumns(w * jnp.sum(data.own, axis=1), dMv, own, x_mv)
+    x_carry = _unsettled_carry(data.x_basis, x_mv, wprev, rho)
+    return SlewColumns(
+        w * jnp.sum(data.own, axis=1), dMv + carry.reshape(H, Q, 2), own, x_mv + x_carry
+    )
 
 
 def slew_angle_columns(v: dict, data: RecordData, slews: SlewPath | None = None) -> jax.Array:
     """P (N, Q, 2), dense (:func:`slew_angle_terms`; reference and tests)."""
-    return slew_angle_terms(v, data, slews).dense()
+    slews = slew_path(v, data) if slews is None else slews
+    _, _, s, _ = linear_terms(v, data, slews)
+    return slew_angle_terms(v, data, s, slews).dense()
 
 
 def _unsettled_carry(E, Mv, wprev, rho):
@@ -261,7 +278,7 @@ def normal_equations(v: dict, h: dict, structure: ModelStructure, data: RecordDa
     nv = noise_var(h, data, trans)
     W = jnp.where(mask, 1.0 / nv, 0.0)  # (N, 2)
     r = jnp.where(mask, data.y - f, 0.0)
-    P = _slew_terms(v, structure, data, slews)
+    P = _slew_terms(v, structure, data, slews, s)
     Q = q_columns(G, data, P)
     E = data.angle_basis
     nq, H, L = Q.shape[1], G.shape[1], E.shape[1]
@@ -395,14 +412,14 @@ def predict(v: dict, structure: ModelStructure, data: RecordData):
     """``f`` (N, 2) and the dense design ``A`` (N, 2, p) (reference implementation, tests)."""
     slews = slew_path(v, data)
     f, G, s, _ = linear_terms(v, data, slews)
-    return f, dense_design(G, s, structure, data, _slew_terms(v, structure, data, slews))
+    return f, dense_design(G, s, structure, data, _slew_terms(v, structure, data, slews, s))
 
 
-def _slew_terms(v: dict, structure: ModelStructure, data: RecordData, slews: SlewPath):
-    """The slews' share of the systematic and X-response columns, where the model has
-    either (:func:`slew_angle_terms`)."""
+def _slew_terms(v: dict, structure: ModelStructure, data: RecordData, slews: SlewPath, s):
+    """The slews' and the unsettled carry's share of the systematic and X-response
+    columns, where the model has either (:func:`slew_angle_terms`)."""
     if structure.n_systematic or structure.n_x_response:
-        return slew_angle_terms(v, data, slews)
+        return slew_angle_terms(v, data, s, slews)
     return None
 
 

@@ -8,9 +8,10 @@ g·sin θ·sin φ (the *odd* part, the paper's d·θ·(m − m_h) of eq. 11–12
 among them), which is why the stand method calibrates in several azimuths. So that b
 and a do not rest on the ideal model's X response alone, every system j carries two
 terms **per distinct angle magnitude** a of the X holds (β, marginalised like the drift;
-no shape in θ assumed, as for the angle sensors' systematic error; continued along the
-slews about X, which the lag carries into the holds), with θₖ the hold's tilt about X
-and θ_r the largest one:
+no shape in θ assumed, as for the angle sensors' systematic error; along the slews about
+X, which the lag carries into the holds, each slew type has its own two terms with the
+same priors, :func:`x_response_path`), with θₖ the hold's tilt about X and θ_r the
+largest one:
 
     Δmₖⱼ = νⱼ,odd,a · sin θₖ / sin θ_r  +  νⱼ,even,a · (1 − cos θₖ)/(1 − cos θ_r)   [pix].
 
@@ -32,6 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from chekan.joint.slews import type_indicator
 from chekan.units import ARCSEC_PER_RAD
 
 K_NOMINAL_PIX_PER_RAD = 60428.0  # eq. (4): the design K
@@ -62,26 +64,54 @@ def _x_angles(theta: np.ndarray, hold_axis: np.ndarray) -> _XAngles | None:
 
 
 def x_response_path(
-    theta_rad: np.ndarray, hold_axis: np.ndarray, path_rad: np.ndarray, path_on: np.ndarray
+    theta_rad: np.ndarray,
+    hold_axis: np.ndarray,
+    path_rad: np.ndarray,
+    path_on: np.ndarray,
+    kinds: np.ndarray,
+    n_types: int,
 ) -> np.ndarray:
-    """The X-response columns along the slews (H, M, 2A): the same terms continued
-    between the angles (each angle's coefficients weighted by hat functions of |θ| over
-    the X holds' magnitudes, clamped beyond the ends; sin θ and 1 − cos θ vanish at
-    level), where ``path_on`` (the slew moves about X)."""
-    theta = np.asarray(theta_rad, dtype=float)
+    """The X-response columns along the slews (H, M, 2T): for each type t of the slews
+    about X (:mod:`chekan.joint.slews`) its own odd and even terms, sin θ / sin θ_r and
+    (1 − cos θ)/(1 − cos θ_r) on that type's samples (``path_on``; θ_r the largest X
+    angle of the holds). What eq. (6) lacks is not known between the commanded angles, so
+    the holds' terms are not continued along the slews (a response of another shape, such
+    as sin³ θ, was misread through them); each slew type's share of it is its own unknown,
+    with the holds' priors, shared by all rounds."""
+    x = _x_angles(np.asarray(theta_rad, dtype=float), hold_axis)
     path = np.asarray(path_rad, dtype=float)
-    x = _x_angles(theta, hold_axis)
-    if x is None:
+    if x is None or n_types == 0:
         return np.zeros((*path.shape, 0))
-    nodes = np.array([np.abs(theta[x.on & (x.key == a)]).mean() for a in x.groups])
+    hit = type_indicator(kinds, path_on, n_types)
     odd = np.sin(path) / math.sin(x.theta_r)
     even = (1.0 - np.cos(path)) / (1.0 - math.cos(x.theta_r))
-    eye = np.eye(x.groups.size)
-    cols = []
-    for a in range(x.groups.size):
-        hat = np.interp(np.abs(path), nodes, eye[a]) * path_on
-        cols += [hat * odd, hat * even]
-    return np.stack(cols, axis=-1)
+    cols = np.stack([np.where(hit, odd[..., None], 0.0), np.where(hit, even[..., None], 0.0)], -1)
+    return cols.reshape(*path.shape, 2 * n_types)
+
+
+def x_response_terms(
+    theta_rad: np.ndarray,
+    hold_axis: np.ndarray,
+    g_mgal: float,
+    path_rad: np.ndarray,
+    path_on: np.ndarray,
+    kinds: np.ndarray,
+    n_types: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All X-response terms of a record: at the holds (H, C), along the slews (H, M, C) and
+    their prior variances (C,) — the holds' 2A terms (:func:`x_response_basis`), then the
+    slews' 2T (:func:`x_response_path`), each zero where the other acts."""
+    hold, var = x_response_basis(theta_rad, hold_axis, g_mgal)
+    path = x_response_path(theta_rad, hold_axis, path_rad, path_on, kinds, n_types)
+    n_hold, n_path = hold.shape[1], path.shape[-1]
+    if n_hold == 0:
+        return hold, np.zeros((*np.shape(path_rad), 0)), var
+    per_type = var[:2]  # a slew's odd and even terms: the priors of the holds' terms
+    return (
+        np.concatenate([hold, np.zeros((hold.shape[0], n_path))], axis=1),
+        np.concatenate([np.zeros((*path.shape[:-1], n_hold)), path], axis=-1),
+        np.concatenate([var, np.tile(per_type, n_path // 2)]),
+    )
 
 
 def x_response_basis(
