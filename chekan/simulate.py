@@ -58,10 +58,12 @@ class Truth:
     cross_axis_error: bool | None = None  # None: on for programs about both axes
     # the X rounds' response beyond eq. (6) (fibre sag and the like, which the model does
     # not contain): added to the equilibrium at tilts θ about X, per system, pix at the
-    # largest X angle θ_r, with r = sin θ/sin θ_r: odd·(0.7 r + 0.3 r³)
-    # + even·((1 − cos θ)/(1 − cos θ_r))² (fibre sag moves the arm's angle: mostly ∝ sin θ)
+    # largest X angle θ_r, with r = sin θ/sin θ_r: odd·((1 − c) r + c r³)
+    # + even·((1 − cos θ)/(1 − cos θ_r))² (fibre sag moves the arm's angle: mostly ∝ sin θ;
+    # c = x_unmodelled_cubic)
     x_unmodelled_odd_pix: tuple[float, float] = (0.0, 0.0)
     x_unmodelled_even_pix: tuple[float, float] = (0.0, 0.0)
+    x_unmodelled_cubic: float = 0.3
     tilt_jitter_arcsec: float = 0.3
     slew_deg_per_s: float = 0.5
     platform_settle_s: float = 3.0
@@ -312,7 +314,8 @@ def _x_unmodelled(truth: Truth, tx_true_rad: np.ndarray, ty_true_rad: np.ndarray
     about_x = np.abs(tx_true_rad) > np.abs(ty_true_rad)
     tx = np.where(about_x, tx_true_rad, 0.0)
     r = np.sin(tx) / np.sin(th_r)
-    u = 0.7 * r + 0.3 * r**3  # mostly an arm-angle offset (∝ sin θ), partly not
+    c = truth.x_unmodelled_cubic
+    u = (1.0 - c) * r + c * r**3  # mostly an arm-angle offset (∝ sin θ), partly not
     v = ((1 - np.cos(tx)) / (1 - np.cos(th_r))) ** 2
     return u[:, None] * odd + v[:, None] * even
 

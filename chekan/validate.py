@@ -626,6 +626,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="U",
         help="the platforms have their own angle calibration, residual U (k = 2) in arcsec",
     )
+    ap.add_argument(
+        "--x-cubic",
+        type=float,
+        default=Scenario.x_cubic,
+        metavar="C",
+        help="x_response case: the odd unmodelled X response (1 − C)·sin θ + C·sin³ θ (0.3)",
+    )
     ap.add_argument("--program", help="a tilt program file (TOML) instead of the paper's")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("-j", "--jobs", type=int, default=1, help="worker processes (default 1)")
@@ -682,6 +689,7 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
             angle_bound_arcsec=args.angle_bound_arcsec,
             calibration_u_arcsec=args.calibration_u_arcsec,
             angle_bound_reading=args.angle_bound_reading,
+            x_cubic=args.x_cubic,
         ),
     )
     for key in summary_groups(s):

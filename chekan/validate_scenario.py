@@ -20,7 +20,9 @@ class Scenario:
     (None: the simulator's 2″); ``angle_errors`` and ``angle_bound_arcsec``: the model's
     (:class:`chekan.options.CalibrationOptions`); ``calibration_u_arcsec``: the platform has
     its own angle calibration whose residual error has expanded uncertainty U (k = 2)
-    (:func:`session_calibration`; None: only the bound is known).
+    (:func:`session_calibration`; None: only the bound is known); ``x_cubic``: the share of
+    sin³ θ in the odd part of the ``x_response`` case's unmodelled X response
+    (:attr:`chekan.simulate.Truth.x_unmodelled_cubic`; 1: a pure sin³ θ).
     """
 
     systematic_arcsec: float = 1.5
@@ -30,6 +32,7 @@ class Scenario:
     angle_bound_arcsec: float | None = None
     calibration_u_arcsec: float | None = None
     angle_bound_reading: str = "rectangular"
+    x_cubic: float = 0.3
 
     def options(self, **kw):
         from chekan.options import CalibrationOptions
@@ -91,6 +94,7 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
         kw.update(
             x_unmodelled_odd_pix=tuple(xr.uniform(-X_ODD_PIX, X_ODD_PIX, 2)),
             x_unmodelled_even_pix=tuple(xr.uniform(-even, even, 2)),
+            x_unmodelled_cubic=scenario.x_cubic,
         )
     truth = random_truth(rng, serial=f"V{i}", **kw)
     if scenario.random_arcsec is not None and case != "edge":
@@ -141,4 +145,7 @@ def scenario_line(sc: dict | None) -> str:
     )
     if sc.get("calibration_u_arcsec") is not None:
         model += f", angle calibration U = {sc['calibration_u_arcsec']:g}″ (k = 2)"
+    cubic = sc.get("x_cubic", 0.3)
+    if cubic != 0.3:
+        sim += f", x_response case's odd shape {1 - cubic:g}·sin θ + {cubic:g}·sin³ θ"
     return f"{sim}, {rnd}; model: {model}"
