@@ -57,10 +57,26 @@ def z_for(prob: float) -> float:
     return NormalDist().inv_cdf(0.5 + prob / 2.0)
 
 
-def param_entry(mean: float, sd: float | None, hdi_prob: float, unit: str = "", **extra) -> dict:
-    """A parameter entry; least-squares methods use the symmetric interval mean ± z·sd."""
+def param_entry(
+    mean: float,
+    sd: float | None,
+    hdi_prob: float,
+    unit: str = "",
+    *,
+    nu_eff: float | None = None,
+    **extra,
+) -> dict:
+    """A parameter entry; least-squares methods use the symmetric interval mean ± z·sd, z the
+    normal quantile, or Student's t with the sd's effective degrees of freedom ``nu_eff``
+    (then stored as ``nu_eff``: GUM G.4, :mod:`inference.dof`)."""
     sd_ = float(sd) if sd is not None and np.isfinite(sd) else None
-    z = z_for(hdi_prob)
+    if nu_eff is not None and np.isfinite(nu_eff):
+        from inference.dof import coverage_factor
+
+        z = coverage_factor(float(nu_eff), hdi_prob)
+        extra = {**extra, "nu_eff": float(nu_eff)}
+    else:
+        z = z_for(hdi_prob)
     e = {
         "mean": float(mean),
         "sd": sd_,

@@ -69,6 +69,7 @@ PARAMS = ("b1", "b2", "a")
 
 DEFAULT_METHODS = ("classical", "map")
 BAND_PROB = 0.999  # probability mass of the binomial band of an honest interval
+P_U = 0.9545  # the coverage probability of a stated U (k = 2 for a normal distribution)
 SEED_STRIDE = 100_000  # session i of a study with seed s is simulated with seed s·stride + i
 _INT_COLS = ("session", "seed")
 _STR_COLS = ("case", "program")
@@ -81,6 +82,8 @@ def fieldnames(methods: Sequence[str] = DEFAULT_METHODS) -> list[str]:
     for m in methods:
         for p in PARAMS:
             cols += [f"{m}_{p}", f"{m}_{p}_sd"]
+            if m == "map":
+                cols.append(f"map_{p}_k")
             if m == "bayes":
                 cols += [f"bayes_{p}_hdi_low", f"bayes_{p}_hdi_high"]
         if m == "map":
@@ -94,6 +97,8 @@ def _failed_columns(method: str, err: Exception) -> dict[str, Any]:
     out: dict[str, Any] = {f"{method}_error": f"{type(err).__name__}: {err}"[:300]}
     for p in PARAMS:
         out[f"{method}_{p}"] = out[f"{method}_{p}_sd"] = math.nan
+        if method == "map":
+            out[f"map_{p}_k"] = math.nan
         if method == "bayes":
             out[f"bayes_{p}_hdi_low"] = out[f"bayes_{p}_hdi_high"] = math.nan
     if method == "map":
@@ -161,8 +166,10 @@ def run_session(
 
 
 def _map_columns(rec, settle_s: float, scenario: Scenario) -> dict[str, Any]:
-    """MAP + Laplace of the in-memory record through the public pipeline."""
+    """MAP + Laplace of the in-memory record through the public pipeline, with the
+    coverage factor of each value's U (``map_<p>_k``: the certificate's)."""
     from chekan.pipeline import calibrate
+    from chekan.report.expanded import coverage_factor_of, expanded_of
 
     opts = scenario.options(method="map", progress=False, settle_s=settle_s)
     result = calibrate(rec, opts)
@@ -170,6 +177,8 @@ def _map_columns(rec, settle_s: float, scenario: Scenario) -> dict[str, Any]:
     for p in PARAMS:
         e = result["parameters"][p]
         out[f"map_{p}"], out[f"map_{p}_sd"] = float(e["mean"]), float(e["sd"])
+        k = expanded_of(result, p)[1] if p in ("b1", "b2") else coverage_factor_of(result, p)
+        out[f"map_{p}_k"] = float(k)
     out["map_converged"] = bool(result["diagnostics"]["converged"])
     return out
 
@@ -224,7 +233,9 @@ def coverage_summary(rows: Sequence[dict], methods: Sequence[str] | None = None)
     ``coverage_<L>`` (fraction with |z| ≤ z_L, z = (estimate − truth)/sd, z_L the
     two-sided normal quantile of L), ``bounds_<L>`` (:func:`binomial_band`), ``rms_error``,
     ``bias`` (mean error), ``rms_sd`` (RMS of the stated sds), ``mean_z2``; for ``bayes``
-    also ``coverage_hdi95`` (truth inside the stored 95 % HDI). ``n_sessions``: all rows.
+    also ``coverage_hdi95`` (truth inside the stored 95 % HDI); where the rows carry the
+    method's coverage factor (``map_<p>_k``), ``coverage_U`` (|z| ≤ k: the stated U covers,
+    nominal ``P_U`` = 95.45 %) and ``bounds_U``. ``n_sessions``: all rows.
     """
     from scipy.special import ndtri
 
@@ -251,6 +262,12 @@ def coverage_summary(rows: Sequence[dict], methods: Sequence[str] | None = None)
                 k = float(ndtri(0.5 + lev / 2))
                 entry[f"coverage_{round(lev * 100)}"] = float(np.mean(np.abs(z) <= k))
                 entry[f"bounds_{round(lev * 100)}"] = list(binomial_band(n, lev))
+            if rows and f"{method}_{p}_k" in rows[0]:
+                kk = np.array([r[f"{method}_{p}_k"] for r in rows], dtype=np.float64)[ok]
+                if np.all(np.isfinite(kk)):
+                    entry["coverage_U"] = float(np.mean(np.abs(z) <= kk))
+                    entry["bounds_U"] = list(binomial_band(n, P_U))
+                    entry["mean_k"] = float(np.mean(kk))
             if method == "bayes":
                 lo = np.array([r["bayes_" + p + "_hdi_low"] for r in rows], np.float64)[ok]
                 hi = np.array([r["bayes_" + p + "_hdi_high"] for r in rows], np.float64)[ok]
@@ -261,15 +278,23 @@ def coverage_summary(rows: Sequence[dict], methods: Sequence[str] | None = None)
     return out
 
 
-def _outside(e: dict, lev: int) -> bool:
+def _outside(e: dict, lev: int | str) -> bool:
     lo, hi = e[f"bounds_{lev}"]
     return not lo <= e[f"coverage_{lev}"] <= hi
+
+
+def _u_cell(e: dict) -> str:
+    """The stated U's coverage for the text table (``!`` outside its band), — where the
+    method states no k."""
+    if "coverage_U" not in e:
+        return f"{'—':>7} "
+    return f"{e['coverage_U']:>7.2f}" + ("!" if _outside(e, "U") else " ")
 
 
 def format_summary(s: dict) -> str:
     """A plain-text table of one :func:`coverage_summary`."""
     head = (
-        f"{'method/param':<16}{'n':>5}{'50 %':>8}{'90 %':>8}{'95 %':>8}"
+        f"{'method/param':<16}{'n':>5}{'50 %':>8}{'90 %':>8}{'95 %':>8}{'U (k)':>8}"
         f"{'RMS error':>12}{'RMS sd':>11}{'mean z²':>9}"
     )
     lines = [head, "-" * len(head)]
@@ -281,10 +306,11 @@ def format_summary(s: dict) -> str:
             for lev in (50, 90, 95)
         )
         lines.append(
-            f"{key:<16}{e['n']:>5}{cells}{e['rms_error']:>12.3g}{e['rms_sd']:>11.3g}"
-            f"{e['mean_z2']:>9.2f}"
+            f"{key:<16}{e['n']:>5}{cells}{_u_cell(e)}{e['rms_error']:>12.3g}"
+            f"{e['rms_sd']:>11.3g}{e['mean_z2']:>9.2f}"
         )
     lines.append(f"! = outside the binomial {BAND_PROB * 100:.1f} % band of an honest interval")
+    lines.append(f"U (k): the stated U = k·sd covers (nominal {P_U * 100:.2f} %)")
     return "\n".join(lines)
 
 
@@ -327,6 +353,8 @@ def markdown_report(summary: dict, settings: dict, figures: Sequence[str] = ()) 
         "Intervals are central, estimate ± z·sd with z the two-sided normal quantile of the "
         "level; for `bayes` the estimate and sd are the posterior mean and sd, and the column "
         "*95 % HDI* is the coverage of the stored highest-density interval. "
+        f"*U (k)* is the coverage of the stated expanded uncertainty U = k·sd (nominal "
+        f"{P_U * 100:.2f} %; `map`: k = t₉₅.₄₅(ν_eff), GUM G.4), *mean k* its mean k. "
         "An honest interval at level L covers the truth in a binomial number of the n "
         f"sessions: the coverage falls in the band below with probability {BAND_PROB * 100:.1f} %; "
         "a coverage outside it is **bold** with `!`. "
@@ -348,13 +376,18 @@ def markdown_report(summary: dict, settings: dict, figures: Sequence[str] = ()) 
             for b in [binomial_band(n0, lev / 100)]
         )
         with_hdi = any("coverage_hdi95" in e for e in entries.values())
+        with_u = any("coverage_U" in e for e in entries.values())
+        if with_u:
+            b = binomial_band(n0, P_U)
+            band += f", U ({P_U * 100:.2f} %): [{b[0]:.2f}, {b[1]:.2f}]"
         lines += [
             f"Honest band for n = {n0}: {band}.",
             "",
             "| method | parameter | n | 50 % | 90 % | 95 % |"
             + (" 95 % HDI |" if with_hdi else "")
+            + (" U (k) | mean k |" if with_u else "")
             + " RMS error | bias | RMS sd | mean z² |",
-            "|---|---|" + "--:|" * (8 + with_hdi),
+            "|---|---|" + "--:|" * (8 + with_hdi + 2 * with_u),
         ]
         for key, e in entries.items():
             method, p = key.split("/")
@@ -364,6 +397,11 @@ def markdown_report(summary: dict, settings: dict, figures: Sequence[str] = ()) 
                 cov.append(f"**{c}** !" if _outside(e, lev) else c)
             if with_hdi:
                 cov.append(f"{e['coverage_hdi95']:.3f}" if "coverage_hdi95" in e else "—")
+            if with_u and "coverage_U" in e:
+                c = f"{e['coverage_U']:.3f}"
+                cov += [f"**{c}** !" if _outside(e, "U") else c, f"{e['mean_k']:.3f}"]
+            elif with_u:
+                cov += ["—", "—"]
             lines.append(
                 f"| {method} | {p} ({unit_of(p)}) | {e['n']} | {' | '.join(cov)} "
                 f"| {e['rms_error']:.3g} | {e['bias']:.3g} | {e['rms_sd']:.3g} "

@@ -116,7 +116,9 @@ def test_the_sd_of_b_falls_as_the_budget_says_and_the_bound_platform_is_covered(
         sys0 = bound["uncertainty_budget"][k]["angle_systematic"]
         sys1 = table["uncertainty_budget"][k]["angle_systematic"]
         assert sys1 < 0.3 * sys0  # u 0.25″ against 1.73″
-        assert sd1**2 == pytest.approx(sd0**2 - sys0**2 + sys1**2, rel=0.1)
+        # the Type A lines are re-estimated from the corrected angles (σ_o, σ_θ by EM):
+        # the sd falls as the systematic line says, to within 15 %
+        assert sd1**2 == pytest.approx(sd0**2 - sys0**2 + sys1**2, rel=0.15)
         assert sd1 < 0.8 * sd0
         for r in (bound, table):
             z = (r["parameters"][k]["mean"] - b_true) / r["parameters"][k]["sd"]

@@ -132,7 +132,9 @@ def test_posterior_end_to_end(short_session, tmp_path):
         assert p["hdi_low"] <= t[k] <= p["hdi_high"], (k, p, t[k])
         assert {"mean", "sd", "hdi_low", "hdi_high", "unit", "r_hat", "ess_bulk"} <= set(p)
     ub = res["uncertainty_budget"]["b1"]
-    assert ub["expanded_k2"] == pytest.approx(2 * res["parameters"]["b1"]["sd"])
+    # the posterior integrates the hyperparameters: k = 2, ν_eff not evaluated
+    assert ub["coverage_factor"] == 2.0 and ub["nu_eff"] is None
+    assert ub["expanded"] == pytest.approx(2 * res["parameters"]["b1"]["sd"])
     assert ub["angle_readout"] > 0 and ub["noise"] > 0
     assert len(res["drift_curve"]["t_h"]) == len(res["drift_curve"]["m1_pix"])
     pp = res["posterior_predictive_mgal"]

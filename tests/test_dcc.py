@@ -73,6 +73,22 @@ def sim_bayes_json(tmp_path_factory) -> Path:
     return write_result(d / "bayes.json", calibrate_file(d / "rec.csv", opts))
 
 
+@pytest.fixture(scope="module")
+def sim_map_json(tmp_path_factory) -> Path:
+    """A MAP result of the short simulated session (seed 7): its U has k = t₉₅.₄₅(ν_eff)."""
+    from chekan.demo import demo_program
+    from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.records import write_record
+    from chekan.result import write_result
+    from chekan.simulate import Truth, simulate_session
+
+    d = tmp_path_factory.mktemp("simmap")
+    rec, _ = simulate_session(demo_program(quick=True), Truth(serial="T-1"), seed=7)
+    write_record(d / "rec.csv", rec)
+    opts = CalibrationOptions(method="map", settle_s=200, progress=False)
+    return write_result(d / "map.json", calibrate_file(d / "rec.csv", opts))
+
+
 def _dcc(result_json: Path, lab: Path, out: Path, *extra: str) -> Path:
     rc = main(["report", str(result_json), "--lab", str(lab), "-o", str(out), *extra])
     assert rc == 0
@@ -100,7 +116,7 @@ def test_dcc_of_a_simulated_bayes_session_validates_and_carries_b1_and_u(
     b1 = reals["b1"]
     assert float(b1.findtext(f"{{{SI_NS}}}value")) == res["parameters"]["b1"]["mean"]
     u = float(b1.findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}uncertainty"))
-    assert u == res["uncertainty_budget"]["b1"]["expanded_k2"]
+    assert u == res["uncertainty_budget"]["b1"]["expanded"]
     assert float(b1.findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}coverageFactor")) == 2.0
     for name in ("b2", "a", "b1_0", "b2_0"):
         assert float(reals[name].findtext(f"{{{SI_NS}}}value")) == res["parameters"][name]["mean"]
@@ -109,6 +125,27 @@ def test_dcc_of_a_simulated_bayes_session_validates_and_carries_b1_and_u(
     temp = res["sensor_temperature_c"]
     assert 44.9 < temp["min"] <= temp["mean"] <= temp["max"] < 45.1
     assert f"{temp['mean']:.2f} °C" in out.read_text(encoding="utf-8")
+
+
+def test_dcc_of_a_map_result_states_its_coverage_factor(sim_map_json, lab, tmp_path):
+    """A MAP's U rests on variances estimated from the record: the DCC carries its k
+    (Student's t at ν_eff, not 2) and U = k·u, and reads back into the same result."""
+    from inference.dof import coverage_factor
+
+    res = json.loads(sim_map_json.read_text(encoding="utf-8"))
+    out = _dcc(sim_map_json, lab, tmp_path / "m.xml")
+    validate_dcc(out)
+    reals = _reals(out)
+    for name in ("b1", "b2"):
+        bud = res["uncertainty_budget"][name]
+        k = float(reals[name].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}coverageFactor"))
+        assert k == bud["coverage_factor"] == coverage_factor(bud["nu_eff"]) > 2.0
+        u = float(reals[name].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}uncertainty"))
+        assert u == bud["expanded"] == pytest.approx(k * bud["total"], rel=1e-12)
+        assert reals[name].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}distribution") == "t"
+    a = reals["a"].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}coverageFactor")
+    assert float(a) == coverage_factor(res["parameters"]["a"]["nu_eff"])
+    assert read_dcc(out)["parameters"]["b1"] == res["parameters"]["b1"]
 
 
 def test_dcc_header_is_escaped_and_complete(bayes_json, lab, tmp_path):

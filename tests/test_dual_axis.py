@@ -95,7 +95,8 @@ def test_budget_has_a_line_per_angle_sensor_and_the_x_response(dual_fit):
         assert line["angle_systematic_y"] > 0 and line["angle_systematic_x"] > 0
         assert "angle_systematic" not in line
         assert "x_response" in line
-        parts = [v for k, v in line.items() if k not in ("total", "expanded_k2")]
+        footer = ("total", "nu_eff", "coverage_factor", "expanded")
+        parts = [v for k, v in line.items() if k not in footer]
         assert np.sqrt(np.sum(np.square(parts))) == pytest.approx(line["total"], rel=1e-6)
     sensors = res["angle_sensors"]
     assert sensors["y"]["axis"] == "y" and sensors["x"]["axis"] == "x"
@@ -105,7 +106,7 @@ def test_budget_has_a_line_per_angle_sensor_and_the_x_response(dual_fit):
 
 
 @pytest.mark.slow
-def test_a_tighter_x_bound_shrinks_only_the_x_sensors_line(dual_fit):
+def test_a_tighter_x_bound_shrinks_the_x_sensors_line_and_b_leans_on_the_x_rounds(dual_fit):
     rec, _truth, res = dual_fit
     meta = {**rec.meta, "platform_angle_bound_x_arcsec": "0.5"}
     tight = calibrate(
@@ -114,7 +115,10 @@ def test_a_tighter_x_bound_shrinks_only_the_x_sensors_line(dual_fit):
     before, after = res["uncertainty_budget"]["b1"], tight["uncertainty_budget"]["b1"]
     x_ratio = after["angle_systematic_x"] / before["angle_systematic_x"]
     y_ratio = after["angle_systematic_y"] / before["angle_systematic_y"]
-    assert x_ratio < 0.7 and x_ratio < 0.8 * y_ratio, (x_ratio, y_ratio)
+    # b is measured on both axes: with the X sensor known better, b leans on the X rounds,
+    # so the X line shrinks (less than its u, its weight grows) and the Y line with it
+    assert x_ratio < 0.7 and y_ratio < 0.9, (x_ratio, y_ratio)
+    assert after["total"] < 0.9 * before["total"]
     assert tight["angle_sensors"]["x"]["bound_arcsec"] == 0.5
 
 

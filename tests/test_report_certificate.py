@@ -198,3 +198,29 @@ def test_angle_bound_reading_is_one_truth_in_help_result_and_certificate(sim_map
     rep = build_report(res, lang="en", source=record, figures=False)
     text = " ".join(str(getattr(b, "rows", "")) + getattr(b, "text", "") for b in rep.blocks)
     assert "read as rectangular (u = U/√3" in text and "triangular" not in text
+
+
+@pytest.mark.parametrize("lang", ["en", "ru"])
+def test_map_certificate_states_k_from_the_degrees_of_freedom(sim_map, lang):
+    """The MAP's U = k·u with k = t₉₅.₄₅(ν_eff) (issue 29): each statement names its k, the
+    note says why it is not 2, the budget table lists ν_eff and k."""
+    from chekan.report.i18n import LABELS
+    from chekan.report.numbers import coverage_text, value_unc
+    from inference.dof import coverage_factor
+
+    res, record = sim_map
+    rep = build_report(res, lang=lang, source=record, figures=False)
+    paras = [b.text for b in rep.blocks if isinstance(b, Para)]
+    for name, label in (("b1", "b₁"), ("b2", "b₂")):
+        bud = res["uncertainty_budget"][name]
+        k = bud["coverage_factor"]
+        assert k == coverage_factor(bud["nu_eff"]) > 2.0
+        xs, us = value_unc(res["parameters"][name]["mean"], bud["expanded"])
+        assert any(p.startswith(f"{label} = {xs}") and f"U = {us}" in p for p in paras)
+        assert any(p.startswith(f"{label} =") and f"(k = {coverage_text(k)})" in p for p in paras)
+    assert any(p.startswith(LABELS["statement_budget_t"][lang]) for p in paras)
+    rows = [b for b in rep.blocks if hasattr(b, "rows") and hasattr(b, "header")]
+    cells = [c.text for t in rows for r in t.rows for c in r]
+    assert LABELS["src_nu_eff"][lang] in cells
+    assert LABELS["src_coverage_factor"][lang] in cells
+    assert LABELS["src_hyperparameters"][lang] in cells

@@ -67,6 +67,24 @@ def test_coverage_summary_on_constructed_z_scores():
     assert "classical/b1" in text and "0.95" in text
 
 
+def test_coverage_of_the_stated_u_uses_each_rows_coverage_factor():
+    """Where the rows carry the method's k (``<method>_<p>_k``: the MAP's t₉₅.₄₅(ν_eff)), the
+    stated U = k·sd is scored against 95.45 %; k differs from session to session."""
+    rows = _rows()
+    for i, r in enumerate(rows):
+        for p in PARAMS:  # |z| = 1.8 is inside U with k = 2.1, outside with k = 1.5
+            r[f"classical_{p}_k"] = 2.1 if i % 2 else 1.5
+    e = coverage_summary(rows, ["classical"])["classical/b1"]
+    zs = [z for z, count in Z_COUNTS for _ in range(count)]
+    want = np.mean([z <= (2.1 if i % 2 else 1.5) for i, z in enumerate(zs)])
+    assert e["coverage_U"] == pytest.approx(want, abs=1e-15)
+    assert e["bounds_U"] == list(binomial_band(20, 0.9545))
+    assert e["mean_k"] == pytest.approx(1.8)
+    assert "coverage_U" not in coverage_summary(_rows(), ["classical"])["classical/b1"]
+    text = format_summary({"x": e, "n_sessions": 20})
+    assert f"{want:.2f}" in text and "U (k)" in text
+
+
 def test_markdown_flags_coverage_outside_the_band():
     rows = _rows()
     for r in rows:  # same errors, sds 10× too small: |z| = 1 (10 sessions), 10, 18, 30

@@ -12,7 +12,8 @@ module             what it does
 ``start``          the MAP's start: classical θ; a τ read off the settling transients
 ``map``            MAP + EM of one record → :class:`MapFit`
 ``derived``        a, b₀, drift slope: one function for map, bayes and design
-``budget``         the uncertainty budget of b and U (k = 2)
+``typea``          the MAP's Type A terms: uₕ and ν_eff from the estimated hyperparameters
+``budget``         the uncertainty budget of b and U = k·u
 ``sampling``       emcee on the marginal posterior
 ``predictive``     posterior predictive, drift curve, NetCDF
 ``estimate``       the ``map`` and ``bayes`` results

@@ -96,18 +96,31 @@ def _influence(J: np.ndarray) -> np.ndarray:
     return (V[:, keep] / w[keep]) @ V[:, keep].T @ J.T
 
 
-def budget_entries(budget_raw: dict, params: dict) -> dict:
+def budget_entries(budget_raw: dict, params: dict, nu_eff: dict | None = None) -> dict:
     """The result's ``uncertainty_budget``: each group scaled so that they add up (in
-    quadrature) to the reported sd; the total and U = 2·sd (k = 2)."""
+    quadrature) to the reported sd; the total u, the effective degrees of freedom
+    ``nu_eff`` (None: not evaluated, k = 2), the coverage factor k = t₉₅.₄₅(ν_eff)
+    (GUM G.6.4; :func:`inference.dof.coverage_factor`) and U = k·u (``expanded``).
+
+    ``budget_raw`` may hold a line ``hyperparameters`` (uₕ, :mod:`chekan.joint.typea`), which
+    is not in the linearised total (it is added to it here)."""
+    from inference.dof import coverage_factor
+
     out = {}
     for name in ("b1", "b2"):
         raw = dict(budget_raw[name])
         lin = raw.pop("total_linearised")
+        if "hyperparameters" in raw:
+            lin = float(np.hypot(lin, raw["hyperparameters"]))
         sd = params[name]["sd"]
         scale = sd / lin if lin > 0 and sd else 1.0
         e = {k: v * scale for k, v in raw.items()}
         e["total"] = sd
-        e["expanded_k2"] = 2.0 * sd if sd is not None else None
+        nu = (nu_eff or {}).get(name)
+        k = coverage_factor(nu) if nu is not None else 2.0
+        e["nu_eff"] = float(nu) if nu is not None else None
+        e["coverage_factor"] = k
+        e["expanded"] = k * sd if sd is not None else None
         out[name] = e
     return out
 

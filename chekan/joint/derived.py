@@ -25,11 +25,14 @@ from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import (
     apply_A,
     beta_prior_var,
+    dense_design,
+    noise_var,
     normal_equations,
     sensor_params,
     solve_beta,
 )
 from chekan.joint.map import MapFit
+from chekan.joint.typea import reliabilities
 from chekan.parameters import PHYSICAL
 from inference.normal_eq import draw_beta_banded
 
@@ -67,9 +70,12 @@ def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordDa
 
 
 def map_derived_fn(structure: ModelStructure, space) -> Callable:
-    """``(z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂)``, traceable; compiled once per
-    structure by :class:`chekan.joint.engine.Engine` (eager ``jacfwd`` would compile op by
-    op in every new process, uncached)."""
+    """``(z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂, Ã, base, transient, Λ)``,
+    traceable; compiled once per structure by :class:`chekan.joint.engine.Engine` (eager
+    ``jacfwd`` would compile op by op in every new process, uncached). Ã (N, 2, p): the
+    whitened design of β; base (N, 2): the bins' noise variance (sⱼσⱼ)²/n and transient
+    (N, 2) the amplitude that κ scales, Λ (p,) β's prior variances: what
+    :mod:`chekan.joint.typea` needs."""
 
     def core(z, h, data, dur_h):
         def g(z, beta):
@@ -79,11 +85,16 @@ def map_derived_fn(structure: ModelStructure, space) -> Callable:
         def beta_hat(z):
             return solve_beta(space.to_values(z), h, structure, data)[1]
 
-        _, beta, L = solve_beta(space.to_values(z), h, structure, data)
+        v = space.to_values(z)
+        _, beta, L, (_, G, s, _, _, nv, trans, P) = solve_beta(v, h, structure, data, True)
         Jz = jax.jacfwd(lambda zz: g(zz, beta_hat(zz)))(z)
         Jb = jax.jacfwd(lambda bb: g(z, bb))(beta)
         Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
-        return g(z, beta), Jz, Jb, Linv.T @ Linv, beta
+        sw = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
+        A_w = dense_design(G, s, structure, data, P) * sw[..., None]
+        base = noise_var(h, data)
+        pv = beta_prior_var(h, structure, data)
+        return g(z, beta), Jz, Jb, Linv.T @ Linv, beta, A_w, base, trans, pv
 
     return core
 
@@ -100,9 +111,11 @@ def map_derived(fit: MapFit) -> dict:
     """Derived quantities at the MAP with delta-method sds: ``{name: (value, sd)}``.
 
     With θ ~ N(θ̂, C) and β | θ ~ N(β̂(θ), M⁻¹):
-    var g = (∂g/∂θ + ∂g/∂β ∂β̂/∂θ) C (…)ᵀ + ∂g/∂β M⁻¹ (∂g/∂β)ᵀ.
+    var g = (∂g/∂θ + ∂g/∂β ∂β̂/∂θ) C (…)ᵀ + ∂g/∂β M⁻¹ (∂g/∂β)ᵀ + uₕ²,
+    uₕ² the variance from the hyperparameters' estimation (:mod:`chekan.joint.typea`).
     Hyperparameters are reported at their EM values (sd None); ``_m_level`` holds the
-    estimated level readings.
+    estimated level readings, ``_nu_eff`` and ``_u_hyper`` each quantity's effective
+    degrees of freedom and uₕ (:mod:`chekan.joint.typea`).
     """
     model, res, h = fit.model, fit.result, fit.hyper
     data = model.data
@@ -111,12 +124,14 @@ def map_derived(fit: MapFit) -> dict:
 
     jitted = engine_for(model.structure).map_derived
     out_j = jitted(device_array(res.z), h, data, model.duration_h)
-    val, Jz, Jb, Minv, beta = (np.asarray(x) for x in out_j)
+    val, Jz, Jb, Minv, beta, A_w, base, trans, pv = (np.asarray(x) for x in out_j)
     cov = np.asarray(res.cov_z)
     finite = np.isfinite(np.diag(cov))
     cz = np.where(np.isfinite(cov), cov, 0.0)
     var = np.einsum("ij,jk,ik->i", Jz, cz, Jz) + np.einsum("ij,jk,ik->i", Jb, Minv, Jb)
-    sd = np.sqrt(np.maximum(var, 0.0))
+    rel = reliabilities(fit, Jz, Jb, Minv, A_w, base, trans, pv)
+    u_hyper = np.array([r.u2_components for r in rel])
+    sd = np.sqrt(np.maximum(var + u_hyper, 0.0))
     if not finite.all():
         sd = np.where(np.abs(Jz[:, ~finite]).sum(axis=1) > 0, np.inf, sd)
     out: dict[str, Any] = {n: (float(val[i]), float(sd[i])) for i, n in enumerate(PHYSICAL)}
@@ -127,6 +142,8 @@ def map_derived(fit: MapFit) -> dict:
     out["sigma_hold_pix"] = (float(h["sigma_hold_pix"]), None)
     out["slew_error"] = (float(h["slew_error"]), None)
     out["_m_level"] = np.asarray(data.m_ref) + np.asarray(beta)[blocks["c"]]
+    out["_nu_eff"] = {n: rel[i].nu_eff for i, n in enumerate(PHYSICAL)}
+    out["_u_hyper"] = {n: float(np.sqrt(max(u_hyper[i], 0.0))) for i, n in enumerate(PHYSICAL)}
     return out
 
 

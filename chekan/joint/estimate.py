@@ -117,18 +117,28 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
 
 
 def map_result(fit: MapFit, base: dict, options: CalibrationOptions, t_start: float) -> dict:
-    """The ``map`` result: MAP values, delta-method sds, the budget and U (k = 2)."""
+    """The ``map`` result: MAP values, delta-method sds (with the hyperparameters'
+    estimation), the budget, ν_eff and U = k·u (:mod:`chekan.joint.typea`)."""
     out, diag = _common(fit, base, options)
     budget_raw = uncertainty_budget(fit)
     md = map_derived(fit)
+    nu = md["_nu_eff"]
     params = {
-        name: param_entry(mean, sd, options.hdi_prob, PARAMETER_UNITS.get(name, ""))
-        for name, (mean, sd) in md.items()
+        name: param_entry(
+            md[name][0],
+            md[name][1],
+            options.hdi_prob,
+            PARAMETER_UNITS.get(name, ""),
+            nu_eff=nu.get(name),
+        )
+        for name in md
         if not name.startswith("_")
     }
     out["parameters"] = params
     out["level_reading_pix"] = {"m1": float(md["_m_level"][0]), "m2": float(md["_m_level"][1])}
-    out["uncertainty_budget"] = budget_entries(budget_raw, params)
+    for name in ("b1", "b2"):  # the estimate's move with the estimated hyperparameters
+        budget_raw[name]["hyperparameters"] = md["_u_hyper"][name]
+    out["uncertainty_budget"] = budget_entries(budget_raw, params, nu)
     diag = flag_prior_dominated(params, diag)
     diag["seconds"] = time.perf_counter() - t_start
     out["diagnostics"] = diag

@@ -17,9 +17,11 @@ from chekan.errors import ChekanError, FormatError
 from chekan.report import figures as figs
 from chekan.report.checks import check_certificate_input
 from chekan.report.document import Cell, Figure, Heading, KeyValue, Para, Report, Table
+from chekan.report.expanded import K_NORMAL, b_uncertainty, expanded_of
 from chekan.report.i18n import LABELS, param_name, tr, unit_name, value_name
 from chekan.report.numbers import (
     DASH,
+    coverage_text,
     fixed,
     general,
     is_num,
@@ -63,15 +65,6 @@ def _col_header(cols: list[str], t: Translator) -> tuple[list[Cell], list[Cell]]
         top.append(Cell(t("round_n", n=r) if r else "", colspan=len(items), bold=True))
         sub.extend(Cell(t("sys_n", n=s) if r else s) for s, _ in items)
     return top, sub
-
-
-def _b_uncertainty(result: Mapping[str, Any], name: str) -> tuple[float | None, bool]:
-    """Standard uncertainty of b1/b2: the budget's total when present (True), else the sd."""
-    bud = (result.get("uncertainty_budget") or {}).get(name) or {}
-    if is_num(bud.get("total")):
-        return float(bud["total"]), True
-    sd = result["parameters"].get(name, {}).get("sd")
-    return (float(sd), False) if is_num(sd) else (None, False)
 
 
 def _a_value(result: Mapping[str, Any]) -> tuple[float | None, bool]:
@@ -216,34 +209,35 @@ def program_text(result: Mapping[str, Any], t: Translator) -> str | None:
 
 
 def _statements(result: Mapping[str, Any], t: Translator, lang: str) -> list[Para]:
-    """The result lines "b₁ = … , U = … (k = 2)" for b1, b2, b1_0, b2_0."""
+    """The result lines "b₁ = … , U = … (k = 2)" for b1, b2, b1_0, b2_0 (k = t₉₅.₄₅(ν_eff)
+    where the result states ν_eff: :mod:`chekan.report.expanded`)."""
     out: list[Para] = [Para(t("statement_title"), "strong")]
     params = result["parameters"]
     budget_used = False
+    student = False
     for name in ("b1", "b2", "b1_0", "b2_0"):
         if name not in params:
             continue
         if name in ("b1", "b2"):
-            u, from_budget = _b_uncertainty(result, name)
-            budget_used |= from_budget
-            bud = (result.get("uncertainty_budget") or {}).get(name) or {}
-            big_u = (
-                bud.get("expanded_k2")
-                if from_budget and is_num(bud.get("expanded_k2"))
-                else (2 * u if u is not None else None)
-            )
-        else:
-            sd = params[name].get("sd")
-            big_u = 2 * sd if is_num(sd) else None
+            budget_used |= b_uncertainty(result, name)[1]
+        big_u, k = expanded_of(result, name)
+        student |= k != K_NORMAL
         out.append(
             Para(
                 statement(
-                    param_name(name, lang), params[name]["mean"], big_u, unit_name("mGal/pix", lang)
+                    param_name(name, lang),
+                    params[name]["mean"],
+                    big_u,
+                    unit_name("mGal/pix", lang),
+                    k=k,
                 ),
                 "strong",
             )
         )
-    note = t("statement_budget") if budget_used else t("statement_typeA")
+    if budget_used:
+        note = t("statement_budget_t") if student else t("statement_budget")
+    else:
+        note = t("statement_typeA")
     bud = result.get("uncertainty_budget") or {}
     if budget_used and any(
         is_num(v)
@@ -535,9 +529,9 @@ def _rest_of_items(
         if not is_num(v):
             continue
         any_inst = True
-        u, _ = _b_uncertainty(result, name)
+        u, k = expanded_of(result, name)
         p = prior.get(name)
-        big_u = 200.0 * u / p if u is not None and is_num(p) and p else None
+        big_u = 100.0 * u / p if u is not None and is_num(p) and p else None
         rep.add(
             Para(
                 t(
@@ -545,6 +539,7 @@ def _rest_of_items(
                     name=param_name(name, lang),
                     v=fixed(v, 3, sign=True),
                     u=unc(big_u) if big_u is not None else DASH,
+                    k=coverage_text(k),
                     prior=fixed(p, 6) if is_num(p) else DASH,
                 )
             )

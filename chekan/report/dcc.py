@@ -121,29 +121,30 @@ def _nonempty(v: Any) -> bool:
 # ----------------------------------------------------------------------------- numbers
 
 
-def expanded_uncertainties(result: Mapping[str, Any]) -> dict[str, float]:
-    """U (k = 2) of each result parameter, as the PDF certificate states it."""
-    from chekan.report.content import _b_uncertainty
+def expanded_uncertainties(result: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
+    """(U, k) of each result parameter, as the PDF certificate states it
+    (:func:`chekan.report.expanded.expanded_of`)."""
+    from chekan.report.expanded import expanded_of
 
     params = result["parameters"]
-    out: dict[str, float] = {}
+    out: dict[str, tuple[float, float]] = {}
     for name in RESULT_PARAMS:
         if name not in params:
             continue
-        if name in ("b1", "b2"):
-            u, from_budget = _b_uncertainty(result, name)
-            bud = (result.get("uncertainty_budget") or {}).get(name) or {}
-            big = bud.get("expanded_k2") if from_budget else None
-            if isinstance(big, int | float):
-                out[name] = float(big)
-            elif u is not None:
-                out[name] = K_COVERAGE * float(u)
-        elif isinstance(params[name].get("sd"), int | float):
-            out[name] = K_COVERAGE * float(params[name]["sd"])
+        big_u, k = expanded_of(result, name)
+        if big_u is not None:
+            out[name] = (float(big_u), float(k))
     return out
 
 
-def _real(parent: ET.Element, label: str, value: float, unit: str, big_u: float | None) -> None:
+def _real(
+    parent: ET.Element,
+    label: str,
+    value: float,
+    unit: str,
+    big_u: float | None,
+    k: float = K_COVERAGE,
+) -> None:
     r = _sub(parent, _s("real"))
     _sub(r, _s("label"), label)
     _sub(r, _s("value"), repr(float(value)))
@@ -151,21 +152,28 @@ def _real(parent: ET.Element, label: str, value: float, unit: str, big_u: float 
     if big_u is not None:
         e = _sub(r, _s("expandedUnc"))
         _sub(e, _s("uncertainty"), repr(float(big_u)))
-        _sub(e, _s("coverageFactor"), repr(K_COVERAGE))
+        _sub(e, _s("coverageFactor"), repr(float(k)))
         _sub(e, _s("coverageProbability"), repr(P_COVERAGE))
-        _sub(e, _s("distribution"), "normal")
+        _sub(e, _s("distribution"), "normal" if k == K_COVERAGE else "t")
 
 
 def _hybrid_quantity(
-    parent: ET.Element, name: str, label: str, value: float, unit: str, big_u: float | None
+    parent: ET.Element,
+    name: str,
+    label: str,
+    value: float,
+    unit: str,
+    expanded: tuple[float, float] | None,
 ) -> None:
-    """A dcc:quantity with an si:hybrid: the value in ``unit`` and in SI beside it."""
+    """A dcc:quantity with an si:hybrid: the value in ``unit`` and in SI beside it, with
+    ``expanded`` = (U, k) when it has one."""
     q = _sub(parent, _d("quantity"), refType=f"chekan_{name}")
     _text(q, "name", label)
     h = _sub(q, _s("hybrid"))
     own, si_unit, factor = UNITS[unit]
-    _real(h, name, value, own, big_u)
-    _real(h, name, value * factor, si_unit, None if big_u is None else big_u * factor)
+    big_u, k = expanded if expanded is not None else (None, K_COVERAGE)
+    _real(h, name, value, own, big_u, k)
+    _real(h, name, value * factor, si_unit, None if big_u is None else big_u * factor, k)
 
 
 # ----------------------------------------------------------------------------- the document
@@ -323,8 +331,10 @@ def _statements(
         _statement(sts, rule, "basic_conformity")
     _statement(
         sts,
-        f"Expanded uncertainty U = k·u with coverage factor k = {K_COVERAGE:g}, coverage "
-        f"probability about {P_COVERAGE:.2%} for a normal distribution (GUM).",
+        f"Expanded uncertainty U = k·u, coverage probability about {P_COVERAGE:.2%}: "
+        f"k = {K_COVERAGE:g} for a normal distribution, Student's t at the effective degrees "
+        "of freedom where the standard uncertainty rests on variances estimated from the "
+        "record (GUM G.4, G.6.4); k is stated with each value.",
         "basic_uncertainty",
     )
 

@@ -83,7 +83,9 @@ def _check_numbers(p: Path, root: ET.Element, result: dict[str, Any]) -> None:
             or real.findtext(f"{{{SI_NS}}}unit") != UNITS.get(par.get("unit", ""), ("",))[0]
         ):
             raise FormatError(p, None, f"{name}: the DCC's value differs from the embedded result")
-        if (unc is None) != (name not in big_u) or (unc is not None and float(unc) != big_u[name]):
+        if (unc is None) != (name not in big_u) or (
+            unc is not None and float(unc) != big_u[name][0]
+        ):
             raise FormatError(p, None, f"{name}: the DCC's U differs from the embedded result")
         seen.add(name)
     unseen = [

@@ -216,9 +216,10 @@ LABELS: dict[str, dict[str, str]] = {
         "m < mₕ); в соглашении протоколов Calibr.exe a = {v} мГал/пикс².",
     },
     "statement_title": {
-        "en": "Scale factors with the expanded uncertainty U (coverage factor k = 2):",
-        "ru": "Масштабные коэффициенты с расширенной неопределённостью U "
-        "(коэффициент охвата k = 2):",
+        "en": "Scale factors with the expanded uncertainty U = k·u (coverage probability "
+        "about 95 %):",
+        "ru": "Масштабные коэффициенты с расширенной неопределённостью U = k·u "
+        "(вероятность охвата около 95 %):",
     },
     "statement_typeA": {
         "en": "U = 2u from the least-squares standard error only (type A); the error of the "
@@ -232,6 +233,17 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "U = 2u, u — суммарная стандартная неопределённость по бюджету "
         "(раздел «Бюджет неопределённости b»).",
     },
+    "statement_budget_t": {
+        "en": "U = k·u with the combined standard uncertainty u of the budget (section "
+        "«Uncertainty budget of b»); the Type A components rest on variances estimated "
+        "from this record, so k is Student's t for 95.45 % at the effective degrees of "
+        "freedom ν_eff (Welch–Satterthwaite, GUM G.4, G.6.4) instead of 2.",
+        "ru": "U = k·u, u — суммарная стандартная неопределённость по бюджету (раздел "
+        "«Бюджет неопределённости b»); составляющие типа А опираются на дисперсии, "
+        "оценённые по этой записи, поэтому k — квантиль Стьюдента для 95,45 % при "
+        "эффективном числе степеней свободы ν_eff (Уэлч — Саттертуэйт, GUM G.4, G.6.4), "
+        "а не 2.",
+    },
     "statement_budget_systematic": {
         "en": "U includes the systematic error of the platform's angle sensor (Type B, "
         "platform specification{bound}).",
@@ -243,10 +255,10 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "д) Отклонения b₁, b₂ от исходных значений",
     },
     "instability": {
-        "en": "Instability of the scale factor {name}: δ{name} = {v} % (U = {u} %, k = 2); "
+        "en": "Instability of the scale factor {name}: δ{name} = {v} % (U = {u} %, k = {k}); "
         "initial {name} = {prior} mGal/pix",
-        "ru": "Нестабильность масштабного коэффициента {name}: δ{name} = {v} % (U = {u} %, k = 2); "
-        "исходное {name} = {prior} мГал/пикс",
+        "ru": "Нестабильность масштабного коэффициента {name}: δ{name} = {v} % (U = {u} %, "
+        "k = {k}); исходное {name} = {prior} мГал/пикс",
     },
     "no_prior": {
         "en": "Not available: the input carries no initial scale factors (b1_prior, b2_prior).",
@@ -373,6 +385,19 @@ LABELS: dict[str, dict[str, str]] = {
     "src_other_priors": {"en": "other priors (ε, γ, τ, b)", "ru": "прочие априорные (ε, γ, τ, b)"},
     "src_total": {"en": "combined standard uncertainty u", "ru": "суммарная стандартная u"},
     "src_expanded_k2": {"en": "expanded U (k = 2)", "ru": "расширенная U (k = 2)"},
+    "src_expanded": {"en": "expanded U = k·u", "ru": "расширенная U = k·u"},
+    "src_coverage_factor": {
+        "en": "coverage factor k (95.45 %)",
+        "ru": "коэффициент охвата k (95,45 %)",
+    },
+    "src_nu_eff": {
+        "en": "effective degrees of freedom ν_eff",
+        "ru": "эффективное число степеней свободы ν_eff",
+    },
+    "src_hyperparameters": {
+        "en": "variances estimated from the record (σ_θ, σ_o, noise)",
+        "ru": "дисперсии, оценённые по записи (σ_θ, σ_o, шум)",
+    },
     "sec_diag": {"en": "Convergence diagnostics", "ru": "Диагностика сходимости"},
     "sec_diag_classical": {"en": "Fit diagnostics", "ru": "Диагностика подгонки"},
     "converged": {"en": "Converged", "ru": "Сходимость"},

@@ -107,7 +107,17 @@ def plain(x: object) -> str:
     return f"{float(x):z.10g}".replace("-", MINUS)  # type: ignore[arg-type]
 
 
-def statement(name: str, x: object, big_u: object, unit: str, *, k: int = 2) -> str:
-    """Metrology style: ``"b₁ = 6.98034 mGal/pix, U = 0.00022 mGal/pix (k = 2)"``."""
+def statement(name: str, x: object, big_u: object, unit: str, *, k: float = 2.0) -> str:
+    """Metrology style: ``"b₁ = 6.98034 mGal/pix, U = 0.00022 mGal/pix (k = 2)"``; a
+    coverage factor other than 2 (Student's t, GUM G.6.4) with two decimals: ``(k = 2.05)``."""
     xs, us = value_unc(x, big_u)
-    return f"{name} = {xs} {unit}, U = {us} {unit} (k = {k})"
+    return f"{name} = {xs} {unit}, U = {us} {unit} (k = {coverage_text(k)})"
+
+
+def coverage_text(k: object) -> str:
+    """A coverage factor as a certificate states it: ``2`` when it rounds to 2.00, else two
+    decimals (``2.05``)."""
+    if not is_num(k):
+        return DASH
+    kf = float(k)  # type: ignore[arg-type]
+    return "2" if round(kf, 2) == 2.0 else f"{kf:.2f}"

@@ -9,7 +9,17 @@ from typing import Any
 from chekan.parameters import PHYSICAL
 from chekan.report.document import Cell, Heading, KeyValue, Para, Report, Table
 from chekan.report.i18n import param_name, unit_name, with_param_names
-from chekan.report.numbers import DASH, fixed, general, is_num, plain, sci, unc, value_unc
+from chekan.report.numbers import (
+    DASH,
+    coverage_text,
+    fixed,
+    general,
+    is_num,
+    plain,
+    sci,
+    unc,
+    value_unc,
+)
 
 PARAM_ORDER = (*PHYSICAL, "sigma_theta_arcsec", "sigma_hold_pix")
 BUDGET_ORDER = (
@@ -36,7 +46,11 @@ BUDGET_TYPE = {
     "level_offset": "A",
     "a": "B",
     "other_priors": "B",
+    "hyperparameters": "A",
 }
+# the budget's last rows, in this order: u, then (map) ν_eff and k, then U
+FOOTER = ("total", "nu_eff", "coverage_factor", "expanded", "expanded_k2")
+_NOT_UNCERTAINTIES = ("nu_eff", "coverage_factor")
 
 Translator = Callable[..., str]
 
@@ -115,9 +129,11 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
         for k in bud[s]:
             if k not in keys:
                 keys.append(k)
+    if not any(is_num(bud[s].get("nu_eff")) for s in systems):
+        keys = [k for k in keys if k != "nu_eff"]  # not evaluated (bayes): no row
     order = [k for k in BUDGET_ORDER if k in keys]
-    order += [k for k in keys if k not in BUDGET_ORDER and k not in ("total", "expanded_k2")]
-    order += [k for k in ("total", "expanded_k2") if k in keys]
+    order += [k for k in keys if k not in BUDGET_ORDER and k not in FOOTER]
+    order += [k for k in FOOTER if k in keys]
     head = [Cell(t("source"), bold=True), Cell(t("src_type"), bold=True)]
     for s in systems:
         head += [Cell(f"u({param_name(s, lang)})", bold=True), Cell(t("ppm"), bold=True)]
@@ -138,24 +154,35 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
             label = t(f"src_{k}") if f"src_{k}" in _known_sources() else k
         typ = BUDGET_TYPE.get(k)
         row = [
-            Cell(label, bold=k in ("total", "expanded_k2")),
+            Cell(label, bold=k in ("total", "expanded", "expanded_k2")),
             Cell(t(f"type_{typ}") if typ else ""),
         ]
         for s in systems:
             v = bud[s].get(k)
+            if k in _NOT_UNCERTAINTIES:
+                text = coverage_text(v) if k == "coverage_factor" else _nu_text(v)
+                row += [Cell(text), Cell(DASH)]
+                continue
             b = result["parameters"].get(s, {}).get("mean")
             ppm = 1e6 * v / b if is_num(v) and is_num(b) and b else None
             row += [
-                Cell(unc(v), bold=k == "expanded_k2"),
+                Cell(unc(v), bold=k in ("expanded", "expanded_k2")),
                 Cell(unc(ppm) if ppm is not None else DASH),
             ]
         rows.append(row)
-    foot = sum(k in ("total", "expanded_k2") for k in order)
+    foot = sum(k in FOOTER for k in order)
     rep.add(
         Heading(t("sec_budget")),
         Para(t("budget_text")),
         Table([head], rows, "lc" + "rr" * len(systems), t("cap_budget"), footer_rows=foot),
     )
+
+
+def _nu_text(v: object) -> str:
+    """ν_eff as a whole number (GUM G.4.1 truncates it), ∞ beyond 10⁵ (k = 2.00)."""
+    if not is_num(v):
+        return DASH
+    return "∞" if float(v) >= 1e5 else str(int(float(v)))  # type: ignore[arg-type]
 
 
 def angle_bound_text(result: Mapping[str, Any], axis: str | None = None) -> str:
