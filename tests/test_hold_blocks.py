@@ -1,7 +1,8 @@
 """The normal equations assembled straight into the hold blocks
 (:mod:`chekan.joint.hold_blocks`) against the dense assembly: the blocks gathered from the
 dense M, the log-density, A·β and the β draws, to round-off, on a record of the paper's
-angles (padded and not) and on one with rounds about both axes (X-response terms)."""
+angles (padded and not) and on one with rounds about both axes (X-response terms); marked
+slow, on the paper's full 9 h program and the bench's dual-axis record (160 holds)."""
 
 from __future__ import annotations
 
@@ -35,10 +36,23 @@ def dual_axis_record():
     return simulate_session(prog, Truth(), seed=3)[0]
 
 
+def _full_record(record: str):
+    """The paper's 9 h program or the bench's dual-axis record (160 holds, p 558)."""
+    from bench.several_records import dual_axis_program
+    from chekan.demo import demo_program
+    from chekan.simulate import Truth, simulate_session
+
+    prog = demo_program(False) if record == "paper-9h" else dual_axis_program(False)
+    return simulate_session(prog, Truth(), seed=3)[0]
+
+
 def _model(short_session, dual_axis_record, record: str):
     from chekan.joint.angles import AngleSensorSpec
 
-    rec = dual_axis_record if record == "dual" else short_session[1]
+    if record in ("paper-9h", "bench-xy"):
+        rec = _full_record(record)
+    else:
+        rec = dual_axis_record if record == "dual" else short_session[1]
     spec = AngleSensorSpec(3.0)
     _, model = joint.prepare(rec, None, angle_spec=spec, angle_spec_x=spec)
     if record == "padded":
@@ -51,7 +65,16 @@ def _rel(x, y) -> float:
     return float(np.max(np.abs(x - y)) / max(np.max(np.abs(y)), 1e-300)) if y.size else 0.0
 
 
-@pytest.mark.parametrize("record", ["short", "padded", "dual"])
+@pytest.mark.parametrize(
+    "record",
+    [
+        "short",
+        "padded",
+        "dual",
+        pytest.param("paper-9h", marks=pytest.mark.slow),
+        pytest.param("bench-xy", marks=pytest.mark.slow),
+    ],
+)
 def test_hold_blocks_equal_the_dense_normal_equations(short_session, dual_axis_record, record):
     """Every block (holds' diagonal and sub-diagonal, their rows against the dense
     variables, the dense block, both right-hand sides, rᵀWr, log|N|, n) equals the one
