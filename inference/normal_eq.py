@@ -35,13 +35,19 @@ from jax import Array
 
 __all__ = [
     "BandedFactor",
+    "BlockNormalEquations",
     "NormalEquations",
     "banded_factor",
+    "banded_factor_blocks",
+    "blocks_of",
     "draw_beta_banded",
+    "draw_beta_blocks",
     "implicit_stationary_point",
     "marginal_loglik_banded",
+    "marginal_loglik_blocks",
     "marginal_loglik_normal",
     "posterior_beta_normal",
+    "split_prior",
 ]
 
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -153,8 +159,49 @@ class BandedFactor(NamedTuple):
     c: Array  # (m,) L_S⁻¹ (g_D − Yᵀ y)
 
 
+class BlockNormalEquations(NamedTuple):
+    """Normal equations whose variables are H blocks of k (block-tridiagonal among
+    themselves) followed by m dense ones, given by their blocks (a JAX pytree; the prior
+    is not included): M's part AᵀN⁻¹A as ``diag`` (H, k, k), ``sub`` (H, k, k: block
+    (i, i − 1), block 0 unused), ``cross`` (H, k, m: banded rows, dense columns) and
+    ``dense`` (m, m); AᵀN⁻¹r as ``g_band`` (H, k) and ``g_dense`` (m,); rᵀN⁻¹r, log|N|
+    and the number of rows as in :class:`NormalEquations`. A model that knows its
+    structure assembles these directly, never forming the (Hk + m)² matrix."""
+
+    rNr: Array
+    diag: Array
+    sub: Array
+    cross: Array
+    dense: Array
+    g_band: Array
+    g_dense: Array
+    logdet_noise: Array
+    n: Array
+
+
 def _dense_index(p: int, bands: np.ndarray) -> np.ndarray:
     return np.setdiff1d(np.arange(p), np.asarray(bands).reshape(-1))
+
+
+def split_prior(prior_var: Array, bands: np.ndarray) -> tuple[Array, Array]:
+    """``prior_var`` (p,) as (banded (H, k), dense (m,)) in the order of ``bands``."""
+    bands = np.asarray(bands)
+    return prior_var[bands], prior_var[_dense_index(prior_var.shape[0], bands)]
+
+
+def blocks_of(ne: NormalEquations, bands: np.ndarray) -> BlockNormalEquations:
+    """The blocks of dense normal equations whose variables ``bands`` (H, k) form a
+    block-tridiagonal part (gathered from ``ne.G``; reference and tests)."""
+    rNr, g, G, logdet_n, n = ne
+    bands = np.asarray(bands)
+    k = bands.shape[1]
+    dense_idx = _dense_index(G.shape[0], bands)
+    diag = G[bands[:, :, None], bands[:, None, :]]
+    sub = G[bands[1:, :, None], bands[:-1, None, :]]
+    sub = jnp.concatenate([jnp.zeros((1, k, k)), sub])
+    cross = G[bands][:, :, dense_idx]
+    dense = G[dense_idx[:, None], dense_idx[None, :]]
+    return BlockNormalEquations(rNr, diag, sub, cross, dense, g[bands], g[dense_idx], logdet_n, n)
 
 
 def banded_factor(
@@ -162,7 +209,17 @@ def banded_factor(
 ) -> BandedFactor:
     r"""Block elimination of :math:`M = P^{-1} + G` whose variables ``bands`` (H, k) form a
     block-tridiagonal part: ``M[bands[i], bands[j]] = 0`` for |i − j| > 1 (the caller's
-    structure; every other variable, the m "dense" ones, may couple to anything).
+    structure; every other variable, the m "dense" ones, may couple to anything): the
+    blocks gathered (:func:`blocks_of`), then :func:`banded_factor_blocks`.
+    """
+    return banded_factor_blocks(blocks_of(ne, bands), *split_prior(prior_var, bands), unroll)
+
+
+def banded_factor_blocks(
+    b: BlockNormalEquations, prior_band: Array, prior_dense: Array, unroll: int = 4
+) -> BandedFactor:
+    r"""Block elimination of :math:`M = P^{-1} + G` given by its blocks (prior variances
+    ``prior_band`` (H, k) and ``prior_dense`` (m,)).
 
     With the banded part first, :math:`M = \begin{pmatrix}B & C\\ C^\top & D\end{pmatrix}`,
     the block Cholesky :math:`B = L_BL_B^\top` runs over the H blocks
@@ -172,15 +229,10 @@ def banded_factor(
     :math:`S = D - Y^\top Y = L_SL_S^\top` and :math:`c = L_S^{-1}(g_D - Y^\top y)`.
     O(H k³ + H k m² + m³) instead of the dense O((Hk + m)³).
     """
-    _, g, G, _, _ = ne
-    bands = np.asarray(bands)
-    H, k = bands.shape
-    dense_idx = _dense_index(G.shape[0], bands)
-    M = G + jnp.diag(1.0 / prior_var)
-    Bd = M[bands[:, :, None], bands[:, None, :]]  # (H, k, k) diagonal blocks
-    Bo = M[bands[1:, :, None], bands[:-1, None, :]]  # (H − 1, k, k): block (i, i − 1)
-    Bo = jnp.concatenate([jnp.zeros((1, k, k)), Bo])
-    rhs = jnp.concatenate([M[bands][:, :, dense_idx], g[bands][:, :, None]], axis=2)
+    H, k = b.g_band.shape
+    m = b.g_dense.shape[0]
+    Bd = b.diag + jax.vmap(jnp.diag)(1.0 / prior_band)
+    rhs = jnp.concatenate([b.cross, b.g_band[:, :, None]], axis=2)
 
     def step(carry, blocks):
         L_prev, Y_prev = carry
@@ -190,14 +242,33 @@ def banded_factor(
         Y_i = _small_forward(L_ii, r_i - Lo @ Y_prev)
         return (L_ii, Y_i), (L_ii, Lo, Y_i)
 
-    first = (jnp.eye(k), jnp.zeros((k, dense_idx.size + 1)))
-    _, (diag, sub, Yall) = jax.lax.scan(step, first, (Bd, Bo, rhs), unroll=unroll)
+    sub = b.sub.at[0].set(0.0)
+    first = (jnp.eye(k), jnp.zeros((k, m + 1)))
+    _, (diag, sub, Yall) = jax.lax.scan(step, first, (Bd, sub, rhs), unroll=unroll)
     Yall = Yall.reshape(H * k, -1)
     Y, y = Yall[:, :-1], Yall[:, -1]
-    D = M[dense_idx[:, None], dense_idx[None, :]]
+    D = b.dense + jnp.diag(1.0 / prior_dense)
     L_S = jnp.linalg.cholesky(D - Y.T @ Y)
-    c = jsl.solve_triangular(L_S, g[dense_idx] - Y.T @ y, lower=True)
+    c = jsl.solve_triangular(L_S, b.g_dense - Y.T @ y, lower=True)
     return BandedFactor(diag, sub, Y, y, L_S, c)
+
+
+def _loglik_of_factor(rNr, logdet_n, n, log_prior_det, f: BandedFactor) -> Array:
+    logdet_m = 2.0 * (
+        jnp.sum(jnp.log(jnp.diagonal(f.diag, axis1=1, axis2=2)))
+        + jnp.sum(jnp.log(jnp.diagonal(f.L_S)))
+    )
+    logdet = logdet_n + log_prior_det + logdet_m
+    return -0.5 * (rNr - jnp.sum(f.y**2) - jnp.sum(f.c**2) + logdet + n * _LOG_2PI)
+
+
+def marginal_loglik_blocks(
+    b: BlockNormalEquations, prior_band: Array, prior_dense: Array, unroll: int = 4
+) -> Array:
+    """:func:`marginal_loglik_banded` from the blocks (:func:`banded_factor_blocks`)."""
+    f = banded_factor_blocks(b, prior_band, prior_dense, unroll)
+    log_prior_det = jnp.sum(jnp.log(prior_band)) + jnp.sum(jnp.log(prior_dense))
+    return _loglik_of_factor(b.rNr, b.logdet_noise, b.n, log_prior_det, f)
 
 
 def marginal_loglik_banded(
@@ -212,14 +283,7 @@ def marginal_loglik_banded(
     the same value as the dense factorisation in exact arithmetic (the dense Cholesky
     dominates an evaluation once Hk is a few hundred).
     """
-    rNr, _, _, logdet_n, n = ne
-    f = banded_factor(ne, prior_var, bands, unroll)
-    logdet_m = 2.0 * (
-        jnp.sum(jnp.log(jnp.diagonal(f.diag, axis1=1, axis2=2)))
-        + jnp.sum(jnp.log(jnp.diagonal(f.L_S)))
-    )
-    logdet = logdet_n + jnp.sum(jnp.log(prior_var)) + logdet_m
-    return -0.5 * (rNr - jnp.sum(f.y**2) - jnp.sum(f.c**2) + logdet + n * _LOG_2PI)
+    return marginal_loglik_blocks(blocks_of(ne, bands), *split_prior(prior_var, bands), unroll)
 
 
 def solve_banded_transposed(f: BandedFactor, bands: np.ndarray, u: Array, unroll: int = 4) -> Array:
@@ -249,7 +313,15 @@ def draw_beta_banded(key: Array, ne: NormalEquations, prior_var: Array, bands: n
     """One draw of β | y ~ N(M⁻¹g, M⁻¹) by block elimination: L⁻ᵀ(L⁻¹g + ξ), ξ ~ N(0, I),
     with L the factor of :func:`banded_factor` (the same distribution as
     :func:`draw_beta_normal`; not the same draw for a key, the factor differs)."""
-    f = banded_factor(ne, prior_var, bands)
+    return draw_beta_blocks(key, blocks_of(ne, bands), *split_prior(prior_var, bands), bands)
+
+
+def draw_beta_blocks(
+    key: Array, b: BlockNormalEquations, prior_band: Array, prior_dense: Array, bands: np.ndarray
+) -> Array:
+    """:func:`draw_beta_banded` from the blocks (β in the order that ``bands`` and the dense
+    variables, ascending, take in it)."""
+    f = banded_factor_blocks(b, prior_band, prior_dense)
     u = jnp.concatenate([f.y, f.c])
     xi = jax.random.normal(key, u.shape, dtype=u.dtype)
     return solve_banded_transposed(f, bands, u + xi)

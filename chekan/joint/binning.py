@@ -257,6 +257,7 @@ def prepare_record(
         "mv_x_basis": mv_x_basis,
         "own": np.asarray(own),
         "prev": np.asarray(prev),
+        "bin_hold": hold_of.astype(np.int32),
         "d0": np.asarray(d0),
         "dstep": np.array([r[4] for r in rows]),
         "n_t": np.array([r[5] for r in rows], dtype=float),

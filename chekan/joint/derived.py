@@ -21,20 +21,19 @@ import numpy as np
 
 from chekan import model as fm
 from chekan.jaxconfig import device_array
+from chekan.joint.hold_blocks import apply_blocks, block_normal_equations
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.likelihood import (
-    apply_A,
     beta_prior_var,
     dense_design,
     noise_var,
-    normal_equations,
     sensor_params,
     solve_beta,
 )
 from chekan.joint.map import MapFit
 from chekan.joint.typea import reliabilities
 from chekan.parameters import PHYSICAL
-from inference.normal_eq import draw_beta_banded
+from inference.normal_eq import draw_beta_blocks, split_prior
 
 
 def at_level(sp: fm.SensorParams):
@@ -152,15 +151,18 @@ def draws_fn(structure: ModelStructure, space) -> Callable:
     given θ), traceable; the record's duration is an argument, so records of one structure
     share the compiled function (:class:`chekan.joint.engine.Engine`)."""
     blocks = structure.beta_blocks
+    bands = structure.hold_bands
 
     def one(z, key, data: RecordData, dur_h):
         v = space.to_values(z)
-        ne, (_, G, s_ang, r, _, nv, _, P) = normal_equations(v, v, structure, data)
+        blocks_ne, t = block_normal_equations(v, v, structure, data)
         # block elimination of the holds' terms (as the log-density): N(M⁻¹g, M⁻¹) as before
-        beta = draw_beta_banded(key, ne, beta_prior_var(v, structure, data), structure.hold_bands)
+        pv = split_prior(beta_prior_var(v, structure, data), bands)
+        beta = draw_beta_blocks(key, blocks_ne, *pv, bands)
         # pointwise log-likelihood of each bin mean given this draw's (θ, β): conditional,
         # because the marginal over β does not factorise over bins
-        res_b = r - apply_A(beta, G, s_ang, structure, data, P)
+        r, nv = t.r, t.nv
+        res_b = r - apply_blocks(beta, t, structure, data)
         loglik = jnp.where(data.mask, -0.5 * (res_b**2 / nv + jnp.log(2 * jnp.pi * nv)), 0.0)
         q, m_level, dr = physical_quantities(v, beta, structure, data, dur_h)
         delta = beta[blocks["angle_error"]]
@@ -192,8 +194,7 @@ def draws_fn(structure: ModelStructure, space) -> Callable:
 
 def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 512) -> dict:
     """Every reported quantity for each posterior draw ``zs`` (n, 12), β drawn given θ
-    with ``keys``; in fixed-size chunks (one compile, bounded memory: each draw assembles
-    a p×p normal-equation matrix)."""
+    with ``keys``; in fixed-size chunks (one compile, bounded memory)."""
     model = fit.model
     from chekan.joint.engine import engine_for
 

@@ -133,6 +133,7 @@ class RecordData(eqx.Module):
     angle_prior_var: jax.Array = _padded("Q", 1.0)  # (Q,) arcsec², their prior variances
     own: jax.Array = _padded("NH", 0.0)  # (N, H) bin i lies in hold k
     prev: jax.Array = _padded("NH", 0.0)  # (N, H) hold before bin i's hold
+    bin_hold: jax.Array = _padded("N", 0)  # (N,) int, bin i's hold (padding: 0, no weight)
     d0: jax.Array = _padded("N", 1e9)  # (N,) s, slew end to the bin's first sample
     dstep: jax.Array = _padded("N", 1.0)  # (N,) s, sample spacing in the bin
     n_t: jax.Array = _padded("N", 1.0)  # (N,) samples in the bin

@@ -36,10 +36,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from chekan.jaxconfig import device_array
+from chekan.joint.hold_blocks import block_normal_equations
 from chekan.joint.layout import ModelStructure, RecordData
-from chekan.joint.likelihood import beta_prior_var, normal_equations, solve_beta
+from chekan.joint.likelihood import beta_prior_var, solve_beta
 from chekan.parameters import unit_of
-from inference.normal_eq import marginal_loglik_banded
+from inference.normal_eq import marginal_loglik_blocks, split_prior
 from inference.params import Param, ParamSpace
 from inference.problem import LeastSquaresProblem
 
@@ -107,11 +108,14 @@ class CalibrationProblem:
     def log_density(self, z, data: RecordData):
         """log p(θ, h | y) up to a constant, β marginalised (12-dim z); M factored by block
         elimination of the holds' (o₁, o₂, δ) (:attr:`ModelStructure.hold_bands`: the same
-        value as the dense Cholesky to round-off, 2–3× cheaper on 160 holds)."""
+        value as the dense Cholesky to round-off, 2–3× cheaper on 160 holds), its blocks
+        assembled directly (:func:`chekan.joint.hold_blocks.block_normal_equations`: M
+        itself is never formed)."""
         v = self.bayes_space.to_values(z)
-        ne, _ = normal_equations(v, v, self.structure, data)
-        pv = beta_prior_var(v, self.structure, data)
-        ll = marginal_loglik_banded(ne, pv, self.structure.hold_bands)
+        st = self.structure
+        blocks, _ = block_normal_equations(v, v, st, data)
+        pv = beta_prior_var(v, st, data)
+        ll = marginal_loglik_blocks(blocks, *split_prior(pv, st.hold_bands))
         lp = self.bayes_space.log_prior(z) + ll
         return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 

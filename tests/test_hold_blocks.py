@@ -1,0 +1,169 @@
+"""The normal equations assembled straight into the hold blocks
+(:mod:`chekan.joint.hold_blocks`) against the dense assembly: the blocks gathered from the
+dense M, the log-density, A·β and the β draws, to round-off, on a record of the paper's
+angles (padded and not) and on one with rounds about both axes (X-response terms); marked
+slow, on the paper's full 9 h program and the bench's dual-axis record (160 holds)."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from chekan import joint
+from chekan.joint import hold_blocks as hb
+from chekan.joint import likelihood as cm
+from inference.normal_eq import (
+    banded_factor_blocks,
+    blocks_of,
+    draw_beta_banded,
+    draw_beta_blocks,
+    marginal_loglik_normal,
+    posterior_beta_normal,
+    solve_banded_transposed,
+    split_prior,
+)
+
+
+@pytest.fixture(scope="module")
+def dual_axis_record():
+    """Two rounds about Y and X (300 s dwells): a record with the X-response terms."""
+    from chekan.program import build_program
+    from chekan.simulate import Truth, simulate_session
+
+    prog = build_program([4.5, 5.0], axis="xy", rounds=2, dwell_s=300, settle_s=120)
+    return simulate_session(prog, Truth(), seed=3)[0]
+
+
+def _full_record(record: str):
+    """The paper's 9 h program or the bench's dual-axis record (160 holds, p 558)."""
+    from bench.several_records import dual_axis_program
+    from chekan.demo import demo_program
+    from chekan.simulate import Truth, simulate_session
+
+    prog = demo_program(False) if record == "paper-9h" else dual_axis_program(False)
+    return simulate_session(prog, Truth(), seed=3)[0]
+
+
+def _model(short_session, dual_axis_record, record: str):
+    from chekan.joint.angles import AngleSensorSpec
+
+    if record in ("paper-9h", "bench-xy"):
+        rec = _full_record(record)
+    else:
+        rec = dual_axis_record if record == "dual" else short_session[1]
+    spec = AngleSensorSpec(3.0)
+    _, model = joint.prepare(rec, None, angle_spec=spec, angle_spec_x=spec)
+    if record == "padded":
+        model = model.pad(model.n_holds + 2, model.n_bins + 7, model.structure.n_moves + 3)
+    return model
+
+
+def _rel(x, y) -> float:
+    x, y = np.asarray(x), np.asarray(y)
+    return float(np.max(np.abs(x - y)) / max(np.max(np.abs(y)), 1e-300)) if y.size else 0.0
+
+
+@pytest.mark.parametrize(
+    "record",
+    [
+        "short",
+        "padded",
+        "dual",
+        pytest.param("paper-9h", marks=pytest.mark.slow),
+        pytest.param("bench-xy", marks=pytest.mark.slow),
+    ],
+)
+def test_hold_blocks_equal_the_dense_normal_equations(short_session, dual_axis_record, record):
+    """Every block (holds' diagonal and sub-diagonal, their rows against the dense
+    variables, the dense block, both right-hand sides, rᵀWr, log|N|, n) equals the one
+    gathered from the dense M to round-off; the log-density equals the dense Cholesky's,
+    A·β equals :func:`chekan.joint.likelihood.apply_A`, and a β draw equals the one made
+    from the dense M's blocks with the same key (the same factor to round-off)."""
+    model = _model(short_session, dual_axis_record, record)
+    st, data = model.structure, model.data
+    if record == "dual":
+        assert st.n_x_response > 0 and st.n_systematic > 0
+    prob = joint.problem_for(st)
+    space = prob.bayes_space
+    bands = st.hold_bands
+
+    @jax.jit
+    def parts(z, beta, key, data):
+        v = space.to_values(z)
+        ne, (_, G, s, _, _, _, _, P) = cm.normal_equations(v, v, st, data)
+        blocks, t = hb.block_normal_equations(v, v, st, data)
+        pv = cm.beta_prior_var(v, st, data)
+        return (
+            ne,
+            blocks,
+            pv,
+            prob.log_density(z, data),
+            cm.apply_A(beta, G, s, st, data, P),
+            hb.apply_blocks(beta, t, st, data),
+            draw_beta_banded(key, ne, pv, bands),
+            draw_beta_blocks(key, blocks, *split_prior(pv, bands), bands),
+        )
+
+    rng = np.random.default_rng(1)
+    z0 = np.asarray(space.to_z(space.to_values(np.zeros(space.size))))
+    for i, z in enumerate(z0 + 0.3 * rng.standard_normal((2, space.size))):
+        beta = jnp.asarray(rng.standard_normal(st.n_beta))
+        key = jax.random.PRNGKey(i)
+        ne, blocks, pv, logp, yA, yB, d_ref, d_new = parts(jnp.asarray(z), beta, key, data)
+        want = blocks_of(ne, bands)
+        for name, got, ref in zip(want._fields, blocks, want, strict=True):
+            if name == "sub":  # block 0 (before the first hold) is unused
+                got, ref = got[1:], ref[1:]
+            assert _rel(got, ref) < 1e-13, name
+        dense = float(marginal_loglik_normal(ne, pv)) + float(space.log_prior(jnp.asarray(z)))
+        assert float(logp) == pytest.approx(dense, rel=1e-12)
+        seen = np.asarray(data.mask)  # padding bins (no data, no weight) read by no one
+        np.testing.assert_allclose(
+            np.asarray(yB)[seen], np.asarray(yA)[seen], rtol=1e-11, atol=1e-11
+        )
+        np.testing.assert_allclose(np.asarray(d_new), np.asarray(d_ref), rtol=1e-8, atol=1e-10)
+        # the β mean (ξ = 0) from the blocks equals the dense solve
+        f = banded_factor_blocks(blocks, *split_prior(pv, bands))
+        mean = solve_banded_transposed(f, bands, jnp.concatenate([f.y, f.c]))
+        ref_mean, _ = posterior_beta_normal(ne, pv)
+        np.testing.assert_allclose(np.asarray(mean), np.asarray(ref_mean), rtol=1e-8, atol=1e-10)
+
+
+def test_unsettled_carry_by_scan_equals_the_product_matrix():
+    """The associative scan of the carry recurrence equals the cumulative-product form of
+    :func:`chekan.joint.likelihood._unsettled_carry`."""
+    rng = np.random.default_rng(2)
+    H, J = 37, 5
+    E, Mv = jnp.asarray(rng.standard_normal((H, J))), jnp.asarray(rng.standard_normal((H, J)))
+    wprev, rho = jnp.asarray(rng.uniform(0, 1, H)), jnp.asarray(rng.uniform(0, 1, H))
+    np.testing.assert_allclose(
+        np.asarray(hb.unsettled_carry(E, Mv, wprev, rho)),
+        np.asarray(cm._unsettled_carry(E, Mv, wprev, rho)),
+        rtol=1e-12,
+        atol=1e-14,
+    )
+
+
+def test_log_density_gradient_equals_the_dense_assemblys(dual_axis_record):
+    """The gradient of the log-density (NUTS, a gradient mode search) through the hold
+    blocks equals the one through the dense M's blocks, to round-off."""
+    from inference.normal_eq import marginal_loglik_banded
+
+    model = _model(None, dual_axis_record, "dual")
+    st, data = model.structure, model.data
+    prob = joint.problem_for(st)
+    space = prob.bayes_space
+
+    def dense(z, data):
+        v = space.to_values(z)
+        ne, _ = cm.normal_equations(v, v, st, data)
+        ll = marginal_loglik_banded(ne, cm.beta_prior_var(v, st, data), st.hold_bands)
+        return space.log_prior(z) + ll
+
+    z0 = np.asarray(space.to_z(space.to_values(np.zeros(space.size))))
+    z = jnp.asarray(z0 + 0.1 * np.random.default_rng(2).standard_normal(space.size))
+    got = np.asarray(jax.jit(jax.grad(prob.log_density))(z, data))
+    want = np.asarray(jax.jit(jax.grad(dense))(z, data))
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
