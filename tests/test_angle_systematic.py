@@ -22,6 +22,10 @@ from chekan.program import build_program
 from chekan.simulate import Truth, simulate_session
 from chekan.units import ARCSEC_PER_RAD
 
+#: A zero bound: the systematic columns are there (the same compiled model as with a bound,
+#: one JAX compilation per program instead of two) with a prior of 1e-12 arcsec².
+NO_SYSTEMATIC = AngleSensorSpec(0.0)
+
 
 def _sd_b(rec, settle_s, spec):
     cres, _ = calibrate_record(rec, settle_s=settle_s)
@@ -92,7 +96,7 @@ def test_pure_scale_error_adds_two_u_over_theta_max_in_quadrature(short_program,
     rec, truth = simulate_session(program, truth, seed=21)
     settle = program.settle_s
     bound = 3.0
-    (_, sd0), _ = _sd_b(rec, settle, None)
+    (_, sd0), _ = _sd_b(rec, settle, NO_SYSTEMATIC)
     spec = AngleSensorSpec(bound, scale_share=1.0)
     (_, sd1), _ = _sd_b(rec, settle, spec)
     theta_max = max(abs(s.tilt_y_rad) for s in program.steps) * ARCSEC_PER_RAD
@@ -109,7 +113,7 @@ def test_per_angle_error_does_not_average_over_rounds():
     for rounds in (2, 6):
         prog = build_program([2.0, 3.5, 5.0], dwell_s=300, settle_s=200, rounds=rounds)
         rec, _ = simulate_session(prog, Truth(serial="P", angle_systematic_arcsec=0.0), seed=4)
-        (_, sd0), _ = _sd_b(rec, 200, None)
+        (_, sd0), _ = _sd_b(rec, 200, NO_SYSTEMATIC)
         (_, sd1), _ = _sd_b(rec, 200, AngleSensorSpec(3.0, scale_share=0.0))
         added[rounds] = sd1**2 - sd0**2
     assert added[2] > 0 and added[6] / added[2] > 0.75  # the systematic part stays

@@ -107,12 +107,6 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         + em.hyper_at_bounds(fit.hyper)
         + em.residual_misfit(fit.hyper),
     }
-    if model.structure.n_x_response:  # docs/figures/validation_dual.md
-        diag["notes"] = [
-            "rounds about X: the quadratic coefficient a rests on their odd response through "
-            "K; its interval is not validated for such programs (too short where damping is "
-            "slow or the X response has a shape the model lacks); b's is"
-        ]
     return out, diag
 
 
