@@ -10,4 +10,4 @@ Equation numbers in docstrings refer to Sokolov et al., "Calibration of the
 Chekan-AM gravimeter by the tilt method" (the reference paper).
 """
 
-__version__ = "0.3.8"
+__version__ = "0.3.9"
