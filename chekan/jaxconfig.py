@@ -73,15 +73,24 @@ def executable_store():
     """The store of compiled executables of the estimation code (:mod:`inference.aot`),
     fingerprinted by the source of ``chekan`` and ``inference`` and the versions of the
     libraries they trace through; in memory only when the cache is off."""
-    from importlib.metadata import version
-
     from inference.aot import ExecutableStore, source_fingerprint
 
     root = Path(__file__).resolve().parents[1]
-    libs = tuple(f"{n}=={version(n)}" for n in ("equinox", "optimistix", "lineax"))
+    libs = tuple(f"{n}=={_installed_version(n)}" for n in ("equinox", "optimistix", "lineax"))
     fingerprint = source_fingerprint(root / "chekan", root / "inference", extra=libs)
     folder = None if _CACHE is None else _CACHE / "executables"
     return ExecutableStore(folder, fingerprint)
+
+
+def _installed_version(name: str) -> str:
+    """The installed version of distribution ``name``, from its METADATA's ``Version:`` line:
+    ``importlib.metadata.version`` parses the whole file as e-mail headers (≈ 15 ms for
+    these three, a new process's start-up)."""
+    from importlib.metadata import distribution
+
+    text = distribution(name).read_text("METADATA") or ""
+    found = (line[9:].strip() for line in text.splitlines() if line.startswith("Version: "))
+    return next(found, "unknown")
 
 
 def device_array(x, dtype=None) -> jax.Array:

@@ -26,11 +26,11 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 
 # isort: split
 
+import functools
 from typing import TypeVar
 
 import jax
 import jax.numpy as jnp
-from jax.extend.core import Primitive
 from jax.interpreters import ad, batching, mlir
 
 __all__ = ["fusion_barrier"]
@@ -45,7 +45,7 @@ def fusion_barrier(tree: T) -> T:
     leaves, treedef = jax.tree.flatten(tree)
     if not leaves:
         raise ValueError("fusion_barrier needs at least one array")
-    return jax.tree.unflatten(treedef, _barrier_p.bind(*map(jnp.asarray, leaves)))
+    return jax.tree.unflatten(treedef, _barrier().bind(*map(jnp.asarray, leaves)))
 
 
 def _loop_once(*leaves):
@@ -69,14 +69,14 @@ def _through_barrier(values: list) -> list:
     out = list(values)
     live = [i for i, v in enumerate(values) if type(v) is not ad.Zero]
     if live:
-        for i, v in zip(live, _barrier_p.bind(*[values[i] for i in live]), strict=True):
+        for i, v in zip(live, _barrier().bind(*[values[i] for i in live]), strict=True):
             out[i] = v
     return out
 
 
 def _jvp(primals, tangents):
     """Linear (the identity): the tangents pass through a barrier of their own."""
-    return _barrier_p.bind(*primals), _through_barrier(tangents)
+    return _barrier().bind(*primals), _through_barrier(tangents)
 
 
 def _transpose(cotangents, *args):
@@ -84,13 +84,21 @@ def _transpose(cotangents, *args):
     return _through_barrier(cotangents)
 
 
-# A primitive, not a ``custom_jvp`` around the loop: reverse mode transposes the tangents'
-# barrier (a ``while_loop`` has no transpose) and ``vmap`` batches it.
-_barrier_p = Primitive("fusion_barrier")
-_barrier_p.multiple_results = True
-_barrier_p.def_impl(lambda *leaves: list(leaves))  # eager: nothing is fused
-_barrier_p.def_abstract_eval(lambda *avals: list(avals))
-ad.primitive_jvps[_barrier_p] = _jvp
-ad.primitive_transposes[_barrier_p] = _transpose
-batching.primitive_batchers[_barrier_p] = lambda args, dims: (_barrier_p.bind(*args), dims)
-mlir.register_lowering(_barrier_p, mlir.lower_fun(_loop_once, multiple_results=True))
+@functools.cache
+def _barrier():
+    """The primitive, defined on first use: only tracing needs it (a process that loads
+    stored executables never does), and ``jax.extend`` imports Pallas (≈ 0.1 s of start-up).
+
+    A primitive, not a ``custom_jvp`` around the loop: reverse mode transposes the tangents'
+    barrier (a ``while_loop`` has no transpose) and ``vmap`` batches it."""
+    from jax.extend.core import Primitive
+
+    p = Primitive("fusion_barrier")
+    p.multiple_results = True
+    p.def_impl(lambda *leaves: list(leaves))  # eager: nothing is fused
+    p.def_abstract_eval(lambda *avals: list(avals))
+    ad.primitive_jvps[p] = _jvp
+    ad.primitive_transposes[p] = _transpose
+    batching.primitive_batchers[p] = lambda args, dims: (p.bind(*args), dims)
+    mlir.register_lowering(p, mlir.lower_fun(_loop_once, multiple_results=True))
+    return p

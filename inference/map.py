@@ -23,7 +23,6 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -231,6 +230,8 @@ def _compiled(
             run = jax.vmap(run, in_axes=(0, data_axes))
         store = problem.executables
         if store is None:
+            import equinox as eqx  # tracing only: a process that loads executables skips it
+
             per_problem[key] = eqx.filter_jit(run)
         else:  # kept across processes: no tracing in a new process
             name = f"map_{solver}_{rtol:g}_{atol:g}_{max_steps}_{'batch' if batched else 'one'}"

@@ -125,6 +125,7 @@ def test_between_passes_reaches_the_fixed_point_where_em_creeps(tmp_path):
     z, h0 = fit.result.z, joint.default_hyper()
     moved, h, n = em.between_passes(fit.model, z, h0)
     assert em.EM_UPDATES_BEFORE_NEWTON < n < em.HYPER_MAX_UPDATES
+    assert "em_newton" in {name for name, _ in joint.engine_for(model.structure).store.events}
     st, data = model.structure, moved.data
     space = prob.map_space
     update = jax.jit(

@@ -32,7 +32,6 @@ Every function returns new state; nothing it is handed is changed.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -123,12 +122,19 @@ def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper,
     readings; the classical m_h that m_ref starts from is biased where the level holds have
     not settled (17 pix at τ = 90 s on the 3 h program), and that bias went into b (≈ +0.5
     sd). After one pass ĉ is known to ~0.01 pix, so the next pass works about the estimate.
+
+    Where EM has not converged after ``EM_UPDATES_BEFORE_NEWTON`` updates the fixed point is
+    solved for by a second compiled function (:func:`em_newton_fn`): records whose EM
+    converges never compile or load it (it is most of the EM's code).
     """
     from chekan.joint.engine import engine_for
 
-    em_pass = engine_for(model.structure).em_pass
-    m_ref, h_new, n = em_pass(device_array(z), h, model.data)
-    return model.with_level(np.asarray(m_ref)), h_new, int(n)
+    engine = engine_for(model.structure)
+    m_ref, h_new, n, change = engine.em_pass(device_array(z), h, model.data)
+    moved = model.with_level(np.asarray(m_ref))
+    if float(change) >= HYPER_TOL:
+        h_new, n = engine.em_newton(device_array(z), h_new, n, change, moved.data)
+    return moved, h_new, int(n)
 
 
 def prefetch(model: RecordModel) -> None:
@@ -138,42 +144,72 @@ def prefetch(model: RecordModel) -> None:
     engine_for(model.structure).prefetch(EM_PASS, model.data)
 
 
+def _em_body(update: Callable, data: RecordData):
+    """One EM update of the loop's carry (h, updates, largest change in log h)."""
+
+    def body(c):
+        h, n, _ = c
+        new = update(h, data)
+        change = jnp.max(jnp.stack([jnp.max(jnp.abs(jnp.log(new[k]) - jnp.log(h[k]))) for k in h]))
+        return new, n + 1, change
+
+    return body
+
+
+def _em_until(limit: int) -> Callable:
+    """The loop's condition: not converged and fewer than ``limit`` updates."""
+
+    def cond(c):
+        _, n, change = c
+        return (change >= HYPER_TOL) & (n < limit)
+
+    return cond
+
+
+def _em_stage(z, h: Hyper, structure: ModelStructure, data: RecordData, space) -> Callable:
+    """The EM update at θ = z with θ integrated in the E-step (:func:`theta_terms`; the
+    derivatives in θ formed once: they do not depend on h), traceable."""
+    v = space.to_values(z)
+    design = design_derivatives(z, h, structure, data, space)
+
+    def update(h, data_, frozen_theta=False):
+        return em_update(v, h, structure, data_, design, frozen_theta)
+
+    return update
+
+
 def em_pass_fn(structure: ModelStructure, space) -> Callable:
-    """``(z, h, data) → (m_ref, h, updates)``: the level moved to its estimate, then EM to
-    its fixed point (Newton after ``EM_UPDATES_BEFORE_NEWTON``) with θ integrated in the
-    E-step (:func:`theta_terms`), traceable; compiled by
-    :class:`chekan.joint.engine.Engine`."""
+    """``(z, h, data) → (m_ref, h, updates, change)``: the level moved to its estimate, then
+    up to ``EM_UPDATES_BEFORE_NEWTON`` EM updates with θ integrated in the E-step
+    (``change``: the last update's largest move in log h; at least ``HYPER_TOL`` where EM
+    has not converged), traceable; compiled by :class:`chekan.joint.engine.Engine`."""
 
     def fn(z, h: Hyper, data: RecordData):
         v = space.to_values(z)
         _, beta, _ = solve_beta(v, h, structure, data)
         m_ref = data.m_ref + beta[structure.beta_blocks["c"]]
         data = dataclasses.replace(data, m_ref=m_ref)
-        design = design_derivatives(z, h, structure, data, space)  # once: h-independent
+        update = _em_stage(z, h, structure, data, space)
+        c = (h, jnp.asarray(0), jnp.asarray(jnp.inf))
+        h, n, change = jax.lax.while_loop(
+            _em_until(EM_UPDATES_BEFORE_NEWTON), _em_body(update, data), c
+        )
+        return m_ref, h, n, change
 
-        def update(h, data_, frozen_theta=False):
-            return em_update(v, h, structure, data_, design, frozen_theta)
+    return fn
 
-        def em_until(limit):
-            def cond(c):
-                _, n, change = c
-                return (change >= HYPER_TOL) & (n < limit)
 
-            return cond
+def em_newton_fn(structure: ModelStructure, space) -> Callable:
+    """``(z, h, updates, change, data) → (h, updates)``: where :func:`em_pass_fn` stopped
+    unconverged (``data`` with the level already moved), the fixed point by Newton
+    (:func:`_newton`), then EM on to convergence or ``HYPER_MAX_UPDATES`` updates (where
+    Newton failed), traceable."""
 
-        def body(c):
-            h, n, _ = c
-            new = update(h, data)
-            change = jnp.max(
-                jnp.stack([jnp.max(jnp.abs(jnp.log(new[k]) - jnp.log(h[k]))) for k in h])
-            )
-            return new, n + 1, change
-
-        c = jax.lax.while_loop(em_until(EM_UPDATES_BEFORE_NEWTON), body, (h, 0, jnp.inf))
-        newton = functools.partial(_newton, update, data)
-        c = jax.lax.cond(c[2] >= HYPER_TOL, newton, lambda c: c, c)
-        h, n, _ = jax.lax.while_loop(em_until(HYPER_MAX_UPDATES), body, c)
-        return m_ref, h, n
+    def fn(z, h: Hyper, n, change, data: RecordData):
+        update = _em_stage(z, h, structure, data, space)
+        c = _newton(update, data, (h, n, change))
+        h, n, _ = jax.lax.while_loop(_em_until(HYPER_MAX_UPDATES), _em_body(update, data), c)
+        return h, n
 
     return fn
 

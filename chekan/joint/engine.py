@@ -6,6 +6,7 @@ stored name                 what it computes                            maths in
 ==========================  ==========================================  =======================
 ``map_<solver>_…``          the MAP solve over θ (β projected out)      :mod:`.problem`
 ``em_between_passes``       level re-centring and EM between passes     :mod:`.em`
+``em_newton``               EM's fixed point by Newton (EM creeping)    :mod:`.em`
 ``map_derived``             derived quantities and their Jacobians      :mod:`.derived`
 ``draws``                   every reported quantity per posterior draw  :mod:`.derived`
 ``predictive_equilibria``   equilibria of the posterior predictive      :mod:`.predictive`
@@ -34,6 +35,7 @@ from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.problem import CalibrationProblem, build_problem, default_hyper
 
 EM_PASS = "em_between_passes"
+EM_NEWTON = "em_newton"
 MAP_DERIVED = "map_derived"
 DRAWS = "draws"
 PREDICTIVE = "predictive_equilibria"
@@ -49,10 +51,17 @@ class Engine:
 
     @functools.cached_property
     def em_pass(self) -> Callable:
-        """``(z, h, data) → (m_ref, h, updates)``: :func:`.em.em_pass_fn`."""
+        """``(z, h, data) → (m_ref, h, updates, change)``: :func:`.em.em_pass_fn`."""
         from chekan.joint.em import em_pass_fn
 
         return self.store.jit(EM_PASS, em_pass_fn(self.structure, self.problem.map_space))
+
+    @functools.cached_property
+    def em_newton(self) -> Callable:
+        """``(z, h, updates, change, data) → (h, updates)``: :func:`.em.em_newton_fn`."""
+        from chekan.joint.em import em_newton_fn
+
+        return self.store.jit(EM_NEWTON, em_newton_fn(self.structure, self.problem.map_space))
 
     @functools.cached_property
     def map_derived(self) -> Callable:

@@ -2,7 +2,8 @@
 
 - :class:`ModelStructure` — the hashable shape of the problem (holds, bins, slew samples,
   drift and encoder degrees): what decides compilation. β's layout follows from it.
-- :class:`RecordData` — the arrays of one record (an equinox Module, so a frozen pytree):
+- :class:`RecordData` — the arrays of one record (a frozen dataclass registered as a pytree,
+  every field a leaf):
   the ``data`` argument of every model function. :meth:`RecordData.pad` lays it out for
   a larger structure; :meth:`RecordData.with_level` moves the level reference.
 - :class:`RecordModel` — structure + data + what the reports need on the host.
@@ -16,7 +17,6 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-import equinox as eqx
 import jax
 import numpy as np
 
@@ -109,11 +109,14 @@ def beta_blocks(H: int, D: int, L: int, S: int = 0, X: int = 0) -> dict[str, np.
 
 
 def _padded(axes: str, fill: float | bool) -> Any:
-    """A data field padded along ``axes`` (H holds, N bins, M slew samples) with ``fill``."""
-    return eqx.field(metadata={"pad": (axes, fill)})
+    """A data field padded along ``axes`` (H holds, N bins, M slew samples, Q shared
+    columns) with ``fill`` (a ``dataclasses.field``)."""
+    return dataclasses.field(metadata={"pad": (axes, fill)})
 
 
-class RecordData(eqx.Module):
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class RecordData:
     """The arrays of one record for the joint model (units in the names or below)."""
 
     g: jax.Array  # mGal, local gravity
