@@ -9,7 +9,7 @@ import numpy as np
 
 from chekan.parameters import unit_of
 from chekan.plotting import new_figure
-from chekan.validate import BAND_PROB, LEVELS, PARAMS, summary_groups
+from chekan.validate_summary import BAND_PROB, LEVELS, PARAMS, summary_groups
 
 _COLORS = {"classical": "tab:orange", "map": "tab:blue", "bayes": "tab:green"}
 _MARKERS = {"typical": "o", "misaligned": "s", "drift": "^", "slow": "v"}

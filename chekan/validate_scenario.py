@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+SEED_STRIDE = 100_000  # session i of a study with seed s is simulated with seed s·stride + i
+
 
 @dataclass(frozen=True)
 class Scenario:

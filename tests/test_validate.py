@@ -7,14 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from chekan.validate import (
+from chekan.validate import read_rows, run_study
+from chekan.validate_summary import (
     PARAMS,
     binomial_band,
     coverage_summary,
     format_summary,
     markdown_report,
-    read_rows,
-    run_study,
 )
 
 # |z| values and how many sessions have them: 10 inside every interval (|z| ≤ 0.674),

@@ -7,7 +7,6 @@ budget and the diagnostics of the Bayesian method when present, and the verdict.
 from __future__ import annotations
 
 import math
-import re
 import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -16,7 +15,7 @@ from typing import Any
 from chekan.errors import ChekanError, FormatError
 from chekan.report import figures as figs
 from chekan.report.checks import check_certificate_input
-from chekan.report.document import Cell, Figure, Heading, KeyValue, Para, Report, Table
+from chekan.report.document import Figure, Heading, KeyValue, Para, Report
 from chekan.report.expanded import K_NORMAL, b_uncertainty, expanded_of
 from chekan.report.i18n import LABELS, param_name, tr, unit_name, value_name
 from chekan.report.numbers import (
@@ -30,6 +29,7 @@ from chekan.report.numbers import (
     statement,
     unc,
 )
+from chekan.report.rounds import deviations_table, increments_table, rounds_table
 from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
     BUDGET_ORDER,  # noqa: F401
     PARAM_ORDER,  # noqa: F401
@@ -40,31 +40,11 @@ from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
 )
 
 FULL_RANGE_MGAL = 5000.0  # Δ₀ = 5 Gal
-_COL_RE = re.compile(r"^r(\d+)_s(\d+)$")
 
 Translator = Callable[..., str]
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def _cols_by_round(cols: list[str]) -> list[tuple[str, list[tuple[str, str]]]]:
-    """Group ``r1_s1``-style columns by round: ``[(round, [(system, col), …]), …]``."""
-    groups: dict[str, list[tuple[str, str]]] = {}
-    for c in cols:
-        m = _COL_RE.match(c)
-        r, s = (m.group(1), m.group(2)) if m else ("", c)
-        groups.setdefault(r, []).append((s, c))
-    return list(groups.items())
-
-
-def _col_header(cols: list[str], t: Translator) -> tuple[list[Cell], list[Cell]]:
-    top: list[Cell] = []
-    sub: list[Cell] = []
-    for r, items in _cols_by_round(cols):
-        top.append(Cell(t("round_n", n=r) if r else "", colspan=len(items), bold=True))
-        sub.extend(Cell(t("sys_n", n=s) if r else s) for s, _ in items)
-    return top, sub
 
 
 def _a_value(result: Mapping[str, Any]) -> tuple[float | None, bool]:
@@ -361,10 +341,10 @@ def _items(
     by_axis = result.get("classical_by_axis") or {}
     about = t("cap_about", axis="Y") if by_axis else ""  # the certificate's rounds
     if rs:
-        rep.add(_increments_table(rs, t, t("cap_a") + about))
+        rep.add(increments_table(rs, t, t("cap_a") + about))
         # б) deviations
         rep.add(Heading(t("sec_b")), Para(t("sec_b_text")))
-        rep.add(_deviations_table(rs, t, t("cap_b") + about))
+        rep.add(deviations_table(rs, t, t("cap_b") + about))
         tol_mgal = tol / 100.0 * FULL_RANGE_MGAL
         cap = t("fig_resid", tol=plain(tol)) + (t("fig_resid_pp") if pp else "")
         if figures:
@@ -384,7 +364,7 @@ def _items(
     rep.add(Heading(t("sec_d")), Para(t("sec_d_text")))
     rounds = result.get("rounds") or []
     if rounds:
-        rep.add(_rounds_table(rounds, t, t("cap_rounds") + about))
+        rep.add(rounds_table(rounds, t, t("cap_rounds") + about))
     param_table(rep, result, t, lang)
     if is_num(result.get("mean_b_mgal_per_pix")):
         rep.add(Para(t("mean_b", v=fixed(result["mean_b_mgal_per_pix"], 6))))
@@ -399,55 +379,6 @@ def _items(
     _rest_of_items(rep, result, t, lang, tol, figures)
 
 
-def _increments_table(rs: Mapping[str, Any], t: Translator, caption: str) -> Table:
-    """а) da_ref and dg per angle (rows) and round × system (columns)."""
-    cols = list(rs["columns"])
-    top, sub = _col_header(cols, t)
-    rows = []
-    for i, lab in enumerate(rs["angle_label"]):
-        rows.append(
-            [Cell(str(lab)), Cell(fixed(rs["da_ref_mgal"][i], 2))]
-            + [Cell(fixed(rs["dg_mgal"][c][i], 2)) for c in cols]
-        )
-    return Table(
-        [
-            [Cell(t("angle"), bold=True), Cell(t("da_ref"), bold=True), *top],
-            [Cell(""), Cell(""), *sub],
-        ],
-        rows,
-        "lr" + "r" * len(cols),
-        caption,
-    )
-
-
-def _deviations_table(rs: Mapping[str, Any], t: Translator, caption: str) -> Table:
-    """б) δg per angle and column, their mean and the СКП row."""
-    cols = list(rs["columns"])
-    top, sub = _col_header(cols, t)
-    rows = []
-    mean_dg = rs.get("mean_delta_g_mgal") or [None] * len(rs["angle_label"])
-    for i, lab in enumerate(rs["angle_label"]):
-        rows.append(
-            [Cell(str(lab))]
-            + [Cell(fixed(rs["delta_g_mgal"][c][i], 2)) for c in cols]
-            + [Cell(fixed(mean_dg[i], 2), bold=True)]
-        )
-    rms = rs.get("rms_mgal") or {}
-    rows.append(
-        [Cell(t("rms_row"), bold=True)] + [Cell(fixed(rms.get(c), 2)) for c in cols] + [Cell("")]
-    )
-    return Table(
-        [
-            [Cell(t("angle"), bold=True), *top, Cell(t("mean_dg"), bold=True)],
-            [Cell(""), *sub, Cell("")],
-        ],
-        rows,
-        "l" + "r" * (len(cols) + 1),
-        caption,
-        footer_rows=1,
-    )
-
-
 def _other_axis(rep: Report, axis: str, entry: Mapping[str, Any], t: Translator) -> None:
     """The classical fit of the rounds about another axis than the certificate's, in full,
     with what it is (not used by the certificate, and why)."""
@@ -457,10 +388,10 @@ def _other_axis(rep: Report, axis: str, entry: Mapping[str, Any], t: Translator)
     about = t("cap_about", axis=axis.upper())
     rs = entry.get("residuals_mgal")
     if rs:
-        rep.add(_increments_table(rs, t, t("cap_a") + about))
-        rep.add(_deviations_table(rs, t, t("cap_b") + about))
+        rep.add(increments_table(rs, t, t("cap_a") + about))
+        rep.add(deviations_table(rs, t, t("cap_b") + about))
     if rounds:
-        rep.add(_rounds_table(rounds, t, t("cap_rounds") + about))
+        rep.add(rounds_table(rounds, t, t("cap_rounds") + about))
     p = entry.get("parameters") or {}
     parts = [
         f"{n} = {fixed(p[n]['mean'], 6)} ± {unc(p[n].get('sd'))}" for n in ("b1", "b2") if n in p
@@ -469,46 +400,6 @@ def _other_axis(rep: Report, axis: str, entry: Mapping[str, Any], t: Translator)
         parts.append(f"a = {sci(p['a']['mean'], 4)} ± {sci(p['a'].get('sd'), 1)}")
     if parts:
         rep.add(Para(t("axis_fit", axis=axis.upper(), fit="; ".join(parts))))
-
-
-def _rounds_table(rounds: list, t: Translator, caption: str) -> Table:
-    """г) b, its uncertainty, b₀, mₕ and СКП per round and system."""
-    printed = any("b_printed" in r for r in rounds)
-    head = [
-        t("round"),
-        t("system"),
-        t("b_col"),
-        t("u_col"),
-        t("b0_col"),
-        t("mh_col"),
-        t("rms_col"),
-    ] + ([t("printed_col")] if printed else [])
-    rows = []
-    for r in rounds:
-        for s in (1, 2):
-            b = r[f"b{s}"]
-            lvl = r.get("level_reading_pix")
-            row = [
-                Cell(str(r.get("round", ""))),
-                Cell(t("sys_n", n=s)),
-                Cell(fixed(b["mean"], 6), bold=True),
-                Cell(unc(b.get("sd"))),
-                Cell(fixed(r.get(f"b{s}_0"), 6)),
-                Cell(fixed(lvl[s - 1], 3) if isinstance(lvl, list) and len(lvl) >= s else DASH),
-                Cell(fixed((r.get("rms_mgal") or {}).get(f"s{s}"), 2)),
-            ]
-            if printed:
-                bp = r.get("b_printed")
-                row.append(
-                    Cell(fixed(bp[s - 1], 6) if isinstance(bp, list) and len(bp) >= s else DASH)
-                )
-            rows.append(row)
-    return Table(
-        [[Cell(h, bold=True) for h in head]],
-        rows,
-        "cc" + "r" * (len(head) - 2),
-        caption,
-    )
 
 
 def _rest_of_items(
