@@ -85,12 +85,13 @@ def executable_store():
 def _installed_version(name: str) -> str:
     """The installed version of distribution ``name``, from its METADATA's ``Version:`` line:
     ``importlib.metadata.version`` parses the whole file as e-mail headers (≈ 15 ms for
-    these three, a new process's start-up)."""
+    these three, a new process's start-up); it is the fallback where that line is missing."""
     from importlib.metadata import distribution
 
-    text = distribution(name).read_text("METADATA") or ""
+    dist = distribution(name)
+    text = dist.read_text("METADATA") or ""
     found = (line[9:].strip() for line in text.splitlines() if line.startswith("Version: "))
-    return next(found, "unknown")
+    return next(found, None) or dist.version
 
 
 def device_array(x, dtype=None) -> jax.Array:

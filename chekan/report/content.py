@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +17,7 @@ from chekan.report import figures as figs
 from chekan.report.checks import check_certificate_input
 from chekan.report.document import Figure, Heading, KeyValue, Para, Report
 from chekan.report.expanded import K_NORMAL, b_uncertainty, expanded_of
-from chekan.report.i18n import LABELS, param_name, tr, unit_name, value_name
+from chekan.report.i18n import LABELS, Translator, param_name, tr, unit_name, value_name
 from chekan.report.numbers import (
     DASH,
     coverage_text,
@@ -40,8 +40,6 @@ from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
 )
 
 FULL_RANGE_MGAL = 5000.0  # Δ₀ = 5 Gal
-
-Translator = Callable[..., str]
 
 
 # --------------------------------------------------------------------------- helpers

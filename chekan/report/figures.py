@@ -6,16 +6,15 @@ Each function returns PNG bytes. ``t`` is the translator of :mod:`chekan.report.
 from __future__ import annotations
 
 import io
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from chekan.plotting import new_figure
-from chekan.report.i18n import param_name
+from chekan.report.i18n import Translator, param_name
 
-Translator = Callable[..., str]
 DPI = 200
 SYS_COLORS = ("#1f62b4", "#c8382c")
 ROUND_MARKERS = ("o", "s", "^", "D", "v", "P")

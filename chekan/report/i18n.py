@@ -11,6 +11,9 @@ from collections.abc import Callable
 
 from chekan.errors import ChekanError
 
+#: A language's translator (:func:`tr`): ``t("key", field=value)`` → the text.
+Translator = Callable[..., str]
+
 LANGS = ("en", "ru")
 
 LABELS: dict[str, dict[str, str]] = {
@@ -662,7 +665,7 @@ def check_lang(lang: str) -> str:
     return lang
 
 
-def tr(lang: str) -> Callable[..., str]:
+def tr(lang: str) -> Translator:
     """The translator for ``lang``: ``t("key", field=value)``."""
     check_lang(lang)
 

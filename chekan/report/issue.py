@@ -5,12 +5,11 @@ conditions, the authoriser, and that the results relate only to the item."""
 from __future__ import annotations
 
 import datetime as _dt
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 from chekan.report.document import KeyValue, Para, Report
-
-Translator = Callable[..., str]
+from chekan.report.i18n import Translator
 
 
 def certificate_id(

@@ -5,15 +5,14 @@ protocol, Fig. 6): а) the increments Δg, б) the deviations δg with their mea
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 from chekan.report.document import Cell, Table
+from chekan.report.i18n import Translator
 from chekan.report.numbers import DASH, fixed, unc
 
 _COL_RE = re.compile(r"^r(\d+)_s(\d+)$")
-
-Translator = Callable[..., str]
 
 
 def _cols_by_round(cols: list[str]) -> list[tuple[str, list[tuple[str, str]]]]:

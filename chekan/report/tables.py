@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 from chekan.parameters import PHYSICAL
 from chekan.report.document import Cell, Heading, KeyValue, Para, Report, Table
-from chekan.report.i18n import param_name, unit_name, with_param_names
+from chekan.report.i18n import Translator, param_name, unit_name, with_param_names
 from chekan.report.numbers import (
     DASH,
     coverage_text,
@@ -51,8 +51,6 @@ BUDGET_TYPE = {
 # the budget's last rows, in this order: u, then (map) ν_eff and k, then U
 FOOTER = ("total", "nu_eff", "coverage_factor", "expanded", "expanded_k2")
 _NOT_UNCERTAINTIES = ("nu_eff", "coverage_factor")
-
-Translator = Callable[..., str]
 
 
 def param_cells(name: str, e: Mapping[str, Any]) -> tuple[str, str, str, str]:
