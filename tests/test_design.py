@@ -4,6 +4,7 @@ computations, the estimator, and the search and command line."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -372,16 +373,19 @@ def test_pure_scale_prior_adds_two_u_over_theta_max():
 
 
 def test_tilts_about_x_use_the_other_sensor():
-    """Alternating rounds about Y and X: two sensors, each with its own ζ per angle and ξ;
-    the systematic part of sd(b) is smaller than with the Y sensor alone."""
+    """Alternating rounds about Y and X: two sensors, each with its own ζ per angle and ξ,
+    and the scale error they may share; the systematic part of sd(b) is smaller than with
+    the Y sensor alone, but not below one sensor's scale error at its bound (both sensors
+    at their bound with one sign are admitted): 2u/θ_max, u = 3″/√3."""
     from chekan.program import default_program
 
     y, xy = default_program(), default_program(axis="xy")
     assert [s.axis for s in xy.steps if s.round == 2] == ["x"] * 18
     Mgg, *_ = d.information_blocks(xy, d.DesignValues())
-    # ζ per signed angle and ξ per sensor (2 × 18), η per slew type and sensor (2 × 17), the
-    # X response per system at the 8 angles and along the 17 slew types about X (2·2·25)
-    n = 15 + 2 * 18 + 2 * 17 + 2 * 2 * (8 + 17)
+    # ζ per signed angle and ξ per sensor (2 × 18), the common scale (1), η per slew type
+    # and sensor (2 × 17), the X response per system at the 8 angles and along the 17 slew
+    # types about X (2·2·25)
+    n = 15 + 2 * 18 + 1 + 2 * 17 + 2 * 2 * (8 + 17)
     assert Mgg.shape == (n, n)
     sys = {}
     for name, prog in (("y", y), ("xy", xy)):
@@ -389,6 +393,14 @@ def test_tilts_about_x_use_the_other_sensor():
         rnd = d.expected_precision(prog, d.DesignValues(angle_bound_arcsec=0.0)).sd["b1"]
         sys[name] = math.sqrt(full**2 - rnd**2)
     assert sys["xy"] < sys["y"]
+    # the designer's best program leans on both sensors about equally: its systematic part
+    # was 169 ppm with independent sensors, below one sensor's scale error at its bound
+    best = load_program(Path(__file__).parents[1] / "docs/figures/program_design_xy.toml")
+    full = d.expected_precision(best).sd["b1"]
+    rnd = d.expected_precision(best, d.DesignValues(angle_bound_arcsec=0.0)).sd["b1"]
+    one_sensor = 2 * (3.0 / math.sqrt(3.0)) / ((5 + 10 / 60) * 3600)  # δb/b = 2ξ/θ_max
+    b1 = d.DesignValues().truth.b_mgal_per_pix[0]
+    assert math.sqrt(full**2 - rnd**2) / b1 >= one_sensor
 
 
 def test_search_under_systematic_errors_uses_more_distinct_angles():

@@ -94,6 +94,12 @@ def test_budget_has_a_line_per_angle_sensor_and_the_x_response(dual_fit):
         line = res["uncertainty_budget"][name]
         assert line["angle_systematic_y"] > 0 and line["angle_systematic_x"] > 0
         assert "angle_systematic" not in line
+        # the scale error both sensors may share, u = 3″/√3/√2 at θ_max = 5°10′: the data
+        # cannot reveal it (it scales every tilt's Δg as b does), so b carries its prior
+        # one to one, δb/b = 2ξ/θ_max
+        u_common = 3.0 / np.sqrt(3.0) / np.sqrt(2.0)
+        want = 2 * u_common / ((5 + 10 / 60) * 3600) * res["parameters"][name]["mean"]
+        assert line["angle_systematic_xy"] == pytest.approx(want, rel=0.05)
         assert "x_response" in line
         footer = ("total", "nu_eff", "coverage_factor", "expanded")
         parts = [v for k, v in line.items() if k not in footer]

@@ -41,6 +41,7 @@ def test_systematic_widens_b_and_has_its_budget_line(paper_protocol):
         bud = sys_["uncertainty_budget"][k]
         assert "angle_systematic" not in ind["uncertainty_budget"][k]
         assert bud["angle_systematic"] > 0
+        assert "angle_systematic_xy" not in bud  # one sensor: no common scale term
         footer = ("total", "nu_eff", "coverage_factor", "expanded")
         groups = [v for g, v in bud.items() if g not in footer]
         assert math.sqrt(sum(v * v for v in groups)) == pytest.approx(bud["total"], rel=1e-9)

@@ -268,6 +268,40 @@ def sensor_terms(
     return hold, path, var
 
 
+def common_scale_terms(
+    sensors: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, AngleSensorSpec]],
+    theta_rad: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The scale error that two angle sensors may share, ξ_c·θ/θ_max at every hold
+    (H, 1) and slew sample (H, M, 1) of either sensor, and its prior variance (1,).
+
+    ``sensors``: per axis (holds it reads, its slew angles (H, M), the slew samples it
+    reads, its spec). Each sensor's bound says nothing of how its error relates to the
+    other's: separate sensors calibrated against one reference may share a scale error, and
+    two sensors each at their bound with one sign are admitted. b leans on the sensors with
+    weights w and 1 − w; with independent scale terms of u² each (:func:`sensor_terms`)
+    and this common one of variance v, the scale part of var(b) is (w² + (1 − w)²)u² + v
+    (in units of b's sensitivity). v = u²/2 is the smallest common term for which that is
+    never below u², so that two sensors at their bound together are covered as one sensor
+    at its bound is (the module docstring's 2/√3 > 1); u is the smaller sensor's (a common
+    fractional scale s reaches at most min_s U_s/θ_max,s). Without it, such pairs moved b
+    by up to 2.5 of its sd (issue 30's validation at the edge of the specification,
+    ``docs/figures/validation_dual.md``)."""
+    theta = np.asarray(theta_rad, dtype=float)
+    t_max = {a: max(float(np.max(np.abs(theta[on]))), 1e-9) for a, (on, *_) in sensors.items()}
+    t_all = max(t_max.values())
+    hold = np.zeros((theta.size, 1))
+    path = np.zeros((*np.shape(next(iter(sensors.values()))[1]), 1))
+    var = []
+    for a, (on, path_theta, path_on, spec) in sensors.items():
+        hold[:, 0] += np.where(on, theta, 0.0) / t_all
+        path[..., 0] += np.where(path_on, np.asarray(path_theta, dtype=float), 0.0) / t_all
+        ends = np.array([-t_max[a], t_max[a]])
+        u = float(np.max(spec.u_at(ends)))
+        var.append(u**2 * spec.shares[1] * (t_all / t_max[a]) ** 2)
+    return hold, path, np.array([max(min(var) / 2.0, 1e-12)])
+
+
 def systematic_basis(theta_rad: np.ndarray, spec: AngleSensorSpec) -> tuple[np.ndarray, np.ndarray]:
     """The systematic angle-error basis at the holds (H, A + 1) and its prior variances:
     one column per commanded angle (an indicator at the holds), then θₖ/θ_max."""

@@ -17,7 +17,7 @@ import numpy as np
 
 from chekan.holds import HoldTable, segment_record
 from chekan.jaxconfig import device_arrays
-from chekan.joint.angles import AngleSensorSpec, sensor_terms
+from chekan.joint.angles import AngleSensorSpec, common_scale_terms, sensor_terms
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.slews import slew_types, types_about
 from chekan.joint.xresponse import x_response_terms
@@ -145,8 +145,10 @@ def _angle_bases(
     specs: dict[str, AngleSensorSpec | None],
 ):
     """The shared angle-error columns at the holds and along the slews, their prior
-    variances, how many are systematic and how many of those are the X sensor's: ``L``
-    legacy encoder terms (N(0, 2″)), then of each sensor that reads holds of this record
+    variances, how many are systematic, how many of those are the X sensor's and how many
+    are common to both: ``L`` legacy encoder terms (N(0, 2″)), then where both sensors
+    read holds the scale error they may share (:func:`chekan.joint.angles.common_scale_terms`),
+    then of each sensor that reads holds of this record
     (X first, then Y; a sensor's columns are zero at the other sensor's holds and slews)
     the systematic basis of :mod:`.angles` at the holds (one term per commanded angle, the
     scale error) and the slews' own terms, one per slew type (``types``,
@@ -160,6 +162,7 @@ def _angle_bases(
     mv_basis = [np.zeros((*mv_tx.shape, L))]  # the legacy terms act at the holds only
     hold_axis = np.asarray(holds.hold_axis)
     n_x = 0
+    sensors = {}
     for axis in ("x", "y"):
         spec = specs.get(axis)
         on = hold_axis == axis
@@ -167,14 +170,21 @@ def _angle_bases(
             continue
         mv_theta = mv_tx if axis == "x" else mv_ty
         kinds, T = types_about(types, slew_axis, axis)
-        hold, path, var = sensor_terms(
-            theta, on, mv_theta, (slew_axis == axis)[:, None] & mv_mask, kinds, T, spec
-        )
+        path_on = (slew_axis == axis)[:, None] & mv_mask
+        sensors[axis] = (on, mv_theta, path_on, spec)
+        hold, path, var = sensor_terms(theta, on, mv_theta, path_on, kinds, T, spec)
         basis.append(hold)
         mv_basis.append(path)
         prior_var.append(var)
         if axis == "x":
             n_x = hold.shape[1]
+    n_common = 0
+    if len(sensors) == 2:
+        hold, path, var = common_scale_terms(sensors, theta)
+        basis.insert(1, hold)
+        mv_basis.insert(1, path)
+        prior_var.insert(1, var)
+        n_common = 1
     S = sum(b.shape[1] for b in basis) - L
     return (
         np.concatenate(basis, axis=1),
@@ -182,6 +192,7 @@ def _angle_bases(
         np.concatenate(mv_basis, axis=-1),
         S,
         n_x,
+        n_common,
     )
 
 
@@ -230,7 +241,7 @@ def prepare_record(
     specs = {"y": angle_spec, "x": angle_spec_x}
     slew_axis = _slew_axis(holds)
     types = slew_types(holds.theta_rad, slew_axis, mv_mask.any(axis=1))
-    basis, prior_var, mv_basis, S, S_x = _angle_bases(
+    basis, prior_var, mv_basis, S, S_x, S_c = _angle_bases(
         holds, mv_tx, mv_ty, mv_mask, slew_axis, types, L, specs
     )
     x_kinds, x_types = types_about(types, slew_axis, "x")
@@ -285,7 +296,8 @@ def prepare_record(
         holds.step,
         t_mid,
         (t0, t1),
-        angle_spec if S > S_x else None,
+        angle_spec if S > S_x + S_c else None,
         angle_spec_x if S_x else None,
         S_x,
+        S_c,
     )

@@ -6,7 +6,8 @@ eq. 6), hold offsets, angle readout (the random error of every hold, δ, and the
 encoder terms), **angle systematic** (the sensor's error per commanded angle and its
 scale error, repeated in every round: GUM Type B, from the platform's specification; one
 line per angle sensor, ``angle_systematic_y`` and ``angle_systematic_x``, where the
-record tilts about both axes), a (the prior of K), other priors; scaled to the reported sd.
+record tilts about both axes, and ``angle_systematic_xy`` for the scale error the two may
+share), a (the prior of K), other priors; scaled to the reported sd.
 """
 
 from __future__ import annotations
@@ -43,9 +44,11 @@ def uncertainty_budget(fit: MapFit) -> dict:
     blocks = structure.beta_blocks
     groups = {"noise": np.arange(n_data)}
     off = n_data
-    sys_x = blocks["angle_systematic"][: model.n_systematic_x]
-    sys_y = blocks["angle_systematic"][model.n_systematic_x :]
-    two = model.n_systematic_x > 0 and model.angle_spec is not None
+    n_c, n_x = model.n_systematic_common, model.n_systematic_x
+    sys_c = blocks["angle_systematic"][:n_c]
+    sys_x = blocks["angle_systematic"][n_c : n_c + n_x]
+    sys_y = blocks["angle_systematic"][n_c + n_x :]
+    two = n_x > 0 and model.angle_spec is not None
     for name, idx_beta in (
         ("level_offset", blocks["c"]),
         ("drift", blocks["drift"]),
@@ -55,6 +58,7 @@ def uncertainty_budget(fit: MapFit) -> dict:
         ("angle_readout", blocks["encoder"]),
         ("angle_systematic_y" if two else "angle_systematic", sys_y),
         ("angle_systematic_x" if two else "angle_systematic", sys_x),
+        ("angle_systematic_xy", sys_c),
     ):
         groups.setdefault(name, np.zeros(0, int))
         groups[name] = np.concatenate([groups[name], off + idx_beta])

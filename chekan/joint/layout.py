@@ -193,7 +193,8 @@ class RecordModel:
     t_span_s: tuple[float, float]  # s, first and last sample
     angle_spec: AngleSensorSpec | None = None  # the Y sensor's systematic error prior, if modelled
     angle_spec_x: AngleSensorSpec | None = None  # the X sensor's, where the record tilts about X
-    n_systematic_x: int = 0  # the X sensor's systematic terms (the first of the block)
+    n_systematic_x: int = 0  # the X sensor's systematic terms (after the common ones)
+    n_systematic_common: int = 0  # the scale error both sensors may share (the block's first)
 
     @property
     def n_holds(self) -> int:

@@ -329,6 +329,10 @@ LABELS: dict[str, dict[str, str]] = {
         "en": "angle sensor {axis}, systematic",
         "ru": "датчик угла {axis}, систематическая",
     },
+    "src_angle_systematic_xy": {
+        "en": "angle sensors X and Y, the scale error they may share (Type B, the smaller u)",
+        "ru": "датчики угла X и Y, возможная общая ошибка масштаба (тип В, по меньшей u)",
+    },
     "src_angle_spec_of": {
         "en": " (Type B, platform specification{bound})",
         "ru": " (тип В, паспорт платформы{bound})",
