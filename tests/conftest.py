@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,10 @@ import pytest
 os.environ.setdefault("CHEKAN_JAX_CACHE", str(Path(__file__).resolve().parents[1] / ".jax-cache"))
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
+# opt-in: CHEKAN_TEST_PROFILE=FILE appends, per test, its wall seconds (setup and teardown
+# included) and what it added to the JAX cache folder: which tests compile a model
+# structure of their own, where a cold suite spends its time
+PROFILE = os.environ.get("CHEKAN_TEST_PROFILE")
 PAPER_PROTOCOL = SHARED / "reference" / "calibr_46_protocol.csv"
 
 
@@ -56,3 +61,34 @@ def short_session_theta(short_session) -> dict:
         "dgamma_arcmin": jnp.asarray(truth.dgamma_arcmin),
         "tau_s": jnp.asarray(truth.tau_s),
     }
+
+
+def _cache_files(folder: Path) -> dict[str, int]:
+    """Every file under ``folder`` and its size."""
+    out = {}
+    for root, _dirs, files in os.walk(folder):
+        for f in files:
+            p = os.path.join(root, f)
+            try:
+                out[p] = os.path.getsize(p)
+            except OSError:
+                pass
+    return out
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With ``CHEKAN_TEST_PROFILE``: one tab-separated line per test (node id, seconds,
+    files and MB added to the cache folder)."""
+    if not PROFILE:
+        yield
+        return
+    cache = Path(os.environ["CHEKAN_JAX_CACHE"])
+    before = _cache_files(cache)
+    t0 = time.perf_counter()
+    yield
+    seconds = time.perf_counter() - t0
+    added = {p: n for p, n in _cache_files(cache).items() if p not in before}
+    with open(PROFILE, "a", encoding="utf-8") as f:
+        mb = sum(added.values()) / 1e6
+        f.write(f"{item.nodeid}\t{seconds:.1f}\t{len(added)}\t{mb:.1f}\n")
