@@ -27,9 +27,13 @@ from chekan.units import ARCSEC_PER_RAD
 NO_SYSTEMATIC = AngleSensorSpec(0.0)
 
 
-def _sd_b(rec, settle_s, spec):
+def _sd_b(rec, settle_s, spec, shape=None):
+    """(b₁, b₂) of the MAP; ``shape`` (H, N, M): the model padded to it (padding adds
+    nothing to the fit, and records of one structure share its compiled solver)."""
     cres, _ = calibrate_record(rec, settle_s=settle_s)
     _, model = joint.prepare(rec, settle_s, angle_spec=spec)
+    if shape is not None:
+        model = model.pad(*shape)
     fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
     assert fit.result.converged
     md = map_derived(fit)
@@ -110,11 +114,17 @@ def test_per_angle_error_does_not_average_over_rounds():
     """Errors per commanded angle repeat in every round: the part of var(b) they bring
     does not fall with the number of rounds, however well the rounds agree."""
     added = {}
+    recs = {}
     for rounds in (2, 6):
         prog = build_program([2.0, 3.5, 5.0], dwell_s=300, settle_s=200, rounds=rounds)
-        rec, _ = simulate_session(prog, Truth(serial="P", angle_systematic_arcsec=0.0), seed=4)
-        (_, sd0), _ = _sd_b(rec, 200, NO_SYSTEMATIC)
-        (_, sd1), _ = _sd_b(rec, 200, AngleSensorSpec(3.0, scale_share=0.0))
+        recs[rounds], _ = simulate_session(
+            prog, Truth(serial="P", angle_systematic_arcsec=0.0), seed=4
+        )
+    _, longest = joint.prepare(recs[6], 200, angle_spec=NO_SYSTEMATIC)
+    shape = (longest.n_holds, longest.n_bins, longest.structure.n_moves)  # one structure
+    for rounds, rec in recs.items():
+        (_, sd0), _ = _sd_b(rec, 200, NO_SYSTEMATIC, shape)
+        (_, sd1), _ = _sd_b(rec, 200, AngleSensorSpec(3.0, scale_share=0.0), shape)
         added[rounds] = sd1**2 - sd0**2
     assert added[2] > 0 and added[6] / added[2] > 0.75  # the systematic part stays
 
