@@ -83,7 +83,7 @@ from scipy.interpolate import CubicSpline
 import chekan.jaxconfig  # noqa: F401  (float64 before any array)
 from chekan import model as fm
 from chekan.design.layout import DesignValues, Lagged, Layout, lagged_means, program_layout
-from chekan.joint.angles import common_scale_terms, sensor_terms
+from chekan.joint.angles import SensorReads, all_sensor_terms
 from chekan.joint.derived import at_level
 from chekan.joint.problem import nonlinear_params
 from chekan.joint.slews import slew_types, types_about
@@ -283,7 +283,6 @@ def systematic_basis(
         return np.zeros((H, 0)), np.zeros((*layout.slew_theta_rad.shape, 0)), np.zeros(0)
     spec = values.angle_spec
     types = slew_types(layout.theta_hold_rad, layout.hold_axis, layout.slew_mask.any(axis=1))
-    holds, paths, variances = [], [], []
     sensors = {}
     for axis in ("x", "y"):
         on = layout.hold_axis == axis
@@ -291,23 +290,11 @@ def systematic_basis(
             continue
         kinds, T = types_about(types, layout.hold_axis, axis)
         path_on = (layout.hold_axis == axis)[:, None] & layout.slew_mask
-        sensors[axis] = (on, layout.slew_theta_rad, path_on, spec)
-        hold, path, var = sensor_terms(
-            layout.theta_hold_rad, on, layout.slew_theta_rad, path_on, kinds, T, spec
-        )
-        holds.append(hold)
-        paths.append(path)
-        variances.append(var)
-    if len(sensors) == 2:  # the scale error both sensors may share, as the estimator
-        hold, path, var = common_scale_terms(sensors, layout.theta_hold_rad)
-        holds.insert(0, hold)
-        paths.insert(0, path)
-        variances.insert(0, var)
-    return (
-        np.concatenate(holds, axis=1),
-        np.concatenate(paths, axis=-1),
-        np.concatenate(variances),
+        sensors[axis] = SensorReads(on, layout.slew_theta_rad, path_on, kinds, T, spec)
+    hold, path, var, _, _ = all_sensor_terms(
+        layout.theta_hold_rad, sensors, layout.slew_theta_rad.shape
     )
+    return hold, path, var
 
 
 def x_response_columns(layout: Layout, truth: Truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -268,15 +268,68 @@ def sensor_terms(
     return hold, path, var
 
 
+@dataclass(frozen=True)
+class SensorReads:
+    """What one angle sensor reads in a record: its holds ``on`` (H,), the slew angles
+    about its axis (H, M) and the slew samples it reads ``path_on`` (H, M), its slew types
+    (``kinds``, ``n_types``: :mod:`chekan.joint.slews`), and what is known of its error."""
+
+    on: np.ndarray
+    path_theta_rad: np.ndarray
+    path_on: np.ndarray
+    kinds: np.ndarray
+    n_types: int
+    spec: AngleSensorSpec
+
+
+def all_sensor_terms(
+    theta_rad: np.ndarray, sensors: dict[str, SensorReads], path_shape: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """The systematic terms of every sensor that reads holds, at the holds (H, Q), along
+    the slews (H, M, Q) with ``path_shape`` (H, M), their prior variances (Q,), how many are
+    common to both sensors and how many are the X sensor's: where both read holds the scale
+    error they may share (:func:`common_scale_terms`), then the X sensor's terms, then the
+    Y sensor's (:func:`sensor_terms`; a sensor's columns are zero at the other's holds and
+    slews). Shared by the estimator (:mod:`chekan.joint.binning`) and the design."""
+    theta = np.asarray(theta_rad, dtype=float)
+    if not sensors:
+        return np.zeros((theta.size, 0)), np.zeros((*path_shape, 0)), np.zeros(0), 0, 0
+    holds, paths, variances = [], [], []
+    n_x = 0
+    for axis in ("x", "y"):
+        s = sensors.get(axis)
+        if s is None:
+            continue
+        hold, path, var = sensor_terms(
+            theta, s.on, s.path_theta_rad, s.path_on, s.kinds, s.n_types, s.spec
+        )
+        holds.append(hold)
+        paths.append(path)
+        variances.append(var)
+        n_x = hold.shape[1] if axis == "x" else n_x
+    n_common = 0
+    if len(sensors) == 2:
+        hold, path, var = common_scale_terms(theta, sensors)
+        holds.insert(0, hold)
+        paths.insert(0, path)
+        variances.insert(0, var)
+        n_common = 1
+    return (
+        np.concatenate(holds, axis=1),
+        np.concatenate(paths, axis=-1),
+        np.concatenate(variances),
+        n_common,
+        n_x,
+    )
+
+
 def common_scale_terms(
-    sensors: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, AngleSensorSpec]],
-    theta_rad: np.ndarray,
+    theta_rad: np.ndarray, sensors: dict[str, SensorReads]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scale error that two angle sensors may share, ξ_c·θ/θ_max at every hold
     (H, 1) and slew sample (H, M, 1) of either sensor, and its prior variance (1,).
 
-    ``sensors``: per axis (holds it reads, its slew angles (H, M), the slew samples it
-    reads, its spec). Each sensor's bound says nothing of how its error relates to the
+    Each sensor's bound says nothing of how its error relates to the
     other's: separate sensors calibrated against one reference may share a scale error, and
     two sensors each at their bound with one sign are admitted. b leans on the sensors with
     weights w and 1 − w; with independent scale terms of u² each (:func:`sensor_terms`)
@@ -288,18 +341,18 @@ def common_scale_terms(
     by up to 2.5 of its sd (issue 30's validation at the edge of the specification,
     ``docs/figures/validation_dual.md``)."""
     theta = np.asarray(theta_rad, dtype=float)
-    t_max = {a: max(float(np.max(np.abs(theta[on]))), 1e-9) for a, (on, *_) in sensors.items()}
+    t_max = {a: max(float(np.max(np.abs(theta[s.on]))), 1e-9) for a, s in sensors.items()}
     t_all = max(t_max.values())
     hold = np.zeros((theta.size, 1))
-    path = np.zeros((*np.shape(next(iter(sensors.values()))[1]), 1))
+    path = None
     var = []
-    for a, (on, path_theta, path_on, spec) in sensors.items():
-        hold[:, 0] += np.where(on, theta, 0.0) / t_all
-        path[..., 0] += np.where(path_on, np.asarray(path_theta, dtype=float), 0.0) / t_all
-        ends = np.array([-t_max[a], t_max[a]])
-        u = float(np.max(spec.u_at(ends)))
-        var.append(u**2 * spec.shares[1] * (t_all / t_max[a]) ** 2)
-    return hold, path, np.array([max(min(var) / 2.0, 1e-12)])
+    for a, s in sensors.items():
+        hold[:, 0] += np.where(s.on, theta, 0.0) / t_all
+        along = np.where(s.path_on, np.asarray(s.path_theta_rad, dtype=float), 0.0) / t_all
+        path = along if path is None else path + along
+        u = float(np.max(s.spec.u_at(np.array([-t_max[a], t_max[a]]))))
+        var.append(u**2 * s.spec.shares[1] * (t_all / t_max[a]) ** 2)
+    return hold, np.asarray(path)[..., None], np.array([max(min(var) / 2.0, 1e-12)])
 
 
 def systematic_basis(theta_rad: np.ndarray, spec: AngleSensorSpec) -> tuple[np.ndarray, np.ndarray]:

@@ -17,7 +17,7 @@ import numpy as np
 
 from chekan.holds import HoldTable, segment_record
 from chekan.jaxconfig import device_arrays
-from chekan.joint.angles import AngleSensorSpec, common_scale_terms, sensor_terms
+from chekan.joint.angles import AngleSensorSpec, SensorReads, all_sensor_terms
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.slews import slew_types, types_about
 from chekan.joint.xresponse import x_response_terms
@@ -146,51 +146,37 @@ def _angle_bases(
 ):
     """The shared angle-error columns at the holds and along the slews, their prior
     variances, how many are systematic, how many of those are the X sensor's and how many
-    are common to both: ``L`` legacy encoder terms (N(0, 2″)), then where both sensors
-    read holds the scale error they may share (:func:`chekan.joint.angles.common_scale_terms`),
-    then of each sensor that reads holds of this record
-    (X first, then Y; a sensor's columns are zero at the other sensor's holds and slews)
-    the systematic basis of :mod:`.angles` at the holds (one term per commanded angle, the
-    scale error) and the slews' own terms, one per slew type (``types``,
-    :func:`chekan.joint.angles.slew_error_columns`); the scale error, linear in θ, acts
-    along the slews too."""
+    are common to both: ``L`` legacy encoder terms (N(0, 2″)), then the systematic terms of
+    every sensor that reads holds of this record (:func:`chekan.joint.angles.all_sensor_terms`:
+    the scale error both may share, the X sensor's, the Y sensor's: one term per commanded
+    angle and the scale error at the holds, the scale error and one term per slew type
+    along the slews, ``types``)."""
     theta = holds.theta_rad
     tmax = max(np.max(np.abs(theta)), 1e-9)
     H = theta.shape[0]
     enc = np.polynomial.legendre.legvander(theta / tmax, L)[:, 1:] if L else np.zeros((H, 0))
-    basis, prior_var = [enc], [np.full(L, 4.0)]
-    mv_basis = [np.zeros((*mv_tx.shape, L))]  # the legacy terms act at the holds only
     hold_axis = np.asarray(holds.hold_axis)
-    n_x = 0
     sensors = {}
     for axis in ("x", "y"):
         spec = specs.get(axis)
         on = hold_axis == axis
         if spec is None or not np.any(on & ~holds.is_level):
             continue
-        mv_theta = mv_tx if axis == "x" else mv_ty
         kinds, T = types_about(types, slew_axis, axis)
-        path_on = (slew_axis == axis)[:, None] & mv_mask
-        sensors[axis] = (on, mv_theta, path_on, spec)
-        hold, path, var = sensor_terms(theta, on, mv_theta, path_on, kinds, T, spec)
-        basis.append(hold)
-        mv_basis.append(path)
-        prior_var.append(var)
-        if axis == "x":
-            n_x = hold.shape[1]
-    n_common = 0
-    if len(sensors) == 2:
-        hold, path, var = common_scale_terms(sensors, theta)
-        basis.insert(1, hold)
-        mv_basis.insert(1, path)
-        prior_var.insert(1, var)
-        n_common = 1
-    S = sum(b.shape[1] for b in basis) - L
+        sensors[axis] = SensorReads(
+            on,
+            mv_tx if axis == "x" else mv_ty,
+            (slew_axis == axis)[:, None] & mv_mask,
+            kinds,
+            T,
+            spec,
+        )
+    hold, path, var, n_common, n_x = all_sensor_terms(theta, sensors, mv_tx.shape)
     return (
-        np.concatenate(basis, axis=1),
-        np.concatenate(prior_var),
-        np.concatenate(mv_basis, axis=-1),
-        S,
+        np.concatenate([enc, hold], axis=1),
+        np.concatenate([np.full(L, 4.0), var]),
+        np.concatenate([np.zeros((*mv_tx.shape, L)), path], axis=-1),  # legacy: holds only
+        hold.shape[1],
         n_x,
         n_common,
     )
@@ -299,5 +285,4 @@ def prepare_record(
         angle_spec if S > S_x + S_c else None,
         angle_spec_x if S_x else None,
         S_x,
-        S_c,
     )

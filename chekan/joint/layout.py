@@ -193,8 +193,13 @@ class RecordModel:
     t_span_s: tuple[float, float]  # s, first and last sample
     angle_spec: AngleSensorSpec | None = None  # the Y sensor's systematic error prior, if modelled
     angle_spec_x: AngleSensorSpec | None = None  # the X sensor's, where the record tilts about X
-    n_systematic_x: int = 0  # the X sensor's systematic terms (after the common ones)
-    n_systematic_common: int = 0  # the scale error both sensors may share (the block's first)
+    n_systematic_x: int = 0  # the X sensor's systematic terms (after the common one)
+
+    @property
+    def n_systematic_common(self) -> int:
+        """The scale error both sensors may share: one term, the block's first, where both
+        read holds (:func:`chekan.joint.angles.all_sensor_terms`)."""
+        return int(self.angle_spec is not None and self.angle_spec_x is not None)
 
     @property
     def n_holds(self) -> int:
