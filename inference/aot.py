@@ -11,7 +11,7 @@ and runs.
 The key of an executable is everything that decides what it computes:
 
     key = sha256(name, fingerprint, argument tree and static leaves, shapes and dtypes,
-                 jax/jaxlib versions, backend, CPU features)
+                 jax/jaxlib versions, backend, CPU features, XLA_FLAGS)
 
 ``fingerprint`` is the caller's statement of *which code* the function runs (a hash of the
 model's source files, say): the store cannot see inside a closure, so a wrong fingerprint
@@ -98,6 +98,8 @@ def _machine() -> str:
     import jaxlib
 
     parts = [jax.__version__, jaxlib.__version__, jax.default_backend(), platform.machine()]
+    if os.environ.get("XLA_FLAGS"):  # e.g. another backend optimisation level: other code
+        parts.append(os.environ["XLA_FLAGS"])
     try:
         dev = jax.devices()[0]
         parts.append(str(dev.client.platform_version))

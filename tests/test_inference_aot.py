@@ -47,10 +47,13 @@ PROGRAM = textwrap.dedent(
 )
 
 
-def _run(folder: Path, fingerprint: str, code: str = "1", how: str = "") -> list[str]:
+def _run(
+    folder: Path, fingerprint: str, code: str = "1", how: str = "", xla_flags: str = ""
+) -> list[str]:
     """The program in a new process; ``code`` changes what it computes (× the shift);
-    ``how``: "prefetch" or "preload" the executable before the call."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
+    ``how``: "prefetch" or "preload" the executable before the call; ``xla_flags``: the
+    process's ``XLA_FLAGS``."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu", "XLA_FLAGS": xla_flags}
     proc = subprocess.run(
         [sys.executable, "-c", PROGRAM, str(folder), fingerprint, code] + ([how] if how else []),
         env=env,
@@ -151,6 +154,18 @@ def test_other_code_never_loads_a_stored_executable(tmp_path):
     x = np.arange(12.0).reshape(3, 4) / 10
     assert float(out[1]) == pytest.approx(float(np.trace(x @ x.T + 4.0 * np.eye(3)) * 3))
     assert len(list(tmp_path.glob("*.jaxexe"))) == 2
+
+
+def test_other_xla_flags_never_load_a_stored_executable(tmp_path):
+    """XLA_FLAGS change the machine code of the same program (here LLVM's optimisation
+    level): a process with other flags compiles its own, then loads that one."""
+    first = _run(tmp_path, "code-v1")
+    other = "--xla_backend_optimization_level=0"
+    assert _run(tmp_path, "code-v1", xla_flags=other)[0] == "compiled"
+    again = _run(tmp_path, "code-v1", xla_flags=other)
+    assert again[0] == "loaded"
+    assert [float(v) for v in again[1:3]] == pytest.approx([float(v) for v in first[1:3]])
+    assert _run(tmp_path, "code-v1")[0] == "loaded"
 
 
 def test_a_new_fingerprint_of_the_same_program_reuses_its_executable(tmp_path):
