@@ -131,11 +131,14 @@ def log_var_cov(
 
 def coverage_factor(nu_eff: float, p: float = P_COVERAGE) -> float:
     """k = t_p(ν) of Student's t, ν truncated to an integer (GUM G.4.1), two-sided
-    probability ``p``; ν ≥ ``NU_CAP`` (or inf) gives the normal quantile."""
+    probability ``p``; ν ≥ ``NU_CAP`` (or inf) gives the normal quantile; 0 < ν < 1
+    truncates to no degree of freedom at all: no finite k (``inf``; the caller says why)."""
     if not (0.0 < p < 1.0):
         raise ValueError(f"the coverage probability must lie in (0, 1): {p}")
-    if not nu_eff >= 1.0:  # also NaN
-        raise ValueError(f"the effective degrees of freedom must be at least 1: {nu_eff}")
+    if not nu_eff > 0.0:  # also NaN
+        raise ValueError(f"the effective degrees of freedom must be positive: {nu_eff}")
+    if nu_eff < 1.0:
+        return math.inf
     if nu_eff >= NU_CAP or math.isinf(nu_eff):
         return NormalDist().inv_cdf(0.5 + p / 2.0)
     return t_two_sided(math.floor(nu_eff), p)

@@ -4,6 +4,8 @@ mean: groups − 1), the shift of an estimate with its variances, and Student's 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from scipy import stats
@@ -131,5 +133,8 @@ def test_coverage_factor_is_ea_4_02s_table():
     for nu, k in table.items():
         assert round(coverage_factor(nu + 0.9), 2) == k
     assert coverage_factor(np.inf) == pytest.approx(2.0, abs=1e-4)
-    with pytest.raises(ValueError):
-        coverage_factor(0.5)
+    # below one degree of freedom GUM's truncation leaves none: no finite k
+    assert coverage_factor(0.5) == math.inf
+    for bad in (0.0, -1.0, math.nan):
+        with pytest.raises(ValueError):
+            coverage_factor(bad)

@@ -123,8 +123,9 @@ def budget_entries(budget_raw: dict, params: dict, nu_eff: dict | None = None) -
         nu = (nu_eff or {}).get(name)
         k = coverage_factor(nu) if nu is not None else 2.0
         e["nu_eff"] = float(nu) if nu is not None else None
-        e["coverage_factor"] = k
-        e["expanded"] = k * sd if sd is not None else None
+        finite = bool(np.isfinite(k))  # ν_eff < 1: no finite k, no U (a flagged problem)
+        e["coverage_factor"] = k if finite else None
+        e["expanded"] = k * sd if sd is not None and finite else None
         out[name] = e
     return out
 

@@ -7,6 +7,7 @@ the fit to :func:`map_result` or :func:`posterior_result`.
 from __future__ import annotations
 
 import functools
+import math
 import time
 import warnings
 
@@ -134,6 +135,15 @@ def map_result(fit: MapFit, base: dict, options: CalibrationOptions, t_start: fl
         budget_raw[name]["hyperparameters"] = md["_u_hyper"][name]
     out["uncertainty_budget"] = budget_entries(budget_raw, params, nu)
     diag = flag_prior_dominated(params, diag)
+    few = [n for n in params if (nu.get(n) or math.inf) < 1.0]
+    if few:  # GUM G.4.1 truncates ν_eff < 1 to no degree of freedom: no finite k
+        diag["problems"] = [
+            *diag["problems"],
+            f"effective degrees of freedom below 1 for {', '.join(few)} (down to "
+            f"{min(nu[n] for n in few):.2g}): the record is too short to estimate the Type A "
+            "part of their uncertainty, so no interval or expanded uncertainty is stated for "
+            "them; calibrate a program with more holds",
+        ]
     diag["seconds"] = time.perf_counter() - t_start
     out["diagnostics"] = diag
     return out

@@ -9,6 +9,7 @@ Results without them (``bayes``, classical, results written before 0.3.9 with th
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -29,7 +30,8 @@ def b_uncertainty(result: Mapping[str, Any], name: str) -> tuple[float | None, b
 def expanded_of(result: Mapping[str, Any], name: str) -> tuple[float | None, float]:
     """``(U, k)`` of result value ``name``: b1/b2 from their budget when it has one (its U and
     k, or ``expanded_k2`` with k = 2), otherwise k·sd with k from the value's ``nu_eff``
-    (:func:`inference.dof.coverage_factor`) or 2. U is None without an uncertainty."""
+    (:func:`inference.dof.coverage_factor`) or 2. U is None without an uncertainty, and
+    where ν_eff < 1 leaves no finite k (k is then ``inf``)."""
     if name in ("b1", "b2"):
         u, from_budget = b_uncertainty(result, name)
         bud = (result.get("uncertainty_budget") or {}).get(name) or {}
@@ -41,7 +43,7 @@ def expanded_of(result: Mapping[str, Any], name: str) -> tuple[float | None, flo
         e = result["parameters"].get(name) or {}
         u = float(e["sd"]) if is_num(e.get("sd")) else None
     k = coverage_factor_of(result, name)
-    return (k * u if u is not None else None), k
+    return (k * u if u is not None and math.isfinite(k) else None), k
 
 
 def coverage_factor_of(result: Mapping[str, Any], name: str) -> float:
