@@ -28,7 +28,7 @@ NO_SYSTEMATIC = AngleSensorSpec(0.0)
 
 
 def _sd_b(rec, settle_s, spec, shape=None):
-    """(b₁, b₂) of the MAP; ``shape`` (H, N, M): the model padded to it (padding adds
+    """(b₁, b₂) of the MAP; ``shape`` (H, N, M, S): the model padded to it (padding adds
     nothing to the fit, and records of one structure share its compiled solver)."""
     cres, _ = calibrate_record(rec, settle_s=settle_s)
     _, model = joint.prepare(rec, settle_s, angle_spec=spec)
@@ -77,6 +77,33 @@ def test_commanded_angles_are_grouped_across_rounds():
     np.testing.assert_allclose(var, [3.0] * 5 + [3.0])  # u² = 3²/3, both extremes in full
 
 
+def _per_angle_program(rounds: int):
+    return build_program([2.0, 3.5, 5.0], dwell_s=300, settle_s=200, rounds=rounds)
+
+
+def _per_angle_record(rounds: int):
+    return simulate_session(
+        _per_angle_program(rounds), Truth(serial="P", angle_systematic_arcsec=0.0), seed=4
+    )[0]
+
+
+def _unsettled_record():
+    truth = Truth(serial="S", angle_systematic_arcsec=0.0, tau_s=90.0)
+    return simulate_session(UNSETTLED_PROGRAM, truth, seed=21)
+
+
+@pytest.fixture(scope="module")
+def shared_shape() -> tuple[int, int, int, int]:
+    """(H, N, M, S) that holds the per-angle test's longest record and the unsettled
+    program's: their MAP fits share one compiled structure (a cold suite compiles one
+    instead of two; padding is exact)."""
+    shapes = []
+    for rec, settle in ((_per_angle_record(6), 200), (_unsettled_record()[0], 120)):
+        s = joint.prepare(rec, settle, angle_spec=AngleSensorSpec(3.0))[1].structure
+        shapes.append((s.n_holds, s.n_bins, s.n_moves, s.n_systematic))
+    return tuple(int(x) for x in np.max(shapes, axis=0))  # type: ignore[return-value]
+
+
 SLOW_PROGRAM = build_program([2.0, 3.5, 5.0], dwell_s=150, settle_s=100, rounds=4)
 # six angles in four zigzag rounds of short holds (the Y-only design program's kind): with
 # τ = 90 s no hold settles and a hold's terms reach the holds after the next one
@@ -87,7 +114,7 @@ UNSETTLED_PROGRAM = build_program(
 
 @pytest.mark.slow
 @pytest.mark.parametrize("slow", [False, True], ids=["settled", "unsettled"])
-def test_pure_scale_error_adds_two_u_over_theta_max_in_quadrature(short_program, slow):
+def test_pure_scale_error_adds_two_u_over_theta_max_in_quadrature(short_program, slow, request):
     """A scale error ξ·θ/θ_max of the angle sensor acts on b one to one: Δg ∝ θ², so
     δb/b = −2ξ/θ_max. With a pure scale prior of sd u the stated sd must grow by
     2·b·u/θ_max in quadrature (the data cannot see ξ: it repeats in every round) — also
@@ -96,13 +123,19 @@ def test_pure_scale_error_adds_two_u_over_theta_max_in_quadrature(short_program,
     seemed to tell ξ from b there (0.83 of this added; 1/3 on the designer's 20-round xy
     program)."""
     program = UNSETTLED_PROGRAM if slow else short_program
-    truth = Truth(serial="S", angle_systematic_arcsec=0.0, tau_s=90.0 if slow else 30.0)
-    rec, truth = simulate_session(program, truth, seed=21)
+    if slow:
+        rec, truth = _unsettled_record()
+    else:
+        rec, truth = simulate_session(
+            program, Truth(serial="S", angle_systematic_arcsec=0.0, tau_s=30.0), seed=21
+        )
+    # the unsettled program padded to the per-angle test's structure (one compile for both)
+    shape = request.getfixturevalue("shared_shape") if slow else None
     settle = program.settle_s
     bound = 3.0
-    (_, sd0), _ = _sd_b(rec, settle, NO_SYSTEMATIC)
+    (_, sd0), _ = _sd_b(rec, settle, NO_SYSTEMATIC, shape)
     spec = AngleSensorSpec(bound, scale_share=1.0)
-    (_, sd1), _ = _sd_b(rec, settle, spec)
+    (_, sd1), _ = _sd_b(rec, settle, spec, shape)
     theta_max = max(abs(s.tilt_y_rad) for s in program.steps) * ARCSEC_PER_RAD
     expected = 2 * truth.b_mgal_per_pix[0] * spec.u_arcsec / theta_max
     added = math.sqrt(sd1**2 - sd0**2)
@@ -110,18 +143,12 @@ def test_pure_scale_error_adds_two_u_over_theta_max_in_quadrature(short_program,
 
 
 @pytest.mark.slow
-def test_per_angle_error_does_not_average_over_rounds():
+def test_per_angle_error_does_not_average_over_rounds(shared_shape):
     """Errors per commanded angle repeat in every round: the part of var(b) they bring
     does not fall with the number of rounds, however well the rounds agree."""
     added = {}
-    recs = {}
-    for rounds in (2, 6):
-        prog = build_program([2.0, 3.5, 5.0], dwell_s=300, settle_s=200, rounds=rounds)
-        recs[rounds], _ = simulate_session(
-            prog, Truth(serial="P", angle_systematic_arcsec=0.0), seed=4
-        )
-    _, longest = joint.prepare(recs[6], 200, angle_spec=NO_SYSTEMATIC)
-    shape = (longest.n_holds, longest.n_bins, longest.structure.n_moves)  # one structure
+    recs = {rounds: _per_angle_record(rounds) for rounds in (2, 6)}
+    shape = shared_shape  # both records in one structure (the unsettled program's too)
     for rounds, rec in recs.items():
         (_, sd0), _ = _sd_b(rec, 200, NO_SYSTEMATIC, shape)
         (_, sd1), _ = _sd_b(rec, 200, AngleSensorSpec(3.0, scale_share=0.0), shape)
