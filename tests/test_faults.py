@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+from children import interrupt
+
 ROOT = Path(__file__).resolve().parents[1]
 
 PARENT = """
@@ -362,7 +364,6 @@ def test_acquire_on_a_disk_already_full_leaves_nothing_that_blocks_a_retry(tmp_p
                     time.sleep(0.1)
                 assert rec.stat().st_size > 2000  # rows are being recorded
             finally:
-                p2.send_signal(signal.SIGINT)
-                p2.communicate(timeout=60)
+                interrupt(p2, 60)
     finally:
         subprocess.run(["umount", str(disk)], capture_output=True)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from children import interrupt
 
 from chekan.errors import ChekanError
 from chekan.program import build_program
@@ -304,8 +305,7 @@ def test_sigint_levels_platform(tmp_path):
         p = subprocess.Popen(_acquire_cmd(emu, rec, prog), cwd=ROOT, stdout=subprocess.PIPE)
         _wait_event(rec, lambda e: e["event"] == "hold" and e["step"] == 1)
         assert emu.emulator.platform.target == (0.0, 3600.0)
-        p.send_signal(signal.SIGINT)
-        out, _ = p.communicate(timeout=30)
+        out, _ = interrupt(p, 30)
         wait_level(emu)
     assert p.returncode == EXIT_INTERRUPTED
     assert b"interrupted" in out and b"levelled: yes" in out
@@ -339,8 +339,7 @@ def test_command_line_emulate_and_acquire(tmp_path):
         again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=60)
         assert again.returncode == 2 and "exists" in again.stderr
     finally:
-        emu.send_signal(signal.SIGINT)
-        emu.communicate(timeout=30)
+        interrupt(emu, 30)
     assert emu.returncode == 0
     assert not sensor.exists()  # the emulator removed its symlinks
     check_record(rec)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from children import interrupt
 
 from chekan.live import calib
 from chekan.live.follow import JournalFollower, RawLogFollower, RecordFollower
@@ -698,8 +699,7 @@ def test_live_on_all_interfaces_prints_the_bound_address_and_a_warning(tmp_path)
     try:
         first, second = p.stdout.readline(), p.stdout.readline()
     finally:
-        p.send_signal(signal.SIGINT)
-        p.wait(20)
+        interrupt(p, 20)
     assert re.match(
         r"live page http://127\.0\.0\.1:(\d+)/ \(pid \d+, bound to 0\.0\.0\.0:\1,", first
     )
