@@ -11,6 +11,7 @@ under ``--strict``); the certificate prints U and k as "—".
 from __future__ import annotations
 
 import copy
+import html
 import json
 import math
 import re
@@ -64,7 +65,9 @@ def test_the_certificate_prints_no_u_and_says_why(tmp_path):
     bud.update(nu_eff=0.025, coverage_factor=None, expanded=None)
     assert expanded_of(res, "b1") == (None, math.inf)
     out = render_report(res, tmp_path / "cert.html", lang="en")
-    text = " ".join(re.sub(r"<[^>]+>", " ", Path(out).read_text(encoding="utf-8")).split())
+    page = re.sub(r"<[^>]+>", " ", Path(out).read_text(encoding="utf-8"))
+    text = " ".join(html.unescape(page).split())
     assert re.search(r"b₁ = [\d.]+ mGal/pix, U = — mGal/pix \(k = —\)", text), text[:2000]
     assert why in text
+    assert re.search(r"effective degrees of freedom ν_eff < 1 ", text), text  # not "0"
     assert not re.search(r"\b(inf|nan|None)\b", text)

@@ -179,10 +179,12 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
 
 
 def _nu_text(v: object) -> str:
-    """ν_eff as a whole number (GUM G.4.1 truncates it), ∞ beyond 10⁵ (k = 2.00)."""
+    """ν_eff as a whole number (GUM G.4.1 truncates it), ∞ beyond 10⁵ (k = 2.00), "< 1"
+    below one (no degree of freedom left: no k)."""
     if not is_num(v):
         return DASH
-    return "∞" if float(v) >= 1e5 else str(int(float(v)))  # type: ignore[arg-type]
+    nu = float(v)  # type: ignore[arg-type]
+    return "∞" if nu >= 1e5 else "< 1" if nu < 1.0 else str(int(nu))
 
 
 def angle_bound_text(result: Mapping[str, Any], axis: str | None = None) -> str:
