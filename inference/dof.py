@@ -82,6 +82,9 @@ class TypeAReliability:
     """uₕ² = dᵀ V d: the variance of q̂ from the components' estimation."""
     nu_eff: float
     """2 (u² + uₕ²)² / gᵀ V g, at most ``NU_CAP``."""
+    clipped: bool = False
+    """Whether V came from the positive part of an indefinite information
+    (:func:`log_var_cov`): uₕ² and ν_eff then rest on an approximation that failed."""
 
 
 def type_a_reliability(
@@ -92,13 +95,15 @@ def type_a_reliability(
     prior_information: ArrayLike | None = None,
     *,
     cov_log_var: ArrayLike | None = None,
+    clipped: bool = False,
 ) -> TypeAReliability:
     """The components' information, uₕ² and ν_eff for an estimate with row influences
     ``influence`` (n,), at the rows' whitened ``residuals`` (n,), with the stacked rows'
     ``hat`` matrix (n, n) and the components' ``shares`` (m, n) of each row's variance.
     ``prior_information`` (m, m): of a prior on log σ² that the estimate of the components
     used (added to the data's). ``cov_log_var``: V when already known (:func:`log_var_cov`;
-    then ``hat`` and ``prior_information`` are not used)."""
+    then ``hat`` and ``prior_information`` are not used; ``clipped``: whether that V came
+    from an indefinite information, carried into the result)."""
     h = np.asarray(influence, dtype=float)
     r = np.asarray(residuals, dtype=float)
     D = np.asarray(shares, dtype=float)
@@ -114,7 +119,7 @@ def type_a_reliability(
     var_u2 = float(g @ V @ g)
     total = u2 + uh2
     nu = NU_CAP if var_u2 <= 2 * total**2 / NU_CAP else 2 * total**2 / var_u2
-    return TypeAReliability(u2, V, g, d, uh2, float(nu))
+    return TypeAReliability(u2, V, g, d, uh2, float(nu), clipped)
 
 
 def log_var_cov(
@@ -122,11 +127,32 @@ def log_var_cov(
 ) -> np.ndarray:
     """V = I⁻¹ (m, m), the covariance of log σ̂ₐ² (:func:`component_information`, plus the
     information of a prior on log σ² where the estimate used one); a component the rows do
-    not inform gets V from the pseudo-inverse (0: it adds nothing)."""
+    not inform gets V from the pseudo-inverse (0: it adds nothing). An information with
+    negative eigenvalues (a ``hat`` that is not a projection: eigenvalues above 1 on a
+    record that barely determines its parameters) is taken at its positive part first: its
+    inverse would be no covariance, and uₕ² = dᵀVd came out negative (a stated sd of 0)."""
+    info = total_information(hat, shares, prior_information)
+    w, U = np.linalg.eigh(info)
+    if indefinite(w):
+        info = (U * np.clip(w, 0.0, None)) @ U.T
+    return np.linalg.pinv(info, hermitian=True)
+
+
+def total_information(
+    hat: ArrayLike, shares: ArrayLike, prior_information: ArrayLike | None = None
+) -> np.ndarray:
+    """The components' information from the rows plus that of a prior on log σ²."""
     info = component_information(hat, shares)
     if prior_information is not None:
         info = info + np.asarray(prior_information, dtype=float)
-    return np.linalg.pinv(info, hermitian=True)
+    return info
+
+
+def indefinite(eigenvalues: ArrayLike) -> bool:
+    """Whether an information's ascending ``eigenvalues`` go below zero beyond round-off
+    (:func:`log_var_cov` then takes its positive part)."""
+    w = np.asarray(eigenvalues, dtype=float)
+    return bool(w.size and w[0] < -1e-12 * max(abs(w[-1]), np.finfo(float).tiny))
 
 
 def coverage_factor(nu_eff: float, p: float = P_COVERAGE) -> float:

@@ -138,3 +138,30 @@ def test_coverage_factor_is_ea_4_02s_table():
     for bad in (0.0, -1.0, math.nan):
         with pytest.raises(ValueError):
             coverage_factor(bad)
+
+
+def test_an_indefinite_information_gives_a_covariance_not_a_negative_variance():
+    """A 'hat' that is not a projection (the sum of θ's and β's hats on a record that barely
+    determines its parameters had an eigenvalue 1.44) made the components' information
+    indefinite, its inverse no covariance, and uₕ² = dᵀVd negative: a six-hold record of the
+    designer's stated sd(b₁) = 0. V is now the inverse of the information's positive part,
+    and the reliability says so."""
+    from inference.dof import component_information, indefinite
+
+    rng = np.random.default_rng(13)
+    n = 8
+    A = rng.normal(size=(n, n))
+    hat = 0.3 * (A + A.T)  # symmetric, eigenvalues well above 1: not a projection
+    shares = np.abs(rng.normal(size=(2, n)))
+    assert indefinite(np.linalg.eigvalsh(component_information(hat, shares)))
+    V = log_var_cov(hat, shares)
+    assert np.linalg.eigvalsh(V).min() >= -1e-12 * np.abs(V).max()
+    d = rng.normal(size=n)
+    r = type_a_reliability(d, rng.normal(size=n), hat, shares, cov_log_var=V, clipped=True)
+    assert r.u2_components >= 0.0 and r.clipped
+    # a proper information is inverted as before
+    B = rng.normal(size=(n, 3))
+    H = B @ np.linalg.pinv(B)
+    info = component_information(H, shares)
+    assert not indefinite(np.linalg.eigvalsh(info))
+    assert np.array_equal(log_var_cov(H, shares), np.linalg.pinv(info, hermitian=True))

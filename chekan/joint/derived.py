@@ -142,6 +142,7 @@ def map_derived(fit: MapFit) -> dict:
     out["slew_error"] = (float(h["slew_error"]), None)
     out["_m_level"] = np.asarray(data.m_ref) + np.asarray(beta)[blocks["c"]]
     out["_nu_eff"] = {n: rel[i].nu_eff for i, n in enumerate(PHYSICAL)}
+    out["_type_a_clipped"] = any(r.clipped for r in rel)
     out["_u_hyper"] = {n: float(np.sqrt(max(u_hyper[i], 0.0))) for i, n in enumerate(PHYSICAL)}
     return out
 

@@ -135,6 +135,14 @@ def map_result(fit: MapFit, base: dict, options: CalibrationOptions, t_start: fl
         budget_raw[name]["hyperparameters"] = md["_u_hyper"][name]
     out["uncertainty_budget"] = budget_entries(budget_raw, params, nu)
     diag = flag_prior_dominated(params, diag)
+    if md["_type_a_clipped"]:  # inference.dof.log_var_cov took the positive part
+        diag["problems"] = [
+            *diag["problems"],
+            "the information on the noise variances is not positive definite on this record "
+            "(it barely determines its parameters): the Type A part of u and ν_eff rest on "
+            "an approximation that failed and may be understated; calibrate a program with "
+            "more holds",
+        ]
     few = [n for n in params if (nu.get(n) or math.inf) < 1.0]
     if few:  # GUM G.4.1 truncates ν_eff < 1 to no degree of freedom: no finite k
         diag["problems"] = [

@@ -30,7 +30,13 @@ import numpy as np
 from chekan.joint.layout import ModelStructure
 from chekan.joint.map import MapFit
 from chekan.joint.problem import hyper_params
-from inference.dof import TypeAReliability, log_var_cov, type_a_reliability
+from inference.dof import (
+    TypeAReliability,
+    indefinite,
+    log_var_cov,
+    total_information,
+    type_a_reliability,
+)
 
 _PRIOR = {p.name: p for p in hyper_params()}
 #: the information of a prior on log σ² (sd of log σ² = 2·sd of log σ) that the EM uses
@@ -99,6 +105,8 @@ def reliabilities(
     # rows that no component touches (θ's and β's fixed priors) drop out of the traces
     used = np.any(D != 0, axis=0)
     V = log_var_cov(hat[np.ix_(used, used)], D[:, used], PRIOR_INFO)
+    info = total_information(hat[np.ix_(used, used)], D[:, used], PRIOR_INFO)
+    clipped = indefinite(np.linalg.eigvalsh(info))
     infl = np.asarray(Jz) @ C @ J.T + np.asarray(Jb) @ KM.T  # (q, rows)
     R = np.asarray(res.residuals)
-    return [type_a_reliability(h, R, hat, D, cov_log_var=V) for h in infl]
+    return [type_a_reliability(h, R, hat, D, cov_log_var=V, clipped=clipped) for h in infl]
