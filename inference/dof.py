@@ -131,11 +131,18 @@ def log_var_cov(
     negative eigenvalues (a ``hat`` that is not a projection: eigenvalues above 1 on a
     record that barely determines its parameters) is taken at its positive part first: its
     inverse would be no covariance, and uₕ² = dᵀVd came out negative (a stated sd of 0)."""
-    info = total_information(hat, shares, prior_information)
-    w, U = np.linalg.eigh(info)
-    if indefinite(w):
-        info = (U * np.clip(w, 0.0, None)) @ U.T
-    return np.linalg.pinv(info, hermitian=True)
+    return cov_of_information(total_information(hat, shares, prior_information))[0]
+
+
+def cov_of_information(info: ArrayLike) -> tuple[np.ndarray, bool]:
+    """(V, clipped): the pseudo-inverse of the information ``info`` (m, m), taken at its
+    positive part where it is :func:`indefinite` (``clipped``; :func:`log_var_cov`)."""
+    a = np.asarray(info, dtype=float)
+    w, U = np.linalg.eigh(a)
+    clipped = indefinite(w)
+    if clipped:
+        a = (U * np.clip(w, 0.0, None)) @ U.T
+    return np.linalg.pinv(a, hermitian=True), clipped
 
 
 def total_information(

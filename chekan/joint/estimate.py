@@ -7,7 +7,6 @@ the fit to :func:`map_result` or :func:`posterior_result`.
 from __future__ import annotations
 
 import functools
-import math
 import time
 import warnings
 
@@ -143,7 +142,7 @@ def map_result(fit: MapFit, base: dict, options: CalibrationOptions, t_start: fl
             "an approximation that failed and may be understated; calibrate a program with "
             "more holds",
         ]
-    few = [n for n in params if (nu.get(n) or math.inf) < 1.0]
+    few = [n for n in params if nu.get(n) is not None and nu[n] < 1.0]
     if few:  # GUM G.4.1 truncates ν_eff < 1 to no degree of freedom: no finite k
         diag["problems"] = [
             *diag["problems"],

@@ -32,8 +32,7 @@ from chekan.joint.map import MapFit
 from chekan.joint.problem import hyper_params
 from inference.dof import (
     TypeAReliability,
-    indefinite,
-    log_var_cov,
+    cov_of_information,
     total_information,
     type_a_reliability,
 )
@@ -104,9 +103,9 @@ def reliabilities(
     D = row_shares(fit, base, trans)
     # rows that no component touches (θ's and β's fixed priors) drop out of the traces
     used = np.any(D != 0, axis=0)
-    V = log_var_cov(hat[np.ix_(used, used)], D[:, used], PRIOR_INFO)
-    info = total_information(hat[np.ix_(used, used)], D[:, used], PRIOR_INFO)
-    clipped = indefinite(np.linalg.eigvalsh(info))
+    V, clipped = cov_of_information(
+        total_information(hat[np.ix_(used, used)], D[:, used], PRIOR_INFO)
+    )
     infl = np.asarray(Jz) @ C @ J.T + np.asarray(Jb) @ KM.T  # (q, rows)
     R = np.asarray(res.residuals)
     return [type_a_reliability(h, R, hat, D, cov_log_var=V, clipped=clipped) for h in infl]
