@@ -8,6 +8,7 @@ what that prior implies analytically.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -81,12 +82,14 @@ def _per_angle_program(rounds: int):
     return build_program([2.0, 3.5, 5.0], dwell_s=300, settle_s=200, rounds=rounds)
 
 
+@functools.cache  # the shape fixture and the tests read the same records
 def _per_angle_record(rounds: int):
     return simulate_session(
         _per_angle_program(rounds), Truth(serial="P", angle_systematic_arcsec=0.0), seed=4
     )[0]
 
 
+@functools.cache
 def _unsettled_record():
     truth = Truth(serial="S", angle_systematic_arcsec=0.0, tau_s=90.0)
     return simulate_session(UNSETTLED_PROGRAM, truth, seed=21)
