@@ -800,8 +800,12 @@ def test_the_page_in_a_browser_shows_what_went_wrong(short_session, tmp_path):
             assert re.fullmatch(r"-?\d+\.\d+", page.locator("#r-m1").inner_text())
 
             show(xy)
+            # the rows come with the record, their axes with the classical fit (a moment later)
             page.wait_for_function(
-                "document.querySelectorAll('#holds tr.hold-row').length > 10", timeout=30_000
+                "(() => { const c = [...document.querySelectorAll("
+                "'#holds tr.hold-row td:nth-child(4)')];"
+                " return c.length > 10 && c.every(td => td.textContent !== '–'); })()",
+                timeout=60_000,
             )
             axes = page.locator("#holds tr.hold-row td:nth-child(4)").all_inner_texts()
             assert set(axes) == {"X", "Y"} and axes.count("X") >= 8, axes
