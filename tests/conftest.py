@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import os
+import signal
 import time
 from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("CHEKAN_JAX_CACHE", str(Path(__file__).resolve().parents[1] / ".jax-cache"))
+# a shell starts a background job (`make test &`, nohup) with SIGINT ignored, and an ignored
+# signal stays ignored in every child: the tests that stop `acquire` or `live` with Ctrl-C
+# would wait out their timeout. A handled signal is reset to the default on exec.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 # opt-in: CHEKAN_TEST_PROFILE=FILE appends, per test, its wall seconds (setup and teardown
