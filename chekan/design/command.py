@@ -11,6 +11,7 @@ from pathlib import Path
 
 from chekan.design.information import ExpectedPrecision, expected_precision
 from chekan.design.layout import DesignValues, program_clock_s
+from chekan.design.reliability import ExpectedReliability, expected_reliability
 from chekan.design.search import Candidate, SearchResult, search_programs
 from chekan.durable import atomic_output
 from chekan.errors import ChekanError
@@ -21,10 +22,15 @@ from chekan.units import format_dms, parse_angle_deg
 MAX_BOUND_ARCSEC = 3600.0
 
 
-def format_precision(prec: ExpectedPrecision, random_only: ExpectedPrecision | None = None) -> str:
+def format_precision(
+    prec: ExpectedPrecision,
+    random_only: ExpectedPrecision | None = None,
+    reliability: ExpectedReliability | None = None,
+) -> str:
     """The expected sds of b₁, b₂ (at the level reading and at the CCD centre) and a; with
     ``random_only`` (the same program without systematic angle errors) also the share of
-    the sensors' systematic error, in quadrature."""
+    the sensors' systematic error, in quadrature; with ``reliability`` the expected ν_eff,
+    k and U."""
     p = prec.program
     lines = [
         f"{p.describe()}",
@@ -59,7 +65,39 @@ def format_precision(prec: ExpectedPrecision, random_only: ExpectedPrecision | N
         f"  also: tau {prec.sd['tau_s']:.2g} s, eps1 {prec.sd['eps1_arcmin']:.2g}', "
         f"eps2 {prec.sd['eps2_arcmin']:.2g}', dgamma {prec.sd['dgamma_arcmin']:.2g}'"
     )
+    if reliability is not None:
+        lines.extend(format_reliability(prec, reliability))
     return "\n".join(lines)
+
+
+def nu_text(nu: float) -> str:
+    """ν_eff as a table shows it: "< 1" below one degree of freedom (no finite k)."""
+    return "< 1" if nu < 1.0 else f"{nu:.0f}" if nu < 1e5 else "> 1e5"
+
+
+def format_reliability(prec: ExpectedPrecision, rel: ExpectedReliability) -> list[str]:
+    """The expected ν_eff and k of b₁, b₂, a and the expanded uncertainty U = k·sd they give
+    (:mod:`chekan.design.reliability`), with a warning where the record could not estimate
+    its own noise."""
+    parts = []
+    for name in ("b1", "b2", "a"):
+        k = rel.k[name]
+        u = "no U" if math.isinf(k) else f"U {k * prec.sd_ppm(name):.0f} ppm"
+        parts.append(f"{name} {nu_text(rel.nu_eff[name])} (k {k:.2f}, {u})")
+    lines = ["  expected nu_eff (the noise estimated from the record): " + "; ".join(parts)]
+    worst = min(rel.nu_eff[n] for n in ("b1", "b2", "a"))
+    if worst < 1.0:
+        lines.append(
+            "  warning: the record cannot estimate its own noise (nu_eff < 1): a certificate "
+            "of it states no expanded uncertainty; hold each angle more than once"
+        )
+    elif rel.k_of("b_max") > 2.5 or rel.k["a"] > 2.5:
+        lines.append(
+            "  warning: few effective degrees of freedom: the coverage factor k is well above 2"
+        )
+    if rel.clipped:
+        lines.append("  (the noise components' expected information was indefinite)")
+    return lines
 
 
 def candidate_row(c: Candidate) -> dict:
@@ -84,7 +122,19 @@ def candidate_row(c: Candidate) -> dict:
         "sd_b1_ppm": prec.sd_ppm("b1"),
         "sd_b2_ppm": prec.sd_ppm("b2"),
         "objective": c.objective,
+        "expected_nu_eff": None if c.reliability is None else dict(c.reliability.nu_eff),
+        "expected_k": None if c.reliability is None else _finite_or_none(c.reliability.k),
+        "expected_u_objective": _finite(c.expected_u),
     }
+
+
+def _finite(x: float | None) -> float | None:
+    """JSON has no infinity: an infinite (or absent) figure is null."""
+    return None if x is None or not math.isfinite(x) else x
+
+
+def _finite_or_none(d: dict[str, float]) -> dict[str, float | None]:
+    return {k: _finite(v) for k, v in d.items()}
 
 
 def format_table(result: SearchResult, top: int = 15) -> str:
@@ -104,6 +154,8 @@ def format_table(result: SearchResult, top: int = 15) -> str:
         ("sd b1 ppm", 9),
         ("sd b2 ppm", 9),
         ("sd a", 9),
+        ("nu_eff", 6),
+        ("k", 5),
     )
 
     def line(cells) -> str:
@@ -111,6 +163,10 @@ def format_table(result: SearchResult, top: int = 15) -> str:
         return " ".join(f"{c:<{-w}}" if w < 0 else f"{c:>{w}}" for c, w in pairs)
 
     lines = [line([name for name, _ in cols])]
+    try:
+        best: Candidate | None = result.best
+    except ChekanError:
+        best = None
     for i, c in enumerate(result.ranked):
         if i >= top and c is not result.given:
             continue
@@ -132,8 +188,12 @@ def format_table(result: SearchResult, top: int = 15) -> str:
             f"{r['sd_b1_ppm']:.1f}",
             f"{r['sd_b2_ppm']:.1f}",
             f"{r['sd_a_mgal_per_pix2']:.2e}",
+            "—" if c.reliability is None else nu_text(c.reliability.nu_of(result.objective)),
+            "—" if c.reliability is None else f"{c.reliability.k_of(result.objective):.2f}",
         )
         note = "  <- given" if r["given"] else ""
+        if c is best and not r["given"]:
+            note += "  <- best"
         if r["given"] and not result.fits(c):
             note += " (over the budget)"
         lines.append(line(cells) + note)
@@ -200,10 +260,28 @@ def precision_json(prec: ExpectedPrecision) -> dict:
     }
 
 
-def design_json(prec: ExpectedPrecision, result: SearchResult | None, values: DesignValues) -> dict:
+def reliability_json(rel: ExpectedReliability) -> dict:
+    """The expected ν_eff and k (null where infinite) of a program."""
+    return {
+        "nu_eff": dict(rel.nu_eff),
+        "k": _finite_or_none(rel.k),
+        "components": list(rel.components),
+        "clipped": rel.clipped,
+    }
+
+
+def design_json(
+    prec: ExpectedPrecision,
+    result: SearchResult | None,
+    values: DesignValues,
+    reliability: ExpectedReliability | None = None,
+) -> dict:
     """Everything ``chekan design --json`` writes."""
     t = values.truth
-    out = {
+    given = precision_json(prec)
+    if reliability is not None:
+        given["expected"] = reliability_json(reliability)
+    out: dict = {
         "format": "chekan-design/1",
         "assumptions": {
             "noise_pix_per_sample": list(t.noise_pix),
@@ -216,7 +294,7 @@ def design_json(prec: ExpectedPrecision, result: SearchResult | None, values: De
             "angle_bound_arcsec": values.angle_bound_arcsec,
             "angle_scale_share": values.angle_scale_share,
         },
-        "given": precision_json(prec),
+        "given": given,
     }
     if result is not None:
         out["search"] = {
@@ -224,11 +302,21 @@ def design_json(prec: ExpectedPrecision, result: SearchResult | None, values: De
             "budget_h": result.budget_s / 3600.0,
             "evaluations": result.evaluations,
             "seconds": result.seconds,
-            "best": precision_json(result.best.precision),
+            "best": precision_json(result.best.precision)
+            | (
+                {}
+                if result.best.reliability is None
+                else {"expected": reliability_json(result.best.reliability)}
+            ),
             "best_toml": program_toml(result.best.program),
             "ranked": [candidate_row(c) for c in result.ranked],
+            "best_index": result.ranked.index(result.best),
         }
     return out
+
+
+def _k_text(c: Candidate, objective: str) -> str:
+    return "—" if c.reliability is None else f"{c.reliability.k_of(objective):.2f}"
 
 
 def run_design_command(args) -> int:
@@ -259,7 +347,8 @@ def run_design_command(args) -> int:
             "per commanded angle and scale; --angle-bound-arcsec 0 leaves it out)"
         )
     rnd = expected_precision(program, no_sys) if values.angle_bound_arcsec else None
-    print(format_precision(prec, rnd))
+    rel = expected_reliability(program, values)
+    print(format_precision(prec, rnd, rel))
     print(
         f"(design model evaluated in {1e3 * (time.perf_counter() - t0):.0f} ms, first call "
         "includes the one-off JAX grid)"
@@ -274,6 +363,7 @@ def run_design_command(args) -> int:
             values=values,
             min_dwell_s=args.min_dwell_s,
             min_settle_s=args.min_settle_s,
+            top=args.top,
         )
         print(
             f"\nsearch: {result.evaluations} programs within {result.budget_s / 3600:.2f} h "
@@ -288,8 +378,13 @@ def run_design_command(args) -> int:
             gain = result.given.objective / best.objective
             print(f"\nbest: {best.spec.label()}, dwell {best.program.dwell_s:g} s")
             rnd = expected_precision(best.program, no_sys) if values.angle_bound_arcsec else None
-            print(format_precision(best.precision, rnd))
+            print(format_precision(best.precision, rnd, best.reliability))
             print(f"objective {result.objective}: {gain:.2f}× smaller sd than the given program")
+            if best is not result.ranked[0]:
+                print(
+                    f"(chosen by the expected U = k·sd: #1 has the smaller sd, k "
+                    f"{_k_text(result.ranked[0], result.objective)})"
+                )
         if args.out:
             written = write_program_toml(args.out, best.program)
             print(f"wrote {written} (best program; chekan program {written} shows it)")
@@ -297,7 +392,9 @@ def run_design_command(args) -> int:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(path) as f:
-            f.write(json.dumps(design_json(prec, result, values), indent=2, ensure_ascii=False))
+            f.write(
+                json.dumps(design_json(prec, result, values, rel), indent=2, ensure_ascii=False)
+            )
             f.write("\n")
         print(f"wrote {path}")
     return 0

@@ -282,7 +282,9 @@ def systematic_basis(
     if values.angle_bound_arcsec == 0.0:
         return np.zeros((H, 0)), np.zeros((*layout.slew_theta_rad.shape, 0)), np.zeros(0)
     spec = values.angle_spec
-    types = slew_types(layout.theta_hold_rad, layout.hold_axis, layout.slew_mask.any(axis=1))
+    types = slew_types(
+        layout.theta_hold_rad, layout.hold_axis, np.asarray(layout.slew_mask.any(axis=1))
+    )
     sensors = {}
     for axis in ("x", "y"):
         on = layout.hold_axis == axis
@@ -300,7 +302,9 @@ def systematic_basis(
 def x_response_columns(layout: Layout, truth: Truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The estimator's X-response terms (:func:`chekan.joint.xresponse.x_response_terms`)
     at the holds (H, C), along the slews (H, M, C) and their prior variances (C,)."""
-    types = slew_types(layout.theta_hold_rad, layout.hold_axis, layout.slew_mask.any(axis=1))
+    types = slew_types(
+        layout.theta_hold_rad, layout.hold_axis, np.asarray(layout.slew_mask.any(axis=1))
+    )
     kinds, T = types_about(types, layout.hold_axis, "x")
     path_on = (layout.hold_axis == "x")[:, None] & layout.slew_mask
     return x_response_terms(
@@ -333,13 +337,32 @@ def _hold_sensitivities(layout: Layout, truth: Truth):
     return first, tuple(at_h), tuple(at_s)
 
 
-def information_blocks(program: TiltProgram, values: DesignValues | None = None):
-    """Prior-augmented expected information in blocks: M_gg (g = θ, c, d, ζ, ξ), M_gb and
-    M_bb in upper banded storage (b = o₁, o₂, δ per hold), plus the layout and
-    sensitivities.
+@dataclass(frozen=True)
+class DesignRows:
+    """The program's linear model at the design values, row by row (module docstring):
+    system j's bins have the global columns ``X[j]`` (N, n_g) and the hold-local ones
+    (``local_idx[j]``, ``local_val[j]``) (N, 4) among the n_b = 3H unknowns (o₁, o₂, δ per
+    hold), and the variance ``var`` (N, 2) = ``base`` (σⱼ²/n) + ``trans2`` ((κ trans)²);
+    ``prec_g`` (n_g,) and ``prec_b`` (n_b,) are the priors' precisions (Λ⁻¹)."""
 
-    M = Σⱼ Xⱼᵀ Wⱼ Xⱼ + Λ⁻¹ with the columns and weights of the module docstring.
-    """
+    layout: Layout
+    sens: Sensitivities
+    X: tuple[np.ndarray, np.ndarray]
+    local_idx: tuple[np.ndarray, np.ndarray]
+    local_val: tuple[np.ndarray, np.ndarray]
+    base: np.ndarray
+    trans2: np.ndarray
+    prec_g: np.ndarray
+    prec_b: np.ndarray
+
+    @property
+    def var(self) -> np.ndarray:
+        return self.base + self.trans2
+
+
+def design_rows(program: TiltProgram, values: DesignValues | None = None) -> DesignRows:
+    """The rows of the program's linear model: Xⱼ, the hold-local columns, the bins'
+    variances and the priors (:class:`DesignRows`)."""
     values = values or DesignValues()
     truth = values.truth
     layout = program_layout(program, values)
@@ -354,8 +377,8 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     f_dn = lagged_means(layout, tau * math.exp(-h), cols_h[..., :1], cols_s[..., :1]).f[..., 0]
     df_dlogtau = (f_up - f_dn) / (2.0 * h)
     noise = np.asarray(truth.noise_pix, dtype=float)
-    var = noise[None, :] ** 2 / layout.bin_n[:, None] + (values.slew_error * lag.trans) ** 2
-    W = 1.0 / var
+    base = noise[None, :] ** 2 / layout.bin_n[:, None]
+    trans2 = (values.slew_error * lag.trans) ** 2
     s_ang = -S_h / ARCSEC_PER_RAD  # (H, 2) pix per arcsec of readout error
 
     B, B_path, B_var = systematic_basis(layout, values)
@@ -379,10 +402,7 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     n_old = 9 + 2 * (values.drift_degree if values.drift else 0)
     nx = Phi.shape[1]
     ng = n_old + B.shape[1] + 2 * nx
-    nb = 3 * H
-    Mgg = np.zeros((ng, ng))
-    Mgb = np.zeros((ng, nb))
-    bb_pos, bb_w = [], []
+    Xs, idxs, vals = [], [], []
     for j in range(2):
         X = _global_columns(values, layout, lag.f[..., 1:], df_dlogtau, j)
         if B.shape[1]:  # ζ, ξ, η: angle errors, shared by both systems
@@ -392,20 +412,9 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
             X_x[:, j * nx : (j + 1) * nx] = x_f[:, j, :]
             X = np.concatenate([X, X_x], axis=1)
         idx, val = _local_columns(values, layout, lag, s_ang, j)
-        Wj = W[:, j]
-        Mgg += X.T @ (X * Wj[:, None])
-        wv = val * Wj[:, None]  # (N, 4)
-        rows = np.repeat(np.arange(idx.shape[0]), 4)
-        L = scipy.sparse.csr_matrix((wv.ravel(), (rows, idx.ravel())), shape=(idx.shape[0], nb))
-        Mgb += np.asarray((L.T @ X).T)  # Xᵀ Wⱼ L, duplicates summed
-        r, c = idx[:, :, None], idx[:, None, :]
-        upper = np.broadcast_to(r <= c, (idx.shape[0], 4, 4))
-        pos = (_BAND + r - c) * nb + c
-        bb_pos.append(pos[upper])
-        bb_w.append((wv[:, :, None] * val[:, None, :])[upper])
-    ab = np.bincount(
-        np.concatenate(bb_pos), np.concatenate(bb_w), minlength=(_BAND + 1) * nb
-    ).reshape(_BAND + 1, nb)
+        Xs.append(X)
+        idxs.append(idx)
+        vals.append(val)
     # priors (Λ⁻¹); switched-off random effects keep a unit precision: their columns are zero
     prec_g = np.zeros(ng)
     if values.priors:
@@ -416,11 +425,47 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     prec_g[n_old + B.shape[1] :] = 1.0 / np.tile(Phi_var, 2)  # :mod:`chekan.joint.xresponse`
     if not values.estimate_tau:
         prec_g[6] = 1.0
-    Mgg += np.diag(prec_g)
     so2 = truth.hold_offset_sd_pix**2 if values.hold_offsets else 1.0
     st2 = truth.angle_error_sd_arcsec**2 if values.angle_errors else 1.0
-    ab[_BAND] += np.tile([1.0 / so2, 1.0 / so2, 1.0 / st2], H)
-    return Mgg, Mgb, ab, layout, sens
+    prec_b = np.tile([1.0 / so2, 1.0 / so2, 1.0 / st2], H)
+    return DesignRows(
+        layout, sens, (Xs[0], Xs[1]), (idxs[0], idxs[1]), (vals[0], vals[1]), base, trans2,
+        prec_g, prec_b,
+    )  # fmt: skip
+
+
+def information_blocks(program: TiltProgram, values: DesignValues | None = None):
+    """Prior-augmented expected information in blocks: M_gg (g = θ, c, d, ζ, ξ), M_gb and
+    M_bb in upper banded storage (b = o₁, o₂, δ per hold), plus the layout and
+    sensitivities.
+
+    M = Σⱼ Xⱼᵀ Wⱼ Xⱼ + Λ⁻¹ with the columns and weights of the module docstring.
+    """
+    rows = design_rows(program, values)
+    ng, nb = rows.prec_g.size, rows.prec_b.size
+    W = 1.0 / rows.var
+    Mgg = np.zeros((ng, ng))
+    Mgb = np.zeros((ng, nb))
+    bb_pos, bb_w = [], []
+    for j in range(2):
+        X, idx, val = rows.X[j], rows.local_idx[j], rows.local_val[j]
+        Wj = W[:, j]
+        Mgg += X.T @ (X * Wj[:, None])
+        wv = val * Wj[:, None]  # (N, 4)
+        r_ = np.repeat(np.arange(idx.shape[0]), 4)
+        L = scipy.sparse.csr_matrix((wv.ravel(), (r_, idx.ravel())), shape=(idx.shape[0], nb))
+        Mgb += np.asarray((L.T @ X).T)  # Xᵀ Wⱼ L, duplicates summed
+        r, c = idx[:, :, None], idx[:, None, :]
+        upper = np.broadcast_to(r <= c, (idx.shape[0], 4, 4))
+        pos = (_BAND + r - c) * nb + c
+        bb_pos.append(pos[upper])
+        bb_w.append((wv[:, :, None] * val[:, None, :])[upper])
+    ab = np.bincount(
+        np.concatenate(bb_pos), np.concatenate(bb_w), minlength=(_BAND + 1) * nb
+    ).reshape(_BAND + 1, nb)
+    Mgg += np.diag(rows.prec_g)
+    ab[_BAND] += rows.prec_b
+    return Mgg, Mgb, ab, rows.layout, rows.sens
 
 
 def expected_precision(

@@ -204,10 +204,10 @@ def lagged_means(layout: Layout, tau_s: float, E_hold: np.ndarray, E_slew: np.nd
     H = E_hold.shape[0]
     R = np.zeros_like(E_hold)
     y0 = E_hold[0].copy()
-    for k in range(1, H):
-        base = wprev[k] * E_hold[k - 1] + Mv[k]
-        R[k] = wprev[k] * rho[k - 1] * (y0 - E_hold[k - 1])
-        y0 = base + R[k]
+    for i in range(1, H):
+        base = wprev[i] * E_hold[i - 1] + Mv[i]
+        R[i] = wprev[i] * rho[i - 1] * (y0 - E_hold[i - 1])
+        y0 = base + R[i]
     k = layout.bin_hold
     n = layout.bin_n
     q = np.where(n > 1, -np.expm1(-n * dt / tau_s) / (n * -math.expm1(-dt / tau_s)), 1.0)

@@ -6,7 +6,9 @@ settle time) inside the paper's range ±1°50′…±5°10′, each given the lo
 (whole seconds, at least ``min_dwell_s``) that fits the budget; a coarse grid over
 (angles, rounds, settle) followed by a coordinate search (every coordinate in turn
 over all its values, best first, until no coordinate improves) from the three best grid
-points. The given program is always a candidate, so the result is never worse than it.
+points. The given program is always a candidate, so the result is never worse than it
+in what a certificate states: the best is the smallest expected U = k·sd
+(:func:`assess`, :mod:`chekan.design.reliability`), not the smallest sd.
 
 **Systematic angle errors** (:mod:`chekan.joint.angles`; ``DesignValues.angle_bound_arcsec``,
 default 3″): one ζ per commanded signed angle and a scale ξ per axis sensor, shared by
@@ -42,15 +44,18 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from chekan.design.information import OBJECTIVES, ExpectedPrecision, expected_precision
 from chekan.design.layout import DesignValues, program_clock_s
+from chekan.design.reliability import ExpectedReliability, expected_reliability
 from chekan.errors import ChekanError
 from chekan.program import TiltProgram, build_program
 from chekan.units import format_dms
+from inference.dof import coverage_factor
 
 LOWEST_ANGLE_ARCMIN = 110  # 1°50′: the paper's smallest tilt
 HIGHEST_ANGLE_ARCMIN = 310  # 5°10′: the paper's largest tilt
@@ -155,7 +160,7 @@ def program_within_budget(
     clock time with slews fits ``budget_s``: dwell = ⌊(budget − slews)/steps⌋. None when
     that dwell is below ``min_dwell_s`` or leaves less than ``MIN_SETTLED_S`` after
     ``settle_s``."""
-    kw = dict(axis=axis, order=order, sequence=sequence, rounds=rounds)
+    kw: dict = dict(axis=axis, order=order, sequence=sequence, rounds=rounds)
     probe = build_program(angles_deg, dwell_s=1.0, settle_s=0.0, **kw)
     slew_s = program_clock_s(probe, values) - probe.duration_s  # moves do not depend on dwell
     dwell = float(math.floor((budget_s - slew_s) / probe.n_steps))
@@ -197,15 +202,31 @@ def spec_program(
 
 @dataclass(frozen=True)
 class Candidate:
-    """One evaluated program: its spec (None for the given program) and precision."""
+    """One evaluated program: its spec (None for the given program), precision, and (for
+    the programs a search assesses) the expected ν_eff and k of its uncertainty."""
 
     spec: ProgramSpec | None
     precision: ExpectedPrecision
     objective: float
+    reliability: ExpectedReliability | None = None
+    objective_name: str = "b_mean"
 
     @property
     def program(self) -> TiltProgram:
         return self.precision.program
+
+    @property
+    def expected_u(self) -> float | None:
+        """The objective's expected expanded uncertainty k·sd (inf where ν_eff < 1; None
+        when not assessed)."""
+        if self.reliability is None:
+            return None
+        return self.objective * self.reliability.k_of(self.objective_name)
+
+
+def within(c: Candidate, budget_s: float) -> bool:
+    """Whether a candidate's clock time fits ``budget_s`` (to a microsecond)."""
+    return c.precision.clock_s <= budget_s + 1e-6
 
 
 @dataclass(frozen=True)
@@ -221,18 +242,45 @@ class SearchResult:
     seconds: float
 
     def fits(self, c: Candidate) -> bool:
-        return c.precision.clock_s <= self.budget_s + 1e-6
+        return within(c, self.budget_s)
 
     @property
     def best(self) -> Candidate:
-        """The best candidate within the budget (ChekanError when none fits)."""
-        for c in self.ranked:
-            if self.fits(c):
-                return c
-        raise ChekanError(
-            f"no program fits {self.budget_s / 3600:.2f} h with dwells ≥ the minimum; "
-            "raise --budget-h or lower --min-dwell-s/--min-settle-s"
-        )
+        """The candidate within the budget with the smallest expected expanded uncertainty
+        k·sd (:func:`assess`: the sd alone where none was assessed; ChekanError when none
+        fits)."""
+        fit = [c for c in self.ranked if self.fits(c)]
+        if not fit:
+            raise ChekanError(
+                f"no program fits {self.budget_s / 3600:.2f} h with dwells ≥ the minimum; "
+                "raise --budget-h or lower --min-dwell-s/--min-settle-s"
+            )
+        assessed = [c for c in fit if c.expected_u is not None]
+        return min(assessed, key=lambda c: c.expected_u or 0.0) if assessed else fit[0]
+
+
+def assess(
+    ranked: list[Candidate],
+    fits: Callable[[Candidate], bool],
+    values: DesignValues,
+    top: int,
+) -> list[Candidate]:
+    """``ranked`` (by sd) with the expected ν_eff and k (:mod:`chekan.design.reliability`) of
+    the first ``top``, of the given program, and of every candidate within the budget that
+    could still have the smallest k·sd: k ≥ k(∞) = 2, so one whose 2·sd exceeds the smallest
+    k·sd found cannot, and the rest are not assessed (a program that cannot estimate its own
+    noise has a small sd and a large k, or none)."""
+    k_min = coverage_factor(math.inf)
+    out = list(ranked)
+    best_u = math.inf
+    for i, c in enumerate(out):
+        contender = fits(c) and k_min * c.objective < best_u
+        if i >= top and c.spec is not None and not contender:
+            continue
+        c = out[i] = replace(c, reliability=expected_reliability(c.program, values))
+        if fits(c) and c.expected_u is not None:
+            best_u = min(best_u, c.expected_u)
+    return out
 
 
 def _spec_key(spec: ProgramSpec) -> tuple:
@@ -250,6 +298,7 @@ def search_programs(
     min_settle_s: float = MIN_SETTLE_S,
     start_points: int = 3,
     max_sweeps: int = 4,
+    top: int = 15,
 ) -> SearchResult:
     """Search for a program with a smaller expected sd within a clock-time budget.
 
@@ -266,6 +315,10 @@ def search_programs(
     independent offset and angle error, so the sd falls roughly as 1/√(number of holds)
     and the search runs to the shortest dwell allowed: the two limits are where the
     engineering judgement goes (how far the first-order lag can be trusted).
+
+    4. :func:`assess`: the expected ν_eff and k of the ``top`` best (the table's rows), of
+       the given program and of every contender; :attr:`SearchResult.best` is the one
+       with the smallest expected k·sd, what a certificate would state as U.
     """
     if objective not in OBJECTIVES:
         raise ValueError(f"unknown objective {objective!r}; choose one of {', '.join(OBJECTIVES)}")
@@ -277,7 +330,7 @@ def search_programs(
     t0 = time.perf_counter()
     budget = float(budget_s) if budget_s is not None else program_clock_s(program, values)
     given_prec = expected_precision(program, values)
-    given = Candidate(None, given_prec, given_prec.objective(objective))
+    given = Candidate(None, given_prec, given_prec.objective(objective), None, objective)
     seen: dict[tuple, Candidate | None] = {}
 
     def evaluate(spec: ProgramSpec) -> Candidate | None:
@@ -288,7 +341,7 @@ def search_programs(
                 seen[key] = None
             else:
                 prec = expected_precision(prog, values)
-                seen[key] = Candidate(spec, prec, prec.objective(objective))
+                seen[key] = Candidate(spec, prec, prec.objective(objective), None, objective)
         return seen[key]
 
     base = ProgramSpec(settle_s=space["settle_s"][-1], axis=program.axis)
@@ -305,6 +358,7 @@ def search_programs(
             improved = False
             for name, options in space.items():
                 for opt in options:
+                    assert current.spec is not None  # grid points all have one
                     c = evaluate(replace(current.spec, **{name: opt}))
                     if c is not None and c.objective < current.objective * (1 - 1e-9):
                         current, improved = c, True
@@ -312,8 +366,9 @@ def search_programs(
                 break
     evaluated = [c for c in seen.values() if c is not None]
     ranked = sorted([given, *evaluated], key=lambda c: c.objective)
+    ranked = assess(ranked, lambda c: within(c, budget), values, top)
     return SearchResult(
-        given=given,
+        given=next(c for c in ranked if c.spec is None),
         ranked=ranked,
         objective=objective,
         budget_s=budget,
