@@ -46,12 +46,25 @@ __all__ = [
     "component_information",
     "coverage_factor",
     "log_var_cov",
+    "projection_hat",
     "t_two_sided",
     "type_a_reliability",
 ]
 
 P_COVERAGE = 0.9545  # the coverage probability of k = 2 for a normal distribution
 NU_CAP = 1e6  # ν_eff above this is reported as this (k = 2.000 to four decimals)
+
+
+def projection_hat(basis: ArrayLike, rcond: float = 1e-8) -> np.ndarray:
+    """H = U Uᵀ (n, n): the hat matrix of least squares on the columns of ``basis`` (n, k),
+    the orthogonal projector onto their span, from the left singular vectors whose singular
+    values exceed ``rcond``·s_max (a rank-deficient basis projects onto its span). A
+    projection by construction, which a sum of two hats is only when their spans are
+    orthogonal."""
+    B = np.asarray(basis, dtype=float)
+    U, s, _ = np.linalg.svd(B, full_matrices=False)
+    U = U[:, s > rcond * s.max()] if s.size and s.max() > 0 else U[:, :0]
+    return U @ U.T
 
 
 def component_information(hat: ArrayLike, shares: ArrayLike) -> np.ndarray:

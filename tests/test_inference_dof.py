@@ -141,8 +141,9 @@ def test_coverage_factor_is_ea_4_02s_table():
 
 
 def test_an_indefinite_information_gives_a_covariance_not_a_negative_variance():
-    """A 'hat' that is not a projection (the sum of θ's and β's hats on a record that barely
-    determines its parameters had an eigenvalue 1.44) made the components' information
+    """A 'hat' that is not a projection (the sum of θ's and β's hats that typea once used, on
+    a record that barely determines its parameters, had an eigenvalue 1.59) made the
+    components' information
     indefinite, its inverse no covariance, and uₕ² = dᵀVd negative: a six-hold record of the
     designer's stated sd(b₁) = 0. V is now the inverse of the information's positive part,
     and the reliability says so."""
@@ -165,3 +166,23 @@ def test_an_indefinite_information_gives_a_covariance_not_a_negative_variance():
     info = component_information(H, shares)
     assert not indefinite(np.linalg.eigvalsh(info))
     assert np.array_equal(log_var_cov(H, shares), np.linalg.pinv(info, hermitian=True))
+
+
+def test_projection_hat_is_the_least_squares_hat_also_when_rank_deficient():
+    from inference.dof import projection_hat
+
+    rng = np.random.default_rng(5)
+    B = rng.normal(size=(20, 4))
+    H = projection_hat(B)
+    np.testing.assert_allclose(H, B @ np.linalg.solve(B.T @ B, B.T), atol=1e-12)
+    # a repeated column adds nothing: still the projector onto the same span (rank 4)
+    Hd = projection_hat(np.concatenate([B, B[:, :1] * 3.0], axis=1))
+    np.testing.assert_allclose(Hd, H, atol=1e-12)
+    np.testing.assert_allclose(Hd @ Hd, Hd, atol=1e-12)
+    assert np.trace(Hd) == pytest.approx(4.0)
+    # two hats whose spans are not orthogonal do not add up to a projection
+    C = B[:, :2] + 0.5 * rng.normal(size=(20, 2))
+    summed = projection_hat(B[:, :2]) + projection_hat(C)
+    assert np.linalg.eigvalsh(summed).max() > 1.0 + 1e-6
+    assert projection_hat(np.zeros((5, 2))).shape == (5, 5)
+    assert not projection_hat(np.zeros((5, 2))).any()

@@ -39,17 +39,15 @@ def fitted(short_session):
     return fit, joint.problem_for(fit.model.structure)
 
 
-def test_theta_terms_of_the_e_step_are_the_joint_laplace_posteriors(fitted):
-    """diag Cov(β) and the bins' hat matrix of the joint (θ, β) problem, minus those of β
-    given θ, are B C_θ Bᵀ and J_r C_θ J_rᵀ (hold offsets and angle errors; all bins)."""
+@pytest.fixture(scope="module")
+def joint_jacobian(fitted) -> np.ndarray:
+    """∂R/∂(z, β) of the stacked rows at (ẑ, β̂) with the hyperparameters fixed: the
+    Jacobian of the joint problem (bins × 2, β's prior rows, θ's prior rows)."""
     fit, prob = fitted
     model, h = fit.model, fit.hyper
     st, data = model.structure, model.data
     space = prob.map_space
     z = jnp.asarray(fit.result.z)
-    var_beta, lev = (
-        np.asarray(x) for x in jax.jit(lambda z, h: em.theta_terms(z, h, st, data, space))(z, h)
-    )
 
     def joint_rows(zb):
         zz, beta = zb[: space.size], zb[space.size :]
@@ -60,7 +58,21 @@ def test_theta_terms_of_the_e_step_are_the_joint_laplace_posteriors(fitted):
         return jnp.concatenate([res.reshape(-1), beta / jnp.sqrt(pv), space.prior_residuals(zz)])
 
     beta_hat = np.asarray(solve_beta(space.to_values(z), h, st, data)[1])
-    J = np.asarray(jax.jit(jax.jacfwd(joint_rows))(jnp.concatenate([z, beta_hat])))
+    return np.asarray(jax.jit(jax.jacfwd(joint_rows))(jnp.concatenate([z, beta_hat])))
+
+
+def test_theta_terms_of_the_e_step_are_the_joint_laplace_posteriors(fitted, joint_jacobian):
+    """diag Cov(β) and the bins' hat matrix of the joint (θ, β) problem, minus those of β
+    given θ, are B C_θ Bᵀ and J_r C_θ J_rᵀ (hold offsets and angle errors; all bins)."""
+    fit, prob = fitted
+    model, h = fit.model, fit.hyper
+    st, data = model.structure, model.data
+    space = prob.map_space
+    z = jnp.asarray(fit.result.z)
+    var_beta, lev = (
+        np.asarray(x) for x in jax.jit(lambda z, h: em.theta_terms(z, h, st, data, space))(z, h)
+    )
+    J = joint_jacobian
     C = np.linalg.inv(J.T @ J)
     q, N = space.size, st.n_bins
     Jb = J[:, q:]
@@ -74,6 +86,27 @@ def test_theta_terms_of_the_e_step_are_the_joint_laplace_posteriors(fitted):
     want = (lev_joint - lev_beta).reshape(N, 2)
     np.testing.assert_allclose(lev, want, rtol=0.05, atol=1e-3 * want.max())
     assert float(lev.sum()) > 1.0  # θ's 7 parameters take more than one bin's worth
+
+
+def test_the_hat_of_the_type_a_terms_is_the_joint_problems(fitted, joint_jacobian):
+    """The stacked rows' hat that the components' information rests on is the joint (θ, β)
+    problem's, J(JᵀJ)⁻¹Jᵀ with the joint Jacobian from JAX: a projection. The sum of θ's and
+    β's hats was not (the variable projection's J is not orthogonal to β's columns: an
+    eigenvalue 1.6 on this record, which on a six-hold record made the information
+    indefinite)."""
+    fit, _ = fitted
+    _, _, _, Minv, _, A_w, _, _, pv = _pieces(fit)
+    K = typea.beta_columns(fit, A_w, pv)
+    hat = typea.stacked_hat(fit, K)
+    J = joint_jacobian
+    want = J @ np.linalg.solve(J.T @ J, J.T)
+    np.testing.assert_allclose(hat, want, atol=1e-8)
+    np.testing.assert_allclose(hat @ hat, hat, atol=1e-8)
+    Jt = np.asarray(fit.result.jacobian)
+    C = np.asarray(fit.result.cov_z)
+    summed = K @ Minv @ K.T + Jt @ C @ Jt.T
+    assert np.linalg.eigvalsh(summed).max() > 1.1  # the former reading: not a projection
+    assert np.trace(hat) == pytest.approx(J.shape[1])
 
 
 def test_e_step_with_theta_terms_raises_the_variances_it_estimates(fitted):

@@ -255,8 +255,8 @@ class SearchResult:
                 f"no program fits {self.budget_s / 3600:.2f} h with dwells ≥ the minimum; "
                 "raise --budget-h or lower --min-dwell-s/--min-settle-s"
             )
-        assessed = [c for c in fit if c.expected_u is not None]
-        return min(assessed, key=lambda c: c.expected_u or 0.0) if assessed else fit[0]
+        scored = [(u, i) for i, c in enumerate(fit) if (u := c.expected_u) is not None]
+        return fit[min(scored)[1]] if scored else fit[0]  # ties: the smaller sd
 
 
 def assess(

@@ -12,8 +12,12 @@ algebra):
   uncertainty is U = k·u with k = t₉₅.₄₅(ν_eff) (GUM G.6.4), not 2.
 
 The stacked rows are those of the MAP's last pass, R = [r_w (bins × 2), β̂/√Λ, θ's prior
-rows]; the hat matrix of the joint (θ, β) problem is H = H_β + J C_θ Jᵀ (the projected
-Jacobian J is orthogonal to β's columns), H_β = K M⁻¹ Kᵀ with K = [Ã; Λ^{-1/2}; 0]. The
+rows]; the hat matrix of the joint (θ, β) problem is the projector onto the span of
+[J, ∂R/∂β] (:func:`inference.dof.projection_hat`), J the MAP's Jacobian in θ (β projected
+out) and ∂R/∂β = [−Ã; Λ^{-1/2}; 0]: J = ∂R/∂θ|β + ∂R/∂β ∂β̂/∂θ spans with ∂R/∂β what the
+joint Jacobian spans. (H_β + J C_θ Jᵀ, H_β = K M⁻¹ Kᵀ with K = [Ã; Λ^{-1/2}; 0], is that
+projector only where J is orthogonal to β's columns; it is not, and on a six-hold record the
+sum had an eigenvalue 1.59.) The
 shares of each row's variance: sⱼ: (sⱼσⱼ)²/n / vᵢ of system j's bins, κ: (κ tᵢ)²/vᵢ, σ_θ
 and σ_o: 1 on the prior rows of the angle errors and of the hold offsets of real holds.
 The noise M-step uses the priors of log s and log κ (:mod:`chekan.joint.em`), so their
@@ -33,6 +37,7 @@ from chekan.joint.problem import hyper_params
 from inference.dof import (
     TypeAReliability,
     cov_of_information,
+    projection_hat,
     total_information,
     type_a_reliability,
 )
@@ -75,6 +80,24 @@ def row_shares(fit: MapFit, base: np.ndarray, trans: np.ndarray) -> np.ndarray:
     return D
 
 
+def beta_columns(fit: MapFit, A_w: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
+    """K (rows, p): β's columns in the stacked rows, [Ã; Λ^{-1/2}; 0] (module docstring)."""
+    N, p = fit.model.structure.n_bins, fit.model.structure.n_beta
+    K = np.zeros((np.asarray(fit.result.jacobian).shape[0], p))
+    K[: 2 * N] = np.asarray(A_w).reshape(2 * N, p)
+    K[2 * N + np.arange(p), np.arange(p)] = 1.0 / np.sqrt(np.asarray(prior_var))
+    return K
+
+
+def stacked_hat(fit: MapFit, K: np.ndarray) -> np.ndarray:
+    """The joint (θ, β) problem's hat matrix of the stacked rows: the projector onto the span
+    of [J, ∂R/∂β], ∂R/∂β = K with its data rows negated (r_w = √w (r − Aβ); the prior rows
+    are +β/√Λ) (module docstring)."""
+    N2 = 2 * fit.model.structure.n_bins
+    dR_dbeta = np.concatenate([-K[:N2], K[N2:]])
+    return projection_hat(np.concatenate([np.asarray(fit.result.jacobian), dR_dbeta], axis=1))
+
+
 def reliabilities(
     fit: MapFit,
     Jz: np.ndarray,
@@ -89,17 +112,12 @@ def reliabilities(
     and ``Jb`` (q, p), their derivatives in θ (total) and β), from the pieces of
     :func:`chekan.joint.derived.map_derived_fn` (M⁻¹, Ã, base, transient, Λ)."""
     res = fit.result
-    structure = fit.model.structure
     J = np.asarray(res.jacobian)
-    n_rows, N, p = J.shape[0], structure.n_bins, structure.n_beta
     cov = np.asarray(res.cov_z)
     C = np.where(np.isfinite(cov), cov, 0.0)
-    pv = np.asarray(prior_var)
-    K = np.zeros((n_rows, p))
-    K[: 2 * N] = np.asarray(A_w).reshape(2 * N, p)
-    K[2 * N + np.arange(p), np.arange(p)] = 1.0 / np.sqrt(pv)
+    K = beta_columns(fit, A_w, prior_var)
     KM = K @ Minv
-    hat = KM @ K.T + J @ C @ J.T
+    hat = stacked_hat(fit, K)
     D = row_shares(fit, base, trans)
     # rows that no component touches (θ's and β's fixed priors) drop out of the traces
     used = np.any(D != 0, axis=0)
