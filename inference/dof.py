@@ -49,6 +49,7 @@ __all__ = [
     "projection_hat",
     "t_two_sided",
     "type_a_reliability",
+    "welch_satterthwaite",
 ]
 
 P_COVERAGE = 0.9545  # the coverage probability of k = 2 for a normal distribution
@@ -129,10 +130,14 @@ def type_a_reliability(
     d = D @ (h * r)
     u2 = float(np.sum(h**2))
     uh2 = float(d @ V @ d)
-    var_u2 = float(g @ V @ g)
-    total = u2 + uh2
-    nu = NU_CAP if var_u2 <= 2 * total**2 / NU_CAP else 2 * total**2 / var_u2
-    return TypeAReliability(u2, V, g, d, uh2, float(nu), clipped)
+    nu = welch_satterthwaite(u2 + uh2, float(g @ V @ g))
+    return TypeAReliability(u2, V, g, d, uh2, nu, clipped)
+
+
+def welch_satterthwaite(u2: float, var_u2: float) -> float:
+    """ν_eff = 2 u⁴ / var(u²) (GUM G.4.1 with the components' correlations, module
+    docstring), at most ``NU_CAP``."""
+    return NU_CAP if var_u2 <= 2 * u2**2 / NU_CAP else float(2 * u2**2 / var_u2)
 
 
 def log_var_cov(

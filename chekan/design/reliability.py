@@ -40,7 +40,12 @@ from chekan.design.information import THETA_NAMES, DesignRows, design_rows
 from chekan.design.layout import DesignValues
 from chekan.joint.typea import COMPONENTS, PRIOR_INFO
 from chekan.program import TiltProgram
-from inference.dof import NU_CAP, component_information, cov_of_information, coverage_factor
+from inference.dof import (
+    component_information,
+    cov_of_information,
+    coverage_factor,
+    welch_satterthwaite,
+)
 
 #: the quantities whose ν_eff a design reports
 QUANTITIES = ("b1", "b2", "a", "b1_0", "b2_0")
@@ -136,9 +141,7 @@ def expected_reliability(
         g = D @ h**2
         Dh = Du * h[used]
         uh2 = float(np.sum(V * (Dh @ P @ Dh.T)))
-        var_u2 = float(g @ V @ g)
-        total = u2 + max(uh2, 0.0)
-        nu[name] = NU_CAP if var_u2 <= 2 * total**2 / NU_CAP else 2 * total**2 / var_u2
+        nu[name] = welch_satterthwaite(u2 + max(uh2, 0.0), float(g @ V @ g))
         k[name] = coverage_factor(nu[name])
     names = tuple(c for c, on in zip(COMPONENTS, keep, strict=True) if on)
     return ExpectedReliability(nu, k, names, clipped)
