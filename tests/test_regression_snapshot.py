@@ -28,11 +28,14 @@ as β and the reported sd adds the hyperparameters' estimation (uₕ), both mean
 numbers (the MAP's intervals were 5–10 % short). Against the former snapshot: sds by up to
 8.6 % (σ_θ, σ_o up to 5.5 %), means by at most 0.07 of their sd.
 
-Re-taken for issue 30's six-hold record (its simulated records' MAP entries): the noise
-components' information rests on the joint (θ, β) problem's hat, a projection, where the
-sum of θ's and β's hats was not. Against the former snapshot: means unchanged, sds by at
-most 8.1e-5 relative, the budget's hyperparameter line by 0.14 %, ν_eff by 0.056 %, k and
-U by 0.03 %; the paper's protocol bit for bit.
+Re-taken for issue 30's six-hold record (its simulated records' MAP entries): β's columns
+in the stacked rows carried the data rows with the wrong sign (+Ã where ∂R/∂β is −Ã), so
+the sum of θ's and β's hats was no projection and the row influences of quantities with a
+β part did not add up to their variance (a drift slope's: 0.90–0.94 of it); now the hat is
+the joint (θ, β) problem's projector and the influences use ∂R/∂β. Against the former
+snapshot: means unchanged; the drift slopes' sds by up to 1.9 % (their uₕ), every other sd
+by at most 6.6e-5 relative; the budget's hyperparameter line by 0.14 %, ν_eff by 0.056 %,
+k and U by 0.03 %; the paper's protocol bit for bit.
 """
 
 from __future__ import annotations

@@ -96,17 +96,25 @@ def test_the_hat_of_the_type_a_terms_is_the_joint_problems(fitted, joint_jacobia
     indefinite)."""
     fit, _ = fitted
     _, _, _, Minv, _, A_w, _, _, pv = _pieces(fit)
-    K = typea.beta_columns(fit, A_w, pv)
-    hat = typea.stacked_hat(fit, K)
+    dR = typea.beta_columns(fit, A_w, pv)
+    hat = typea.stacked_hat(fit, dR)
     J = joint_jacobian
     want = J @ np.linalg.solve(J.T @ J, J.T)
     np.testing.assert_allclose(hat, want, atol=1e-8)
     np.testing.assert_allclose(hat @ hat, hat, atol=1e-8)
-    Jt = np.asarray(fit.result.jacobian)
-    C = np.asarray(fit.result.cov_z)
-    summed = K @ Minv @ K.T + Jt @ C @ Jt.T
-    assert np.linalg.eigvalsh(summed).max() > 1.1  # the former reading: not a projection
     assert np.trace(hat) == pytest.approx(J.shape[1])
+    # β's columns are J's derivative in β, and the MAP's J is orthogonal to them
+    q = fit.result.z.size
+    np.testing.assert_allclose(dR, J[:, q:], rtol=1e-6, atol=1e-9 * np.abs(dR).max())
+    Jt = np.asarray(fit.result.jacobian)
+    scale = np.linalg.norm(Jt, axis=0).max() * np.linalg.norm(dR, axis=0).max()
+    assert np.abs(Jt.T @ dR).max() < 1e-4 * scale
+    # the former reading: β's data columns with the other sign, and a sum of two hats
+    K = np.concatenate(
+        [-dR[: 2 * fit.model.structure.n_bins], dR[2 * fit.model.structure.n_bins :]]
+    )
+    C = np.asarray(fit.result.cov_z)
+    assert np.linalg.eigvalsh(K @ Minv @ K.T + Jt @ C @ Jt.T).max() > 1.1  # not a projection
 
 
 def test_e_step_with_theta_terms_raises_the_variances_it_estimates(fitted):
@@ -179,6 +187,11 @@ def test_reported_sd_and_budget_carry_the_type_a_terms(fitted):
     rel = typea.reliabilities(fit, Jz, Jb, Minv, A_w, base, trans, pv)
     laplace = fit.result.cov_z[0, 0] * fit.result.space.step[0] ** 2
     assert rel[0].u2 == pytest.approx(laplace, rel=1e-8)
+    # every quantity's influences add up to its delta-method variance, also where it has a β
+    # part (a, b₀, the drift slopes: with β's data rows of the other sign, 0.90 for a drift)
+    C = np.where(np.isfinite(fit.result.cov_z), fit.result.cov_z, 0.0)
+    var = np.einsum("ij,jk,ik->i", Jz, C, Jz) + np.einsum("ij,jk,ik->i", Jb, Minv, Jb)
+    np.testing.assert_allclose([r.u2 for r in rel], var, rtol=1e-4)
     sd = md["b1"][1]
     assert sd**2 == pytest.approx(laplace + md["_u_hyper"]["b1"] ** 2, rel=1e-10)
     assert 3 < md["_nu_eff"]["b1"] < 1e4

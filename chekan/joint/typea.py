@@ -12,19 +12,21 @@ algebra):
   uncertainty is U = k·u with k = t₉₅.₄₅(ν_eff) (GUM G.6.4), not 2.
 
 The stacked rows are those of the MAP's last pass, R = [r_w (bins × 2), β̂/√Λ, θ's prior
-rows]; the hat matrix of the joint (θ, β) problem is the projector onto the span of
-[J, ∂R/∂β] (:func:`inference.dof.projection_hat`), J the MAP's Jacobian in θ (β projected
-out) and ∂R/∂β = [−Ã; Λ^{-1/2}; 0]: J = ∂R/∂θ|β + ∂R/∂β ∂β̂/∂θ spans with ∂R/∂β what the
-joint Jacobian spans. (H_β + J C_θ Jᵀ, H_β = K M⁻¹ Kᵀ with K = [Ã; Λ^{-1/2}; 0], is that
-projector only where J is orthogonal to β's columns; it is not, and on a six-hold record the
-sum had an eigenvalue 1.59.) The
+rows], with the columns J (the MAP's Jacobian in θ, β projected out) and
+∂R/∂β = [−Ã; Λ^{-1/2}; 0] (r_w = √w (r − Aβ): the data rows carry −Ã, the prior rows
++Λ^{-1/2}). J is orthogonal to ∂R/∂β (β̂ is stationary given θ; 2e-6 relative on a 9 h
+record), and the hat matrix of the joint (θ, β) problem is the projector onto their span
+(:func:`inference.dof.projection_hat`). (With K = [Ã; Λ^{-1/2}; 0], whose data rows have
+the other sign, J is not orthogonal to K: H_β + J C_θ Jᵀ was no projection, eigenvalues up
+to 1.9, and on a six-hold record the information came out indefinite.) The
 shares of each row's variance: sⱼ: (sⱼσⱼ)²/n / vᵢ of system j's bins, κ: (κ tᵢ)²/vᵢ, σ_θ
 and σ_o: 1 on the prior rows of the angle errors and of the hold offsets of real holds.
 The noise M-step uses the priors of log s and log κ (:mod:`chekan.joint.em`), so their
 information is added; σ_θ's and σ_o's M-steps use none.
 
-A derived quantity g(θ, β) (a, b₀) has the row influence
-∂g/∂θ C_θ Jᵀ + ∂g/∂β M⁻¹ Kᵀ (the two are orthogonal: var g is the delta method's).
+A derived quantity g(θ, β) (a, b₀, the drift slopes) has the row influence
+∂g/∂θ C_θ Jᵀ + ∂g/∂β M⁻¹ (∂R/∂β)ᵀ (the change of ĝ with each row's residual, up to a common
+sign; the two parts are orthogonal, so Σ hᵣ² is the delta method's var g).
 """
 
 from __future__ import annotations
@@ -81,20 +83,18 @@ def row_shares(fit: MapFit, base: np.ndarray, trans: np.ndarray) -> np.ndarray:
 
 
 def beta_columns(fit: MapFit, A_w: np.ndarray, prior_var: np.ndarray) -> np.ndarray:
-    """K (rows, p): β's columns in the stacked rows, [Ã; Λ^{-1/2}; 0] (module docstring)."""
+    """∂R/∂β (rows, p): β's columns in the stacked rows, [−Ã; Λ^{-1/2}; 0] (module
+    docstring)."""
     N, p = fit.model.structure.n_bins, fit.model.structure.n_beta
     K = np.zeros((np.asarray(fit.result.jacobian).shape[0], p))
-    K[: 2 * N] = np.asarray(A_w).reshape(2 * N, p)
+    K[: 2 * N] = -np.asarray(A_w).reshape(2 * N, p)
     K[2 * N + np.arange(p), np.arange(p)] = 1.0 / np.sqrt(np.asarray(prior_var))
     return K
 
 
-def stacked_hat(fit: MapFit, K: np.ndarray) -> np.ndarray:
+def stacked_hat(fit: MapFit, dR_dbeta: np.ndarray) -> np.ndarray:
     """The joint (θ, β) problem's hat matrix of the stacked rows: the projector onto the span
-    of [J, ∂R/∂β], ∂R/∂β = K with its data rows negated (r_w = √w (r − Aβ); the prior rows
-    are +β/√Λ) (module docstring)."""
-    N2 = 2 * fit.model.structure.n_bins
-    dR_dbeta = np.concatenate([-K[:N2], K[N2:]])
+    of [J, ∂R/∂β] (module docstring)."""
     return projection_hat(np.concatenate([np.asarray(fit.result.jacobian), dR_dbeta], axis=1))
 
 
@@ -115,7 +115,7 @@ def reliabilities(
     J = np.asarray(res.jacobian)
     cov = np.asarray(res.cov_z)
     C = np.where(np.isfinite(cov), cov, 0.0)
-    K = beta_columns(fit, A_w, prior_var)
+    K = beta_columns(fit, A_w, prior_var)  # ∂R/∂β
     KM = K @ Minv
     hat = stacked_hat(fit, K)
     D = row_shares(fit, base, trans)
