@@ -189,7 +189,7 @@ def format_table(result: SearchResult, top: int = 15) -> str:
             f"{r['sd_b2_ppm']:.1f}",
             f"{r['sd_a_mgal_per_pix2']:.2e}",
             "—" if c.reliability is None else nu_text(c.reliability.nu_of(result.objective)),
-            "—" if c.reliability is None else f"{c.reliability.k_of(result.objective):.2f}",
+            _k_text(c, result.objective),
         )
         note = "  <- given" if r["given"] else ""
         if c is best and not r["given"]:
@@ -316,6 +316,7 @@ def design_json(
 
 
 def _k_text(c: Candidate, objective: str) -> str:
+    """A candidate's expected k for an objective, "—" where it was not assessed."""
     return "—" if c.reliability is None else f"{c.reliability.k_of(objective):.2f}"
 
 
