@@ -115,27 +115,37 @@ class IncrementTable:
 
 def increments_from_holds(table: HoldTable, g_local_mgal: float) -> IncrementTable:
     """Pair ± tilts of every angle in every round; level reading interpolated in time."""
-    R, n = len(table.rounds), table.angle_deg.size
-    x = np.full((R, 2, n), np.nan)
-    xp = np.full((R, 2, n), np.nan)
-    xm = np.full((R, 2, n), np.nan)
+    return increments_of_readings(table, g_local_mgal, table.m_mean_pix[None])[0]
+
+
+def increments_of_readings(
+    table: HoldTable, g_local_mgal: float, readings: np.ndarray
+) -> list[IncrementTable]:
+    """:func:`increments_from_holds` of the table with its hold means replaced by each of
+    ``readings`` (D, K, 2) in turn (a replicated session per row), computed together: the
+    pairs, levels and reference increments are the table's, the readings enter linearly."""
+    m = np.asarray(readings, dtype=float)
+    D, R, n = m.shape[0], len(table.rounds), table.angle_deg.size
+    x = np.full((D, R, 2, n), np.nan)
+    xp = np.full((D, R, 2, n), np.nan)
+    xm = np.full((D, R, 2, n), np.nan)
     da = np.full((R, n), np.nan)
     th = np.full((R, n), np.nan)
-    mh_round = np.full((R, 2), np.nan)
+    mh_round = np.full((D, R, 2), np.nan)
     notes: list[str] = []
     lvl_h = _one_minus_uz(table.tilt_x_rad, table.tilt_y_rad)
     for ri, rnd in enumerate(table.rounds):
         refs = [i for i in (rnd.level_before, rnd.level_after) if i is not None]
         t_ref = table.t_mid_s[refs]
-        m_ref = table.m_mean_pix[refs]
+        m_ref = m[:, refs]  # (D, 1 or 2, 2)
         h_ref = lvl_h[refs].mean()
-        mh_round[ri] = m_ref.mean(axis=0)
+        mh_round[:, ri] = m_ref.mean(axis=1)
 
         def m_level_at(t, t_ref=t_ref, m_ref=m_ref):
             if len(t_ref) == 1 or t_ref[1] == t_ref[0]:
-                return m_ref.mean(axis=0)
+                return m_ref.mean(axis=1)
             w = (t - t_ref[0]) / (t_ref[1] - t_ref[0])
-            return m_ref[0] + w * (m_ref[1] - m_ref[0])
+            return m_ref[:, 0] + w * (m_ref[:, 1] - m_ref[:, 0])
 
         for ai in range(n):
             hp = [i for i in rnd.tilt_holds if table.angle_index[i] == ai and table.sign[i] > 0]
@@ -147,30 +157,33 @@ def increments_from_holds(table: HoldTable, g_local_mgal: float) -> IncrementTab
                         f"no {'−' if hp else '+'} partner, angle left out"
                     )
                 continue
-            dp = np.mean([table.m_mean_pix[i] - m_level_at(table.t_mid_s[i]) for i in hp], axis=0)
-            dm = np.mean([table.m_mean_pix[i] - m_level_at(table.t_mid_s[i]) for i in hm], axis=0)
-            xp[ri, :, ai], xm[ri, :, ai] = dp, dm
-            x[ri, :, ai] = 0.5 * (dp + dm)  # eq. (25)
+            dp = np.mean([m[:, i] - m_level_at(table.t_mid_s[i]) for i in hp], axis=0)
+            dm = np.mean([m[:, i] - m_level_at(table.t_mid_s[i]) for i in hm], axis=0)
+            xp[:, ri, :, ai], xm[:, ri, :, ai] = dp, dm
+            x[:, ri, :, ai] = 0.5 * (dp + dm)  # eq. (25)
             hh = np.mean([lvl_h[i] for i in hp]) / 2 + np.mean([lvl_h[i] for i in hm]) / 2
             da[ri, ai] = g_local_mgal * (hh - h_ref)
             th[ri, ai] = 0.5 * (
                 np.mean(np.abs(table.theta_rad[hp])) + np.mean(np.abs(table.theta_rad[hm]))
             )
-    return IncrementTable(
-        source="record",
-        g_local_mgal=g_local_mgal,
-        angle_deg=table.angle_deg,
-        angle_label=table.angle_labels(),
-        rounds=tuple(r.number for r in table.rounds),
-        da_ref_mgal=da,
-        x_pix=x,
-        x_plus_pix=xp,
-        x_minus_pix=xm,
-        theta_pair_rad=th,
-        m_level_pix=mh_round,
-        notes=notes,
-        round_axes=tuple(r.axis for r in table.rounds),
-    )
+    return [
+        IncrementTable(
+            source="record",
+            g_local_mgal=g_local_mgal,
+            angle_deg=table.angle_deg,
+            angle_label=table.angle_labels(),
+            rounds=tuple(r.number for r in table.rounds),
+            da_ref_mgal=da.copy(),  # each table its own arrays (a fit may edit what it holds)
+            x_pix=x[d],
+            x_plus_pix=xp[d],
+            x_minus_pix=xm[d],
+            theta_pair_rad=th.copy(),
+            m_level_pix=mh_round[d],
+            notes=list(notes),
+            round_axes=tuple(r.axis for r in table.rounds),
+        )
+        for d in range(D)
+    ]
 
 
 def increments_from_protocol(protocol) -> IncrementTable:

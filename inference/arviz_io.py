@@ -230,7 +230,9 @@ def save_posterior_netcdf(
     then ``dims[name]`` or ``{name}_dim_{i}``; every dimension has an integer index
     coordinate unless ``coords`` names its values; each group carries ``created_at`` and
     ``arviz_version`` (``observed_data`` also ``attrs``, the file's root ``attrs``);
-    float variables gzip-compressed with a NaN fill value, as ``InferenceData.to_netcdf``.
+    float variables with a NaN fill value, as ``InferenceData.to_netcdf``, but not
+    compressed: posterior draws are noise to gzip (the 9 h record's pointwise
+    log-likelihood: 5 % smaller in 12× the time, 0.59 s against 0.05 s); integers are.
     Atomic like :func:`save_netcdf` (temporary file renamed into place; ENOSPC first).
     """
     import contextlib
@@ -295,7 +297,7 @@ def save_posterior_netcdf(
                     else:
                         g.create_variable(d, (d,), data=values, compression="gzip")
                 for name, names, a in variables:
-                    kw = {"compression": "gzip"} if a.dtype.kind in "fiub" else {}
+                    kw = {"compression": "gzip"} if a.dtype.kind in "iub" else {}
                     fill = {"fillvalue": np.nan} if a.dtype.kind == "f" else {}
                     g.create_variable(name, tuple(names), data=a, **kw, **fill)
                 g.attrs["created_at"] = datetime.datetime.now(datetime.UTC).isoformat()

@@ -1,5 +1,5 @@
 """Loads of compiled executables in background threads, with jaxlib's LAPACK kernels bound
-first (:mod:`inference.aot` starts them)."""
+first (:mod:`inference.aot` starts them), and slow imports started ahead of their use."""
 
 from __future__ import annotations
 
@@ -69,3 +69,22 @@ def in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) 
     for i in range(min(threads, len(jobs))):
         threading.Thread(target=work, name=f"aot-{label}-{i}").start()
     return futures
+
+
+def imports_in_background(modules: list[str], label: str) -> Any:
+    """Import ``modules`` in one background thread, in order; the future of the last.
+
+    For an import that a process will surely need later and that costs it seconds (emcee
+    imports ``scipy.stats`` through its KDE move: ≈ 1 s) while its main thread computes
+    without importing (the MAP). Python's module locks make a second import of the same
+    module wait for the first; but two threads importing *different* modules of one package
+    can wait on each other (``_DeadlockError``, see :func:`loads_in_background`), so the
+    caller waits on the future before it imports anything more itself.
+    """
+    import importlib
+
+    def run() -> None:
+        for name in modules:
+            importlib.import_module(name)
+
+    return in_background([(run, ())], 1, label)[0]

@@ -305,3 +305,26 @@ def test_each_axis_table_holds_only_its_own_angles():
         assert fit.table.angle_label == labels
         assert np.isfinite(fit.table.x_pix).all() and np.isfinite(fit.delta_g_mgal).all()
     assert res.by_axis["x"].table.rounds == (3,) and res.discrepancy_percent is not None
+
+
+def test_replicated_readings_give_each_tables_own_increments():
+    """The posterior predictive replicates a session many times with new hold means:
+    :func:`increments_of_readings` computes them together and must give, for each, what
+    :func:`increments_from_holds` gives the table holding those means (both axes, levels
+    interpolated in time), bit for bit."""
+    from dataclasses import replace
+
+    from chekan.classical import increments_of_readings
+
+    rec, _ = _forward_record(_xy_program())
+    _, holds = calibrate_record(rec, settle_s=100)
+    rng = np.random.default_rng(3)
+    readings = holds.m_mean_pix[None] + rng.normal(0, 0.5, (3, *holds.m_mean_pix.shape))
+    tables = increments_of_readings(holds, G_MGAL, readings)
+    assert len(tables) == 3
+    for y, got in zip(readings, tables, strict=True):
+        want = increments_from_holds(replace(holds, m_mean_pix=y), G_MGAL)
+        for name in ("x_pix", "x_plus_pix", "x_minus_pix", "m_level_pix", "da_ref_mgal"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+        assert got.axes == want.axes and got.notes == want.notes
+    assert not np.array_equal(tables[0].x_pix, tables[1].x_pix)  # the readings did enter

@@ -71,6 +71,10 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
     em.prefetch(model)
     if options.method == "map":
         prefetch_map_derived(model)
+    else:  # the sampler's imports (emcee → scipy.stats, ≈ 1 s) while the MAP runs
+        from inference.background import imports_in_background
+
+        sampler_imports = imports_in_background(["emcee", "inference.sampling"], "imports")
     fit = fit_map_em(
         model,
         init,
@@ -80,6 +84,7 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
     )
     if options.method == "map":
         return map_result(fit, base, options, t_start)
+    sampler_imports.result()  # done before this thread imports anything more (deadlock-free)
     return posterior_result(fit, holds, record, base, options, t_start)
 
 

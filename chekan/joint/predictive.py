@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from chekan import model as fm
-from chekan.classical import fit_by_axis, increments_from_holds
+from chekan.classical import fit_by_axis, increments_of_readings
 from chekan.joint.problem import K_DESIGN
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
@@ -36,19 +36,19 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     compiled = engine_for(model.structure).predictive
     m0 = float(np.asarray(model.data.m0))  # the record's CCD centre, as the fit uses it
     E_all, S_all = _equilibria(g, m0, flat, take, holds, compiled)  # (draws, K, 2) each
-    reps = []
+    ys = []
     for n_draw, i in enumerate(take):
         E, S = E_all[n_draw], S_all[n_draw]
         drift = P @ flat["drift_coeffs"][i].T
         o = rng.normal(0, flat["sigma_hold_pix"][i], E.shape)
         d = rng.normal(0, flat["sigma_theta_arcsec"][i], E.shape[0]) / ARCSEC_PER_RAD
         noise = rng.normal(0, 1, E.shape) * np.array([flat["sigma1_pix"][i], flat["sigma2_pix"][i]])
-        y = E + drift + o - S * d[:, None] + noise / np.sqrt(np.maximum(holds.n_used, 1))[:, None]
-        rep = holds.__class__(**{**holds.__dict__, "m_mean_pix": y})
-        # as the classical method reports it: the rounds about Y (X rounds fitted apart)
-        cres = fit_by_axis(increments_from_holds(rep, g), a_fixed=a_fixed)
-        reps.append(cres.delta_g_mgal)
-    return np.stack(reps)  # (draws, R, 2, n)
+        root_n = np.sqrt(np.maximum(holds.n_used, 1))[:, None]
+        ys.append(E + drift + o - S * d[:, None] + noise / root_n)
+    # as the classical method reports it: the rounds about Y (X rounds fitted apart)
+    tables = increments_of_readings(holds, g, np.stack(ys))
+    # (draws, R, 2, n)
+    return np.stack([fit_by_axis(t, a_fixed=a_fixed).delta_g_mgal for t in tables])
 
 
 def _equilibria(g: float, m0: float, flat: dict, take, holds, compiled: Callable | None = None):
