@@ -166,6 +166,13 @@ class ParamSpace:
         return int(self._prior_idx.size)
 
     @property
+    def prior_sd_z(self) -> np.ndarray:
+        """The prior's sd in z-units per flat element (``scale/typical``; inf where flat)."""
+        out = np.full(self.size, np.inf)
+        out[self._prior_idx] = 1.0 / self._prior_gain
+        return out
+
+    @property
     def loc(self) -> np.ndarray:
         """Prior mean of ``u`` per flat element."""
         return self._loc.copy()

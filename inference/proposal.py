@@ -20,13 +20,23 @@ with the component covariances inflated by :math:`c^2` and the start, widened
 :math:`\pi/q \le \pi/(\alpha \tilde q_0)`: the tails stay covered. The sampler's target
 is unchanged (the proposal only sets the acceptance rate).
 :class:`inference.moves.MixtureIndependenceMove` takes the mixture.
+
+**Shoulders.** Where the data inform a coordinate only weakly (its Laplace sd at least
+``shoulder_ratio`` of its prior sd), the posterior can carry a *shoulder* that follows the
+prior far beyond the Laplace scale: a hyperparameter whose likelihood flattens as it goes
+to zero (a noise scale, an error term) keeps the prior's tail there. No fit from draws
+near the mode finds it, and a walker that reaches it waits for a proposal there (an
+expected 10⁴–10⁵ steps, measured). For each such coordinate i a further defensive
+component :math:`t(\hat z, \tilde\Sigma_i)`, :math:`\tilde\Sigma_i` = the widened start
+with its i-th variance raised to the prior's, takes a share of ``shoulder_weight``: then
+:math:`\pi/q` stays bounded on the shoulder too.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -56,7 +66,8 @@ def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class MixtureProposal:
-    """q(x) = α t_ν(x; m₀, L₀L₀ᵀ) + (1 − α) Σₖ πₖ N(x; μₖ, LₖLₖᵀ), normalised densities."""
+    """q(x) = α t_ν(x; m₀, L₀L₀ᵀ) + Σₛ βₛ t_ν(x; m₀, LₛLₛᵀ) + (1 − α − Σβ) Σₖ πₖ N(x; μₖ, LₖLₖᵀ),
+    normalised densities (the shoulders s: module docstring)."""
 
     mean0: np.ndarray
     chol0: np.ndarray
@@ -65,6 +76,8 @@ class MixtureProposal:
     weights: np.ndarray  # (K,) πₖ, summing to 1
     means: np.ndarray  # (K, d)
     chols: np.ndarray  # (K, d, d) lower Cholesky factors
+    shoulder_weights: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (S,)
+    shoulder_chols: np.ndarray | None = None  # (S, d, d): t_ν(m₀, ·) like the start
 
     @classmethod
     def t_only(cls, mean: np.ndarray, cov: np.ndarray, df: float) -> MixtureProposal:
@@ -84,10 +97,18 @@ class MixtureProposal:
         """log q at the rows of ``x`` (n, d)."""
         x = np.atleast_2d(x)
         parts = [np.log(self.alpha) + _t_logpdf(x, self.mean0, self.chol0, self.df)]
-        if self.alpha < 1.0:
+        for w, c in self._shoulders():
+            parts.append(np.log(w) + _t_logpdf(x, self.mean0, c, self.df))
+        rest = 1.0 - self.alpha - float(np.sum(self.shoulder_weights))
+        if rest > 0.0:
             for w, m, c in zip(self.weights, self.means, self.chols, strict=True):
-                parts.append(np.log((1.0 - self.alpha) * w) + _normal_logpdf(x, m, c))
+                parts.append(np.log(rest * w) + _normal_logpdf(x, m, c))
         return _logsumexp(np.stack(parts), axis=0)
+
+    def _shoulders(self) -> list[tuple[float, np.ndarray]]:
+        if self.shoulder_chols is None:
+            return []
+        return list(zip(self.shoulder_weights.tolist(), self.shoulder_chols, strict=True))
 
     def sample(self, n: int, random) -> np.ndarray:
         """``n`` draws; ``random``: a ``numpy.random.RandomState`` (emcee's) or ``Generator``."""
@@ -96,11 +117,18 @@ class MixtureProposal:
         u = np.asarray(rand(n))
         normals = np.asarray(random.standard_normal((n, d)))
         chi2 = np.asarray(random.chisquare(self.df, size=n))
-        x = self.mean0 + (normals @ self.chol0.T) * np.sqrt(self.df / chi2)[:, None]
-        if self.alpha < 1.0:
-            edges = self.alpha + (1.0 - self.alpha) * np.cumsum(self.weights)
+        t_scale = np.sqrt(self.df / chi2)[:, None]
+        x = self.mean0 + (normals @ self.chol0.T) * t_scale
+        lo = self.alpha
+        for w, c in self._shoulders():  # the same normals and χ², another factor
+            sel = (u >= lo) & (u < lo + w)
+            if sel.any():
+                x[sel] = self.mean0 + (normals[sel] @ c.T) * t_scale[sel]
+            lo += w
+        if lo < 1.0:
+            edges = lo + (1.0 - lo) * np.cumsum(self.weights)
             comp = np.searchsorted(edges[:-1], u, side="right")
-            mix = u >= self.alpha
+            mix = u >= lo
             for k in range(self.weights.size):
                 sel = mix & (comp == k)
                 if sel.any():
@@ -161,6 +189,9 @@ def fit_proposal(
     em_iters: int = 100,
     tail_scale: float = 1.0,
     tail_df: float | None = None,
+    prior_sd: np.ndarray | None = None,
+    shoulder_weight: float = 0.0,
+    shoulder_ratio: float = 0.1,
 ) -> tuple[MixtureProposal, np.ndarray, np.ndarray, dict]:
     """Fit the mixture proposal (module docstring) from ``n_points`` draws of the t start
     ``t_df(mean, cov)``. ``log_density``: (n, d) → (n,), −inf outside the support.
@@ -170,7 +201,12 @@ def fit_proposal(
     tail the start and the fitted Gaussians miss. Returns ``(proposal, points,
     log_density(points), info)``; ``info["ess_fraction"]``:
     the importance sampling's effective fraction (Σw)²/(nΣw²) of the start, a measure of
-    how far the Laplace approximation was from the posterior.
+    how far the Laplace approximation was from the posterior; ``info["shoulders"]``: the
+    coordinates given a shoulder.
+
+    ``prior_sd`` (d,), the prior's sd per coordinate (inf: flat), with ``shoulder_weight``
+    > 0: a shoulder component for every coordinate whose sd in ``cov`` is at least
+    ``shoulder_ratio`` of the prior's (module docstring), sharing ``shoulder_weight``.
     """
     q0 = MixtureProposal.t_only(mean, cov, df)
     x = q0.sample(n_points, rng)
@@ -186,5 +222,27 @@ def fit_proposal(
     pis, mus, covs = _weighted_em(x[keep], w[keep], components, rng, em_iters, shrink)
     chols = np.stack([np.linalg.cholesky(c * inflate**2) for c in covs])
     tdf = q0.df if tail_df is None else float(tail_df)
-    prop = MixtureProposal(q0.mean0, q0.chol0 * tail_scale, tdf, alpha, pis, mus, chols)
+    tail_cov = np.asarray(cov, float) * tail_scale**2
+    weak = _weak(tail_cov, prior_sd, shoulder_ratio) if shoulder_weight > 0 else []
+    info["shoulders"] = weak
+    s_chols = np.stack([_shoulder_chol(tail_cov, i, prior_sd) for i in weak]) if weak else None
+    s_w = np.full(len(weak), shoulder_weight / max(len(weak), 1))
+    prop = MixtureProposal(
+        q0.mean0, q0.chol0 * tail_scale, tdf, alpha, pis, mus, chols, s_w, s_chols
+    )
     return prop, x, lp, info
+
+
+def _weak(cov: np.ndarray, prior_sd: np.ndarray | None, ratio: float) -> list[int]:
+    """Coordinates whose sd in ``cov`` is at least ``ratio`` of the prior's (finite) sd."""
+    if prior_sd is None:
+        return []
+    sd, prior = np.sqrt(np.diag(cov)), np.asarray(prior_sd, float)
+    return [int(i) for i in np.flatnonzero(np.isfinite(prior) & (sd >= ratio * prior))]
+
+
+def _shoulder_chol(cov: np.ndarray, i: int, prior_sd: np.ndarray) -> np.ndarray:
+    """Cholesky factor of ``cov`` with its i-th variance raised to the prior's (Σ + c eᵢeᵢᵀ)."""
+    c = np.array(cov, float)
+    c[i, i] += max(float(prior_sd[i]) ** 2 - c[i, i], 0.0)
+    return np.linalg.cholesky(c)

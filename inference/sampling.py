@@ -101,6 +101,11 @@ class SamplerConfig:
     covariance × ``proposal_tail_scale``², ``proposal_tail_df`` degrees of freedom)."""
     proposal_tail_scale: float = 1.0
     proposal_tail_df: float | None = None
+    proposal_shoulder_weight: float = 0.0
+    """``"adaptive-independence"`` with ``prior_sd`` given to :func:`sample`: the share of
+    the shoulder components, one per coordinate whose Laplace sd is at least
+    ``proposal_shoulder_ratio`` of its prior sd (:mod:`inference.proposal`)."""
+    proposal_shoulder_ratio: float = 0.1
     de_weight: float = 0.0
     """``"adaptive-independence"``: share of emcee's DEMove among the moves (local moves
     that let a walker caught where the proposal is thin walk back to the bulk)."""
@@ -332,6 +337,7 @@ def sample(
     blob_fn: Callable[[Array, Any], Any] | None = None,
     executables: ExecutableStore | None = None,
     batch_mode: BatchMode = "vmap",
+    prior_sd: ArrayLike | None = None,
 ) -> SamplingResult:
     """Sample ``log_density(z, data) -> scalar`` with ``config.n_chains`` emcee ensembles.
 
@@ -345,7 +351,9 @@ def sample(
     are evaluated together, ``"vmap"`` (vectorised) or ``"map"`` (``jax.lax.map``, a
     compiled loop: on CPU the faster for models whose evaluation holds a factorisation —
     for the Chekan model of a 9 h record, 26 walkers, one BLAS thread: a whole warm
-    ``bayes`` takes 27 s with ``"map"`` against 37 s with ``"vmap"``).
+    ``bayes`` takes 27 s with ``"map"`` against 37 s with ``"vmap"``). ``prior_sd``: the
+    prior's sd of each coordinate of z (inf where flat), for the proposal's shoulders
+    (``config.proposal_shoulder_weight``).
     """
     config = SamplerConfig() if config is None else config
     config.check()
@@ -362,13 +370,21 @@ def sample(
         raise ValueError("log_density(z_init) is not finite: start from a point in the support")
 
     rng = np.random.default_rng(config.seed)
-    samplers, states = _ensembles(lnp, z_init, _regularised_cov(init_cov, ndim), nw, config, rng)
+    psd = None if prior_sd is None else np.asarray(prior_sd, dtype=float).reshape(ndim)
+    cov0 = _regularised_cov(init_cov, ndim)
+    samplers, states = _ensembles(lnp, z_init, cov0, nw, config, rng, psd)
     n_steps, tau, ess, converged = _run(samplers, states, config, nw)
     return _result(samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0)
 
 
 def _ensembles(
-    lnp: Callable, z_init: np.ndarray, cov: np.ndarray, nw: int, config: SamplerConfig, rng
+    lnp: Callable,
+    z_init: np.ndarray,
+    cov: np.ndarray,
+    nw: int,
+    config: SamplerConfig,
+    rng,
+    prior_sd: np.ndarray | None = None,
 ) -> tuple[list[emcee.EnsembleSampler], list[emcee.State]]:
     """``config.n_chains`` emcee ensembles and their start (for the independence move, from
     the refined mode and its covariance)."""
@@ -393,6 +409,9 @@ def _ensembles(
             alpha=config.proposal_alpha,
             tail_scale=config.proposal_tail_scale,
             tail_df=config.proposal_tail_df,
+            prior_sd=prior_sd,
+            shoulder_weight=config.proposal_shoulder_weight,
+            shoulder_ratio=config.proposal_shoulder_ratio,
         )
         proposal = fitted
     samplers, states = [], []

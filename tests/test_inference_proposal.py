@@ -123,3 +123,47 @@ def test_adaptive_independence_samples_a_non_gaussian_target() -> None:
     cfg.threads = 1
     again = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
     np.testing.assert_array_equal(again.draws, res.draws)
+
+
+def test_shoulders_cover_a_prior_shaped_tail() -> None:
+    """A weakly informed coordinate whose posterior keeps 3 % of its mass on the prior's
+    scale (a shoulder 10× the Laplace sd): without shoulder components the importance
+    ratio π/q of the target's own draws reaches > 100× its mean (a walker there waits
+    that many steps); with them it stays within 2×, and q is still a normalised density.
+    A well-informed coordinate (sd 1 against a prior sd of 100) gets no shoulder."""
+    from scipy import stats
+
+    def logp(x):
+        core = np.log(0.97) + stats.norm.logpdf(x[:, 1], 0, 0.3)
+        tail = np.log(0.03) + stats.norm.logpdf(x[:, 1], 0, 3.0)
+        return stats.norm.logpdf(x[:, 0]) + np.logaddexp(core, tail)
+
+    rng = np.random.default_rng(0)
+    n = 20_000
+    wide = rng.random(n) >= 0.97
+    target = np.c_[rng.standard_normal(n), np.where(wide, 3.0, 0.3) * rng.standard_normal(n)]
+    g = np.linspace(-40, 40, 1601)
+    grid = np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+    worst = {}
+    for weight in (0.0, 0.1):
+        q, _, _, info = fit_proposal(
+            logp,
+            np.zeros(2),
+            np.diag([1.0, 0.09]),
+            np.random.default_rng(1),
+            components=1,
+            alpha=0.1,
+            tail_scale=1.2,
+            tail_df=3.0,
+            prior_sd=np.array([100.0, 3.0]),
+            shoulder_weight=weight,
+        )
+        assert info["shoulders"] == ([1] if weight else [])
+        assert np.exp(q.log_q(grid)).sum() * (g[1] - g[0]) ** 2 == pytest.approx(1.0, abs=1e-3)
+        w = np.exp(logp(target) - q.log_q(target))
+        worst[weight] = w.max() / w.mean()
+        draws = q.sample(400_000, np.random.default_rng(2))  # the draws follow q
+        share = np.mean(np.abs(draws[:, 1]) > 2.0)
+        want = np.sum(np.exp(q.log_q(grid))[np.abs(grid[:, 1]) > 2.0]) * (g[1] - g[0]) ** 2
+        assert share == pytest.approx(want, rel=0.05)
+    assert worst[0.0] > 100 and worst[0.1] < 2
