@@ -215,7 +215,7 @@ def fit_proposal(
     w = np.exp(logw - np.max(logw))
     w /= w.sum()
     ess_fraction = float(1.0 / (n_points * np.sum(w * w)))
-    info = {"ess_fraction": ess_fraction, "n_points": n_points}
+    info = {"ess_fraction": ess_fraction, "n_points": n_points, "shoulders": []}
     keep = w > 0
     if np.count_nonzero(keep) < 10 * components:  # too few points carry weight: keep q₀
         return q0, x, lp, info
@@ -223,9 +223,11 @@ def fit_proposal(
     chols = np.stack([np.linalg.cholesky(c * inflate**2) for c in covs])
     tdf = q0.df if tail_df is None else float(tail_df)
     tail_cov = np.asarray(cov, float) * tail_scale**2
-    weak = _weak(tail_cov, prior_sd, shoulder_ratio) if shoulder_weight > 0 else []
+    weak = _weak(np.asarray(cov, float), prior_sd, shoulder_ratio) if shoulder_weight > 0 else []
     info["shoulders"] = weak
-    s_chols = np.stack([_shoulder_chol(tail_cov, i, prior_sd) for i in weak]) if weak else None
+    s_chols = None
+    if weak and prior_sd is not None:
+        s_chols = np.stack([_shoulder_chol(tail_cov, i, prior_sd) for i in weak])
     s_w = np.full(len(weak), shoulder_weight / max(len(weak), 1))
     prop = MixtureProposal(
         q0.mean0, q0.chol0 * tail_scale, tdf, alpha, pis, mus, chols, s_w, s_chols

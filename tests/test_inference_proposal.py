@@ -128,7 +128,7 @@ def test_adaptive_independence_samples_a_non_gaussian_target() -> None:
 def test_shoulders_cover_a_prior_shaped_tail() -> None:
     """A weakly informed coordinate whose posterior keeps 3 % of its mass on the prior's
     scale (a shoulder 10× the Laplace sd): without shoulder components the importance
-    ratio π/q of the target's own draws reaches > 100× its mean (a walker there waits
+    ratio π/q of the target's own draws reaches > 50× its mean (a walker there waits
     that many steps); with them it stays within 2×, and q is still a normalised density.
     A well-informed coordinate (sd 1 against a prior sd of 100) gets no shoulder."""
     from scipy import stats
@@ -149,7 +149,7 @@ def test_shoulders_cover_a_prior_shaped_tail() -> None:
         q, _, _, info = fit_proposal(
             logp,
             np.zeros(2),
-            np.diag([1.0, 0.09]),
+            np.diag([1.0, 0.16]),  # Laplace sd 0.4: above a tenth of the prior's 3
             np.random.default_rng(1),
             components=1,
             alpha=0.1,
@@ -166,4 +166,4 @@ def test_shoulders_cover_a_prior_shaped_tail() -> None:
         share = np.mean(np.abs(draws[:, 1]) > 2.0)
         want = np.sum(np.exp(q.log_q(grid))[np.abs(grid[:, 1]) > 2.0]) * (g[1] - g[0]) ** 2
         assert share == pytest.approx(want, rel=0.05)
-    assert worst[0.0] > 100 and worst[0.1] < 2
+    assert worst[0.0] > 50 and worst[0.1] < 2
