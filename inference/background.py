@@ -4,6 +4,7 @@ first (:mod:`inference.aot` starts them), and slow imports started ahead of thei
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import Any
 
 
@@ -45,7 +46,6 @@ def in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) 
     (``chekan.outputs.DISPOSABLE_THREAD_PREFIX`` relies on that prefix)."""
     import queue
     import threading
-    from concurrent.futures import Future
 
     todo: queue.SimpleQueue = queue.SimpleQueue()
     futures: list[Future] = []
@@ -71,7 +71,7 @@ def in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) 
     return futures
 
 
-def imports_in_background(modules: list[str], label: str) -> Any:
+def imports_in_background(modules: list[str], label: str) -> Future:
     """Import ``modules`` in one background thread, in order; the future of the last.
 
     For an import that a process will surely need later and that costs it seconds (emcee
