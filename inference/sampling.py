@@ -310,14 +310,23 @@ def _eval_halves(lnp: Callable, coords: np.ndarray) -> np.ndarray:
 
 
 def _eval_any(lnp: Callable, coords: np.ndarray, batch: int) -> np.ndarray:
-    """Evaluate any number of points, padding to ``batch`` (avoids new compiles)."""
-    out = []
-    for i in range(0, coords.shape[0], batch):
+    """Evaluate any number of points, padding to ``batch`` (avoids new compiles); several
+    batches on one thread per core (the compiled call releases the GIL; each point's value
+    is the same either way): the mode's finite differences and the proposal's importance
+    draws are hundreds of points, the sampler's steps one batch."""
+
+    def one(i: int) -> np.ndarray:
         chunk = coords[i : i + batch]
         k = chunk.shape[0]
         pad = np.concatenate([chunk, np.repeat(chunk[-1:], batch - k, axis=0)])
-        out.append(lnp(pad)[:k])
-    return np.concatenate(out)
+        return lnp(pad)[:k]
+
+    starts = range(0, coords.shape[0], batch)
+    workers = min(len(starts), os.cpu_count() or 1)
+    if workers <= 1:
+        return np.concatenate([one(i) for i in starts])
+    with ThreadPoolExecutor(workers, thread_name_prefix="eval") as pool:
+        return np.concatenate(list(pool.map(one, starts)))
 
 
 def _flatten_walkers(x: np.ndarray) -> np.ndarray:
