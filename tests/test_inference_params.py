@@ -68,6 +68,18 @@ def test_prior_matches_scipy(space: ParamSpace) -> None:
     )
 
 
+def test_prior_sd_in_z_units_is_the_spread_of_prior_draws(space: ParamSpace) -> None:
+    """scale/typical per element (typical defaults to scale: 1), inf where the prior is
+    flat; the prior's own draws in z have that spread."""
+    sd = space.prior_sd_z
+    np.testing.assert_array_equal(sd[:3], [1.0, 1.0, 1.0])
+    assert np.all(np.isinf(sd[3:]))
+    sub = ParamSpace([Param("k", loc=-5.8, scale=1.5, transform="log", typical=0.3), space["a"]])
+    np.testing.assert_allclose(sub.prior_sd_z, [5.0, 1.0])
+    draws = sub.sample_prior_z(np.random.default_rng(0), 20_000)
+    np.testing.assert_allclose(draws.std(axis=0), sub.prior_sd_z, rtol=0.03)
+
+
 def test_errors_explain() -> None:
     with pytest.raises(ValueError, match="transform"):
         Param("x", transform="sqrt")
