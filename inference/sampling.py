@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike
 
 from .aot import ExecutableStore
 from .autocorr import burn_thin, integrated_time, mean_tau
+from .chunks import map_chunks
 from .mode import refine_mode
 from .moves import IndependenceMove, SnookerMove, moves_for
 from .proposal import fit_proposal
@@ -310,23 +311,11 @@ def _eval_halves(lnp: Callable, coords: np.ndarray) -> np.ndarray:
 
 
 def _eval_any(lnp: Callable, coords: np.ndarray, batch: int) -> np.ndarray:
-    """Evaluate any number of points, padding to ``batch`` (avoids new compiles); several
-    batches on one thread per core (the compiled call releases the GIL; each point's value
-    is the same either way): the mode's finite differences and the proposal's importance
-    draws are hundreds of points, the sampler's steps one batch."""
-
-    def one(i: int) -> np.ndarray:
-        chunk = coords[i : i + batch]
-        k = chunk.shape[0]
-        pad = np.concatenate([chunk, np.repeat(chunk[-1:], batch - k, axis=0)])
-        return lnp(pad)[:k]
-
-    starts = range(0, coords.shape[0], batch)
-    workers = min(len(starts), os.cpu_count() or 1)
-    if workers <= 1:
-        return np.concatenate([one(i) for i in starts])
-    with ThreadPoolExecutor(workers, thread_name_prefix="eval") as pool:
-        return np.concatenate(list(pool.map(one, starts)))
+    """Evaluate any number of points in batches of ``batch`` (the compiled size, no new
+    compiles), several batches on one thread per core (:func:`inference.chunks.map_chunks`):
+    the mode's finite differences and the proposal's importance draws are hundreds of
+    points, the sampler's steps one batch (in the calling thread)."""
+    return map_chunks(lnp, [coords], batch)
 
 
 def _flatten_walkers(x: np.ndarray) -> np.ndarray:
@@ -544,16 +533,9 @@ def _advance(job: tuple[emcee.EnsembleSampler, emcee.State, int, bool]) -> emcee
 def _eval_blobs(blob_fn: Callable, draws: np.ndarray, data: Any, chunk: int) -> dict:
     nc, nd, ndim = draws.shape
     flat = draws.reshape(nc * nd, ndim)
-    chunk = max(chunk, min(4096, flat.shape[0]))
     batched = _batched(blob_fn, _blob_batch)
-    parts = []
-    for i in range(0, flat.shape[0], chunk):
-        z = flat[i : i + chunk]
-        k = z.shape[0]
-        z = np.concatenate([z, np.repeat(z[-1:], chunk - k, axis=0)])
-        out = batched(z, data)
-        parts.append(jax.tree_util.tree_map(lambda a, k=k: np.asarray(a)[:k], out))
-    joined = jax.tree_util.tree_map(lambda *a: np.concatenate(a), *parts)
+    size = max(chunk, min(4096, flat.shape[0]))
+    joined = map_chunks(lambda z: batched(z, data), [flat], size, threads=1)
     if not isinstance(joined, Mapping):
         joined = {"blob": joined}
     return {k: np.asarray(v).reshape(nc, nd, *np.shape(v)[1:]) for k, v in joined.items()}

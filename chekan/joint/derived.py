@@ -10,9 +10,7 @@ them for every posterior draw, with β drawn given θ.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -33,6 +31,7 @@ from chekan.joint.likelihood import (
 from chekan.joint.map import MapFit
 from chekan.joint.typea import reliabilities
 from chekan.parameters import PHYSICAL
+from inference.chunks import map_chunks
 from inference.normal_eq import draw_beta_blocks, split_prior
 
 
@@ -203,17 +202,4 @@ def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 256) -> dict
 
     fn = engine_for(model.structure).draws
     dur_h = model.duration_h  # traced, as in map_derived
-    n = zs.shape[0]
-    pad = (-n) % chunk
-    zp = np.concatenate([zs, np.repeat(zs[-1:], pad, axis=0)])
-    kp = jnp.concatenate([keys, jnp.repeat(keys[-1:], pad, axis=0)])
-
-    def part(i: int) -> dict:
-        out = fn(jnp.asarray(zp[i : i + chunk]), kp[i : i + chunk], model.data, dur_h)
-        return jax.block_until_ready(out)
-
-    # chunks in threads, one per core (the compiled loop releases the GIL): the same numbers
-    starts = range(0, n + pad, chunk)
-    with ThreadPoolExecutor(min(len(starts), os.cpu_count() or 1)) as pool:
-        parts = list(pool.map(part, starts))
-    return {k: np.concatenate([np.asarray(p[k]) for p in parts])[:n] for k in parts[0]}
+    return map_chunks(lambda z, k: fn(z, k, model.data, dur_h), [zs, keys], chunk)
