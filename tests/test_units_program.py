@@ -165,3 +165,22 @@ def test_round_axes_errors_name_the_file(tmp_path, body, msg):
     with pytest.raises(ProgramError, match=msg) as e:
         load_program(f)
     assert str(f) in str(e.value)
+
+
+def test_the_documented_program_files_are_the_programs_their_validations_name():
+    """docs/figures holds the programs that the README's validations ran: each file loads,
+    and its description is the one printed in the validation report beside it."""
+    from pathlib import Path
+
+    docs = Path(__file__).resolve().parents[1] / "docs" / "figures"
+    report = (docs / "validation_dual_issue_programs.md").read_text(encoding="utf-8")
+    for name, rounds, hours in (
+        ("program_xy_6x4_540s", 6, 9.0),
+        ("program_xy_3x20_188s", 20, 8.36),
+    ):
+        prog = load_program(docs / f"{name}.toml")
+        assert prog.rounds == rounds and prog.round_axes[:2] == ("y", "x")
+        assert prog.duration_s / 3600 == pytest.approx(hours, abs=0.005)
+        assert f"| program | {prog.describe()} |" in report
+        assert f"--program docs/figures/{name}.toml" in report
+    assert load_program(docs / "program_design_xy.toml").tilt_axes == ("y", "x")
