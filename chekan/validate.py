@@ -414,7 +414,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=__doc__.split("\n\n", 2)[2],
     )
-    ap.add_argument("--sessions", type=int, default=200, help="sessions (default 200)")
+    ap.add_argument(
+        "--sessions", type=int, default=200, help="sessions in all, the cases in turn (default 200)"
+    )
     ap.add_argument("-o", "--out", default="validation", help="folder for the files (created)")
     ap.add_argument(
         "--cases",
