@@ -194,9 +194,8 @@ def draws_fn(structure: ModelStructure, space) -> Callable:
 
 def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 256) -> dict:
     """Every reported quantity for each posterior draw ``zs`` (n, 12), β drawn given θ
-    with ``keys``; in fixed-size chunks (one compile, bounded memory; 256 pads the 2 200–3 000
-    kept draws less than 512 did and balances the two cores: the dual-axis record 4.9 → 3.7 s,
-    the same numbers)."""
+    with ``keys``; in fixed-size chunks on both cores (one compile, bounded memory; the size:
+    ``docs/tuning.md``)."""
     model = fit.model
     from chekan.joint.engine import engine_for
 
