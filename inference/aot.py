@@ -44,6 +44,7 @@ import os
 import pickle
 import platform
 import tempfile
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -64,6 +65,49 @@ _FORMAT = "chekan-aot/2"  # part of every key: a new format never reads an old f
 # preload threads, taking the executables in their order of first use: 2 beat 1 in every
 # interleaved pair of CLI map runs on 2 cores (9 h record: 3.1–5.0 s against 3.5–6.0 s)
 PRELOAD_THREADS = 2
+
+
+class _LoadsOrCompile:
+    """Many loads at once, or one compile (or serialisation) alone.
+
+    XLA's CPU client is not safe for a deserialisation beside a compile: twice a loading
+    thread segfaulted inside the deserialiser while the main thread compiled (jaxlib
+    0.10.2, a `calibrate_file` loop after a code change; see docs/tuning.md). Loads beside
+    loads never failed (40 stress runs, up to 9 at once), and a new process's warm start
+    overlaps them, so they share. It guards the library, so there is one per process.
+    """
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._loads = 0
+        self._alone = False
+
+    @contextlib.contextmanager
+    def load(self):
+        with self._cond:
+            self._cond.wait_for(lambda: not self._alone)
+            self._loads += 1
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._loads -= 1
+                self._cond.notify_all()
+
+    @contextlib.contextmanager
+    def alone(self):
+        with self._cond:
+            self._cond.wait_for(lambda: not self._alone and self._loads == 0)
+            self._alone = True
+        try:
+            yield
+        finally:
+            with self._cond:
+                self._alone = False
+                self._cond.notify_all()
+
+
+_XLA = _LoadsOrCompile()
 
 
 def _is_array(x: Any) -> bool:
@@ -349,7 +393,7 @@ class ExecutableStore:
                     _link_or_copy(by_program, path)
                     self.prune()
                 return loaded
-        with _compilation_cache_off():
+        with _XLA.alone(), _compilation_cache_off():
             compiled = lowered.compile()
         self.events.append((name, "compiled"))
         if path is not None and by_program is not None:
@@ -396,7 +440,8 @@ class ExecutableStore:
         initialise_lapack()
         try:
             payload, in_tree, out_tree = pickle.loads(path.read_bytes())
-            compiled = se.deserialize_and_load(payload, in_tree, out_tree[0])
+            with _XLA.load():
+                compiled = se.deserialize_and_load(payload, in_tree, out_tree[0])
         except Exception:  # unreadable or from another build: recompile, never guess
             path.unlink(missing_ok=True)
             self.events.append((name, "discarded"))
@@ -415,7 +460,8 @@ class ExecutableStore:
         from jax.experimental import serialize_executable as se
 
         try:
-            payload, in_tree, flat_out_tree = se.serialize(compiled)
+            with _XLA.alone():
+                payload, in_tree, flat_out_tree = se.serialize(compiled)
             _write_atomic(path, pickle.dumps((payload, in_tree, (flat_out_tree, out_tree))))
         except Exception as e:
             self.events.append((name, f"not stored: {type(e).__name__}: {e}"[:200]))

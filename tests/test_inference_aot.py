@@ -332,3 +332,58 @@ def test_an_unused_leaf_does_not_fetch_another_trees_executable(tmp_path):
     assert float(small({"a": a})) == 6.0
     big = ExecutableStore(tmp_path, "v2").jit("f", f)  # other code: found by its program
     assert float(big({"a": a, "z": jnp.zeros((3, 0))})) == 6.0
+
+
+def _timed(monkeypatch, spans: list) -> None:
+    """Slow every deserialisation by 0.4 s and record (what, start, end) of it and of every
+    compile (public jax API only)."""
+    import time
+
+    import jax.stages
+    from jax.experimental import serialize_executable as se
+
+    real_load, real_compile = se.deserialize_and_load, jax.stages.Lowered.compile
+
+    def load(*a, **k):
+        t0 = time.perf_counter()
+        spans.append(("load started", t0, t0))
+        time.sleep(0.4)
+        out = real_load(*a, **k)
+        spans.append(("load", t0, time.perf_counter()))
+        return out
+
+    def compile_(self, *a, **k):
+        t0 = time.perf_counter()
+        out = real_compile(self, *a, **k)
+        spans.append(("compile", t0, time.perf_counter()))
+        return out
+
+    monkeypatch.setattr(se, "deserialize_and_load", load)
+    monkeypatch.setattr(jax.stages.Lowered, "compile", compile_)
+
+
+def test_a_compile_waits_for_the_loads_in_flight_and_loads_share(tmp_path, monkeypatch):
+    import time
+
+    # XLA's CPU client segfaulted in a deserialisation beside a compile (jaxlib 0.10.2)
+    first = ExecutableStore(tmp_path, "code-v1")
+    for name in ("a", "b"):
+        first.jit(name, lambda x: x + 1)(jnp.ones(3))
+    spans: list = []
+    _timed(monkeypatch, spans)
+    store = ExecutableStore(tmp_path, "code-v1")  # what a new process holds
+    store.prefetch("a", jnp.ones(3))
+    store.prefetch("b", jnp.ones(3))
+    for _ in range(500):  # both loads in flight (inside the store's guard) before the compile
+        if sum(s[0] == "load started" for s in spans) == 2:
+            break
+        time.sleep(0.01)
+    assert float(store.jit("c", lambda x: x * 5)(jnp.ones(3))[0]) == 5.0  # compiles now
+    assert float(store.jit("a", lambda x: x + 1)(jnp.ones(3))[0]) == 2.0
+    assert float(store.jit("b", lambda x: x + 1)(jnp.ones(3))[0]) == 2.0
+    loads = [s for s in spans if s[0] == "load"]
+    (compile_,) = [s for s in spans if s[0] == "compile"]
+    assert len(loads) == 2
+    assert sorted(e for _, e in store.events) == ["compiled", "loaded", "loaded"]
+    assert compile_[1] >= max(end for _, _, end in loads)  # started once both had ended
+    assert max(start for _, start, _ in loads) < min(end for _, _, end in loads)  # together
