@@ -33,10 +33,13 @@ demo: venv
 # pytest-xdist: one worker per core (at most 4), a test file per worker so module fixtures
 # are built once; the suite is single-threaded CPU work, so 2 cores halve it (10 min 36 s →
 # 6 min 31 s warm, 2026-11-23). `pytest tests/…` alone still runs in one process.
+# A worker that dies (a segfault, pytest-timeout's thread ending a hang) ends the run as a
+# failure naming its test: xdist 3.8's replacement worker under loadfile can wait forever
+# (pytest-xdist#1327; a CI run hung so until its 90 min ran out).
 test: venv
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile --max-worker-restart 0
 
 lint: venv
 	$(BIN)/ruff check .
