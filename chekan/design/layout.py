@@ -215,8 +215,12 @@ def lagged_means(layout: Layout, tau_s: float, E_hold: np.ndarray, E_slew: np.nd
     kp = np.maximum(k - 1, 0)
     g_own = 1.0 - w
     g_prev = np.where(k > 0, w * wprev[k], 0.0)
-    start = wprev[:, None, None] * np.concatenate([E_hold[:1], E_hold[:-1]]) + Mv + R  # y₀,ₖ
     f = g_own[:, None, None] * E_hold[k] + g_prev[:, None, None] * E_hold[kp]
     f = f + w[:, None, None] * (Mv[k] + R[k])
-    trans = w[:, None] * np.abs(start[k, :, 0] - E_hold[k, :, 0])
+    # the slew error's scale (chekan.joint.likelihood.transient_amplitude), values only
+    E0, Es0 = E_hold[:, :, 0], E_slew[:, :, :, 0]
+    E0_prev = np.concatenate([E0[:1], E0[:-1]])
+    along = np.einsum("hm,hmj->hj", wm, np.abs(Es0 - E0[:, None, :]))
+    amp = wprev[:, None] * np.abs(E0_prev - E0) + along + np.abs(R[:, :, 0])
+    trans = w[:, None] * amp[k]
     return Lagged(f=f, g_own=g_own, g_prev=g_prev, trans=trans)

@@ -38,7 +38,13 @@ import numpy as np
 import chekan.jaxconfig  # noqa: F401
 from chekan import model as fm
 from chekan.joint.layout import ModelStructure, RecordData
-from chekan.joint.likelihood import lag_weights, noise_var, sensor_params, slew_path
+from chekan.joint.likelihood import (
+    lag_weights,
+    noise_var,
+    sensor_params,
+    slew_path,
+    transient_amplitude,
+)
 from chekan.units import ARCSEC_PER_RAD
 from inference.barrier import fusion_barrier
 from inference.normal_eq import BlockNormalEquations
@@ -123,7 +129,7 @@ def _hold_terms(v: dict, structure: ModelStructure, data: RecordData):
         U = dMv + carry[:, 2 : 2 + 2 * L].reshape(H, L, 2)
         x_state = x_mv + carry[:, 2 + 2 * L :]
     E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
-    jump = jnp.abs(wprev[:, None] * E_prev + Mv + R - E)
+    jump = transient_amplitude(E, E_prev, wprev, wm, Em, R)
     return fusion_barrier((E, s, Mv + R, jump, wprev)), U, x_state
 
 

@@ -128,7 +128,7 @@ def linear_terms(v: dict, data: RecordData, slews: SlewPath | None = None):
     R = _unsettled_carry(E, Mv, wprev, jnp.exp(-data.hold_T / tau))
     f = G @ E + w[:, None] * (data.own @ (Mv + R))
     E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
-    jump = jnp.abs(wprev[:, None] * E_prev + Mv + R - E)  # (H, 2) transient amplitude
+    jump = transient_amplitude(E, E_prev, wprev, wm, Em, R)  # (H, 2)
     trans = w[:, None] * (data.own @ jump)  # (N, 2) transient left in each bin
     # computed once: left to itself XLA re-derives the equilibrium solve and its tangent
     # inside every consumer fusion, elementwise over (H, p) blocks (≈ 220 operations each)
@@ -194,6 +194,22 @@ def slew_angle_columns(v: dict, data: RecordData, slews: SlewPath | None = None)
     slews = slew_path(v, data) if slews is None else slews
     _, _, s, _ = linear_terms(v, data, slews)
     return slew_angle_terms(v, data, s, slews).dense()
+
+
+def transient_amplitude(E, E_prev, wprev, wm, Em, R):
+    r"""(H, 2) the slew error's scale: the sum of the parts of the lag state after slew k
+    that a late angle can misplace, each by its distance from the hold's equilibrium,
+
+        Tₖ = w_prev,ₖ |Eₖ₋₁ − Eₖ| + Σₘ wₘ |E(θₘ) − Eₖ| + |Rₖ|   (≥ |y₀,ₖ − Eₖ|).
+
+    On a monotone slew it is the net transient |y₀,ₖ − Eₖ|. On a slew from +θ to −θ
+    through level the previous hold's part and the path's part can lie on either side of
+    Eₖ and cancel in the net, while a path that the streams' jitter warps in time (a row
+    carries the *latest* angles) misplaces each of them (the built-in emulator's record:
+    README, "The slew error's scale"). ``E``, ``E_prev``,
+    ``R`` (H, 2), ``wprev`` (H,), ``wm`` (H, M), ``Em`` (2, H, M)."""
+    along = jnp.einsum("hm,jhm->hj", wm, jnp.abs(Em - jnp.transpose(E)[:, :, None]))
+    return wprev[:, None] * jnp.abs(E_prev - E) + along + jnp.abs(R)
 
 
 def _unsettled_carry(E, Mv, wprev, rho):
@@ -459,7 +475,8 @@ def noise_var(h: dict, data: RecordData, trans=None) -> jax.Array:
     The second term is the slew error: a row carries the *latest* platform angles, so
     during a slew the recorded attitude may lag the true one by up to a sample; the lag
     state after the slew is then uncertain in proportion to the transient still present
-    in the bin (κ = ``slew_error``, a hyperparameter; zero once the hold has settled).
+    in the bin (κ = ``slew_error``, a hyperparameter; zero once the hold has settled; the
+    transient's scale: :func:`transient_amplitude`).
     """
     s = h["noise_scale"] * data.sigma_base
     base = s[None, :] ** 2 / jnp.maximum(data.cnt, 1.0)
