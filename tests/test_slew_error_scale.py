@@ -13,14 +13,12 @@ from chekan.joint.likelihood import transient_amplitude
 def _one_slew(path_pix, e_prev, e_hold, w_prev):
     """One hold after a slew of M samples: the amplitude and the net |y₀ − E|."""
     M = len(path_pix)
-    wm = np.full((2, M), (1.0 - w_prev) / M)  # hold 0 and hold 1 share the numbers
+    wm = np.full((2, M), (1.0 - w_prev) / M)  # hold 1 is the one read (hold 0 alike)
     Em = np.broadcast_to(np.asarray(path_pix, float)[None, None, :], (2, 2, M))
-    E = np.full((2, 2), e_hold)
-    E_prev = np.full((2, 2), e_prev)
+    E = np.array([[e_prev, e_prev], [e_hold, e_hold]])  # hold 0, then the hold after the slew
     R = np.zeros((2, 2))
     amp = transient_amplitude(
         jnp.asarray(E),
-        jnp.asarray(E_prev),
         jnp.full(2, w_prev),
         jnp.asarray(wm),
         jnp.asarray(Em),

@@ -128,8 +128,7 @@ def _hold_terms(v: dict, structure: ModelStructure, data: RecordData):
         R = carry[:, :2]
         U = dMv + carry[:, 2 : 2 + 2 * L].reshape(H, L, 2)
         x_state = x_mv + carry[:, 2 + 2 * L :]
-    E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
-    jump = transient_amplitude(E, E_prev, wprev, wm, Em, R)
+    jump = transient_amplitude(E, wprev, wm, Em, R)
     return fusion_barrier((E, s, Mv + R, jump, wprev)), U, x_state
 
 

@@ -127,8 +127,7 @@ def linear_terms(v: dict, data: RecordData, slews: SlewPath | None = None):
     G = (1.0 - w)[:, None] * data.own + (w * (data.own @ wprev))[:, None] * data.prev
     R = _unsettled_carry(E, Mv, wprev, jnp.exp(-data.hold_T / tau))
     f = G @ E + w[:, None] * (data.own @ (Mv + R))
-    E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
-    jump = transient_amplitude(E, E_prev, wprev, wm, Em, R)  # (H, 2)
+    jump = transient_amplitude(E, wprev, wm, Em, R)  # (H, 2)
     trans = w[:, None] * (data.own @ jump)  # (N, 2) transient left in each bin
     # computed once: left to itself XLA re-derives the equilibrium solve and its tangent
     # inside every consumer fusion, elementwise over (H, p) blocks (≈ 220 operations each)
@@ -196,7 +195,7 @@ def slew_angle_columns(v: dict, data: RecordData, slews: SlewPath | None = None)
     return slew_angle_terms(v, data, s, slews).dense()
 
 
-def transient_amplitude(E, E_prev, wprev, wm, Em, R):
+def transient_amplitude(E, wprev, wm, Em, R):
     r"""(H, 2) the slew error's scale: the sum of the parts of the lag state after slew k
     that a late angle can misplace, each by its distance from the hold's equilibrium,
 
@@ -206,8 +205,9 @@ def transient_amplitude(E, E_prev, wprev, wm, Em, R):
     through level the previous hold's part and the path's part can lie on either side of
     Eₖ and cancel in the net, while a path that the streams' jitter warps in time (a row
     carries the *latest* angles) misplaces each of them (the built-in emulator's record:
-    README, "The slew error's scale"). ``E``, ``E_prev``,
-    ``R`` (H, 2), ``wprev`` (H,), ``wm`` (H, M), ``Em`` (2, H, M)."""
+    README, "The slew error's scale"). ``E``, ``R`` (H, 2), ``wprev`` (H,), ``wm`` (H, M),
+    ``Em`` (2, H, M); Eₖ₋₁ of hold 0 is its own (no slew before it)."""
+    E_prev = jnp.concatenate([E[:1], E[:-1]], axis=0)
     along = jnp.einsum("hm,jhm->hj", wm, jnp.abs(Em - jnp.transpose(E)[:, :, None]))
     return wprev[:, None] * jnp.abs(E_prev - E) + along + jnp.abs(R)
 
