@@ -35,11 +35,14 @@ demo: venv
 # 6 min 31 s warm, 2026-11-23). `pytest tests/…` alone still runs in one process.
 # A worker that dies (a segfault, pytest-timeout's thread ending a hang) ends the run as a
 # failure naming its test: xdist 3.8's replacement worker under loadfile can wait forever
-# (pytest-xdist#1327; a CI run hung so until its 90 min ran out).
+# (pytest-xdist#1327; a CI run hung so until its 90 min ran out). A process that crashed
+# leaves its stacks in .crash/, printed last (tests/conftest.py, tests/crash_report.py).
 test: venv
 	$(BIN)/ruff check .
 	$(BIN)/mypy
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile --max-worker-restart 0
+	rm -rf .crash
+	CHEKAN_CRASH_DIR=.crash $(BIN)/python -m pytest -q -n auto --maxprocesses 4 --dist loadfile \
+	  --max-worker-restart 0 || { rc=$$?; $(BIN)/python tests/crash_report.py .crash; exit $$rc; }
 
 lint: venv
 	$(BIN)/ruff check .

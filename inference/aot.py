@@ -70,22 +70,27 @@ PRELOAD_THREADS = 2
 class _LoadsOrCompile:
     """Many loads at once, or one compile (or serialisation) alone.
 
-    XLA's CPU client is not safe for a deserialisation beside a compile: twice a loading
-    thread segfaulted inside the deserialiser while the main thread compiled (jaxlib
-    0.10.2, a `calibrate_file` loop after a code change; see docs/tuning.md). Loads beside
-    loads never failed (40 stress runs, up to 9 at once), and a new process's warm start
-    overlaps them, so they share. It guards the library, so there is one per process.
+    XLA's CPU client is not safe for a deserialisation beside a compile: a loading thread
+    segfaulted inside the deserialiser while the main thread compiled (jaxlib 0.10.2, CI),
+    and again in CI once the store's own compiles were guarded, where only JAX's own compiles
+    (a ``jax.jit`` outside the store, an eager operation) could still run beside a load; see
+    docs/tuning.md. Loads beside loads never failed (40 stress runs, up to 9 at once), and a
+    new process's warm start overlaps them, so they share. A thread that holds the compile
+    side may compile again inside it (a store's compile passes through JAX's). It guards the
+    library, so there is one per process.
     """
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._loads = 0
-        self._alone = False
+        self._owner: int | None = None  # the thread compiling, if any
+        self._depth = 0
 
     @contextlib.contextmanager
     def load(self):
+        me = threading.get_ident()
         with self._cond:
-            self._cond.wait_for(lambda: not self._alone)
+            self._cond.wait_for(lambda: self._owner in (None, me))
             self._loads += 1
         try:
             yield
@@ -96,18 +101,69 @@ class _LoadsOrCompile:
 
     @contextlib.contextmanager
     def alone(self):
+        me = threading.get_ident()
         with self._cond:
-            self._cond.wait_for(lambda: not self._alone and self._loads == 0)
-            self._alone = True
+            if self._owner != me:
+                self._cond.wait_for(lambda: self._owner is None and self._loads == 0)
+                self._owner = me
+            self._depth += 1
         try:
             yield
         finally:
             with self._cond:
-                self._alone = False
-                self._cond.notify_all()
+                self._depth -= 1
+                if self._depth == 0:
+                    self._owner = None
+                    self._cond.notify_all()
 
 
 _XLA = _LoadsOrCompile()
+
+
+#: where JAX itself reaches XLA to compile (``jax.jit``, eager operations, ``Lowered.compile``;
+#: older JAX names it ``backend_compile``), to serialise for its persistent cache, and to
+#: load from it: (module, function, side of ``_XLA``)
+_JAX_XLA_CALLS = (
+    ("jax._src.compiler", "backend_compile_and_load", "alone"),
+    ("jax._src.compiler", "backend_compile", "alone"),
+    ("jax._src.compilation_cache", "put_executable_and_time", "alone"),
+    ("jax._src.compilation_cache", "get_executable_and_time", "load"),
+)
+
+
+def _guard_jax() -> tuple[str, ...]:
+    """Put JAX's own compiles, cache writes and cache loads under ``_XLA`` as the store's
+    are (:class:`_LoadsOrCompile`): JAX offers no hook, so its module functions are wrapped,
+    once per process. Returns the names guarded (none where this JAX has none of them:
+    then only the store's own calls are)."""
+    import importlib
+
+    done = []
+    for module_name, name, side in _JAX_XLA_CALLS:
+        module = importlib.import_module(module_name)
+        inner = getattr(module, name, None)
+        if inner is None:
+            continue
+        done.append(f"{module_name}.{name}")
+        if not getattr(inner, "guarded_by_chekan", False):
+            setattr(module, name, _guarded(inner, side))
+    return tuple(done)
+
+
+def _guarded(inner: Callable, side: str) -> Callable:
+    """``inner`` run on ``side`` ("alone" or "load") of ``_XLA``."""
+    enter = getattr(_XLA, side)
+
+    @functools.wraps(inner)
+    def guarded(*args, **kwargs):
+        with enter():
+            return inner(*args, **kwargs)
+
+    guarded.guarded_by_chekan = True  # type: ignore[attr-defined]
+    return guarded
+
+
+JAX_GUARDED = _guard_jax()
 
 
 def _is_array(x: Any) -> bool:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import time
@@ -22,6 +23,24 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 # structure of their own, where a cold suite spends its time
 PROFILE = os.environ.get("CHEKAN_TEST_PROFILE")
 PAPER_PROTOCOL = SHARED / "reference" / "calibr_46_protocol.csv"
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_configure(config):
+    """Opt-in (``make test`` sets it): ``CHEKAN_CRASH_DIR`` receives each process's stacks
+    if it dies (a segmentation fault), ``<worker>.log``; ``tests/crash_report.py`` prints them
+    at the end of a failed run, where a CI log's tail shows them (xdist's own report of a
+    dead worker ends with the main thread's stack, not the crashing one's)."""
+    folder = os.environ.get("CHEKAN_CRASH_DIR")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "controller")
+        log = open(Path(folder) / f"{worker}.log", "w")  # open until the process exits
+        faulthandler.enable(file=log, all_threads=True)
+        config.stash[_CRASH_LOG] = log
+
+
+_CRASH_LOG = pytest.StashKey()
 
 
 @pytest.fixture(scope="session")

@@ -387,3 +387,32 @@ def test_a_compile_waits_for_the_loads_in_flight_and_loads_share(tmp_path, monke
     assert sorted(e for _, e in store.events) == ["compiled", "loaded", "loaded"]
     assert compile_[1] >= max(end for _, _, end in loads)  # started once both had ended
     assert max(start for _, start, _ in loads) < min(end for _, _, end in loads)  # together
+
+
+def test_jax_own_compiles_wait_for_the_loads_in_flight(tmp_path, monkeypatch):
+    import time
+
+    import jax
+
+    from inference.aot import JAX_GUARDED
+
+    # CI crashed again with the store's compiles guarded: JAX's own (a jax.jit outside the
+    # store, an eager operation) still ran beside a load
+    assert "jax._src.compiler.backend_compile_and_load" in JAX_GUARDED
+    first = ExecutableStore(tmp_path, "code-v1")
+    first.jit("a", lambda x: x + 1)(jnp.ones(3))
+    spans: list = []
+    _timed(monkeypatch, spans)
+    store = ExecutableStore(tmp_path, "code-v1")
+    store.prefetch("a", jnp.ones(3))
+    for _ in range(500):
+        if any(s[0] == "load started" for s in spans):
+            break
+        time.sleep(0.01)
+    started = time.perf_counter()
+    out = jax.jit(lambda x: x * 7.25 - 0.5)(jnp.ones(5))  # a program new to this process
+    ended = time.perf_counter()
+    assert float(out[0]) == 6.75
+    assert float(store.jit("a", lambda x: x + 1)(jnp.ones(3))[0]) == 2.0
+    ((_, load_start, load_end),) = [s for s in spans if s[0] == "load"]
+    assert load_start < started and ended >= load_end  # the compile waited for the load
