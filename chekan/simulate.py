@@ -65,6 +65,10 @@ class Truth:
     x_unmodelled_even_pix: tuple[float, float] = (0.0, 0.0)
     x_unmodelled_cubic: float = 0.3
     tilt_jitter_arcsec: float = 0.3
+    # the platform's angle stream (serial protocol: at least once per second) is not the
+    # sensor's clock: a row carries the latest report, up to one period old; 0: on time
+    platform_report_period_s: float = 0.0
+    platform_report_phase_s: float | None = None  # of the reports in the period; None: drawn
     slew_deg_per_s: float = 0.5
     platform_settle_s: float = 3.0
     temp_c: float = 45.0
@@ -293,10 +297,26 @@ def program_timeline(
     step = np.concatenate(seg_step)
     n = step.size
     seg_t = np.arange(n) * dt
-    rx = np.concatenate(seg_rx) + rng.normal(0, truth.tilt_jitter_arcsec, n)
-    ry = np.concatenate(seg_ry) + rng.normal(0, truth.tilt_jitter_arcsec, n)
+    rx, ry = np.concatenate(seg_rx), np.concatenate(seg_ry)
+    if truth.platform_report_period_s > 0:
+        rx, ry = _latest_reports(truth, seg_t, rx, ry, rng)
+    rx = rx + rng.normal(0, truth.tilt_jitter_arcsec, n)
+    ry = ry + rng.normal(0, truth.tilt_jitter_arcsec, n)
     tl = Timeline(seg_t, step, np.concatenate(seg_tx), np.concatenate(seg_ty), rx, ry)
     return tl, err
+
+
+def _latest_reports(truth: Truth, t_s: np.ndarray, rx: np.ndarray, ry: np.ndarray, rng):
+    """The angles as a row records them: the platform's latest report at or before each
+    sample, its reports every ``platform_report_period_s`` from its phase (the angle path
+    in between is the reported path, linear between samples)."""
+    period = truth.platform_report_period_s
+    phase = truth.platform_report_phase_s
+    if phase is None:
+        phase = float(rng.uniform(0.0, period))
+        truth.platform_report_phase_s = phase
+    t_report = np.maximum(np.floor((t_s - phase) / period) * period + phase, t_s[0])
+    return np.interp(t_report, t_s, rx), np.interp(t_report, t_s, ry)
 
 
 def _random_sd(truth: Truth, axis: str) -> float:

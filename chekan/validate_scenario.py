@@ -88,6 +88,10 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
             angle_systematic_shape=str(edge.choice(EDGE_SHAPES)),
             angle_error_sd_arcsec=float(edge.uniform(*EDGE_RANDOM_ARCSEC)),
         )
+    elif case == "late_angles":  # the protocol's slowest angle stream: a row's angles are
+        # the platform's latest report, sent once a second at its own phase (up to 1 s old)
+        late = np.random.default_rng([i, 0x1A7E])
+        kw.update(platform_report_period_s=1.0, platform_report_phase_s=float(late.uniform()))
     elif case == "x_response":  # what eq. (6) lacks about X, up to the model's bounds
         from chekan.joint.xresponse import B_NOMINAL_MGAL_PER_PIX, EVEN_BOUND_MGAL
 
