@@ -69,6 +69,9 @@ class Truth:
     # sensor's clock: a row carries the latest report, up to one period old; 0: on time
     platform_report_period_s: float = 0.0
     platform_report_phase_s: float | None = None  # of the reports in the period; None: drawn
+    # the pendulums follow the platform's continuous motion: the equilibrium linear in time
+    # between samples (first-order hold), not held over each sample as the model has it
+    continuous_motion: bool = False
     slew_deg_per_s: float = 0.5
     platform_settle_s: float = 3.0
     temp_c: float = 45.0
@@ -357,10 +360,26 @@ def simulate_readings(
     if off.size:  # a per-hold offset settles in with the lag like any equilibrium change
         m_eq = m_eq + np.where(tl.step[:, None] >= 0, off[np.maximum(tl.step, 0)], 0.0)
     dt = np.diff(tl.t_s, prepend=tl.t_s[0])
+    if truth.continuous_motion:
+        m_eq = _first_order_hold(m_eq, dt, truth.tau_s)
     m = fm.lag_filter_np(m_eq, dt, truth.tau_s)
     m = m + np.asarray(fm.drift_pix(np.asarray(truth.drift_coeffs()), tl.t_s))
     m = m + rng.normal(0.0, 1.0, m.shape) * np.asarray(truth.noise_pix)
     return m
+
+
+def _first_order_hold(x: np.ndarray, dt_s: np.ndarray, tau_s: float) -> np.ndarray:
+    r"""The input that, held over each sample (the lag filter's ZOH), gives the exact
+    response to ``x`` linear in time between samples (uniform ``dt``):
+
+        yₖ = α yₖ₋₁ + (1 − α) xₖ − c (xₖ − xₖ₋₁),  c = (1 − α) τ/Δt − α  (≈ (1 − α)/2),
+
+    i.e. xₖ − (c/(1 − α))(xₖ − xₖ₋₁): for τ ≫ Δt the value half a sample earlier."""
+    if len(dt_s) < 2:
+        return x
+    a = float(np.exp(-dt_s[1] / tau_s))
+    lead = tau_s / float(dt_s[1]) - a / (1.0 - a)
+    return x - lead * np.diff(x, axis=0, prepend=x[:1])
 
 
 def simulate_session(

@@ -27,10 +27,12 @@ Hard cases (``--cases``): ``misaligned`` (|ε| ≈ 8–10′, |Δγ| ≈ 15–20
 specification: the systematic angle error reaches 2.5–3″, periodic, scale, graduation or
 mixed, with a random part of 0.3–0.8″), ``late_angles`` (the serial protocol's slowest
 angle stream: the platform reports once a second at its own phase, and a row carries its
-latest report, so the recorded angles are up to 1 s old — 1 800″ along a slew at 0.5°/s;
-:attr:`chekan.simulate.Truth.platform_report_period_s`). ``--calibration-u-arcsec U``:
-every platform has its own angle calibration (a table every 5′ whose residual error has U
-at k = 2).
+latest report, so the recorded angles are up to 1 s old — 1 800″ along a slew at 0.5°/s —
+on a platform that moves continuously; ``Truth.platform_report_period_s``), ``continuous``
+(the pendulums see the platform move within a sample, the equilibrium linear in time
+between samples, where the model holds each sample's: ``Truth.continuous_motion``).
+``--calibration-u-arcsec U``: every platform has its own angle calibration (a table every
+5′ whose residual error has U at k = 2).
 
 Written into ``--out``: ``validation.csv`` (one row per session, appended as sessions
 finish, so that ``--resume`` continues an interrupted study), ``validation.json`` (the
@@ -76,7 +78,16 @@ from chekan.validate_summary import (
     summary_groups,
 )
 
-CASES = ("typical", "misaligned", "drift", "slow", "edge", "late_angles", "x_response")
+CASES = (
+    "typical",
+    "misaligned",
+    "drift",
+    "slow",
+    "edge",
+    "late_angles",
+    "continuous",
+    "x_response",
+)
 
 DEFAULT_METHODS = ("classical", "map")
 _INT_COLS = ("session", "seed")

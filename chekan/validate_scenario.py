@@ -89,9 +89,17 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
             angle_error_sd_arcsec=float(edge.uniform(*EDGE_RANDOM_ARCSEC)),
         )
     elif case == "late_angles":  # the protocol's slowest angle stream: a row's angles are
-        # the platform's latest report, sent once a second at its own phase (up to 1 s old)
+        # the platform's latest report, sent once a second at its own phase (up to 1 s old),
+        # of a platform that moves continuously (a late report of a held sample means nothing)
         late = np.random.default_rng([i, 0x1A7E])
-        kw.update(platform_report_period_s=1.0, platform_report_phase_s=float(late.uniform()))
+        kw.update(
+            platform_report_period_s=1.0,
+            platform_report_phase_s=float(late.uniform()),
+            continuous_motion=True,
+        )
+    elif case == "continuous":  # the platform moves continuously: the pendulums see the
+        # equilibrium change within a sample, not held over it as the model has it
+        kw.update(continuous_motion=True)
     elif case == "x_response":  # what eq. (6) lacks about X, up to the model's bounds
         from chekan.joint.xresponse import B_NOMINAL_MGAL_PER_PIX, EVEN_BOUND_MGAL
 

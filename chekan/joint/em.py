@@ -97,6 +97,9 @@ def hyper_at_bounds(h: Hyper) -> list[str]:
 
 
 MISFIT_SCALE = 2.0  # residuals this many times the samples' own scatter: a misfit
+# a random angle error of the holds this many times the platform's specified accuracy
+# (its bound, 3″ unless the user states a larger one): no platform within its specification
+IMPLAUSIBLE_ANGLE_FACTOR = 2.0
 
 
 def residual_misfit(h: Hyper) -> list[str]:
@@ -110,6 +113,23 @@ def residual_misfit(h: Hyper) -> list[str]:
         "does not describe this record (an unmodelled effect); its uncertainty may be too small"
         for j, v in enumerate(s[:2])
         if v > MISFIT_SCALE
+    ]
+
+
+def implausible_angle_error(h: Hyper, bound_arcsec: float) -> list[str]:
+    """The holds' random angle error, in words, where the EM put it beyond what a platform
+    within its specification can have (σ_θ > ``IMPLAUSIBLE_ANGLE_FACTOR`` × the bound):
+    there the fit explains a misfit of the slews by the holds' angles, which frees b to
+    follow the transients (angles 0.4–0.55 s late on a continuously moving platform moved
+    b by up to 7.6 sd with σ_θ 15–30″: README, "Angles up to a second late")."""
+    v = float(h["sigma_theta_arcsec"])
+    if v <= IMPLAUSIBLE_ANGLE_FACTOR * bound_arcsec:
+        return []
+    return [
+        f"the holds' random angle error σ_θ = {v:.3g}″ is {v / bound_arcsec:.2g}× the "
+        f"platform's {bound_arcsec:g}″ specification: the model does not describe this "
+        "record's slews (the recorded angles may lag the readings); b may be biased and its "
+        "uncertainty too small"
     ]
 
 

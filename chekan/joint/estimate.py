@@ -16,7 +16,7 @@ import numpy as np
 from chekan.holds import HoldTable
 from chekan.jaxconfig import single_threaded_blas
 from chekan.joint import em
-from chekan.joint.angles import angle_sensor_entry
+from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
 from chekan.joint.derived import map_derived, posterior_draws
@@ -111,9 +111,17 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         "data": "bin means inside holds (lag modelled), β marginalised",
         "problems": ([] if res.converged else [f"MAP did not converge: {res.message}"])
         + em.hyper_at_bounds(fit.hyper)
-        + em.residual_misfit(fit.hyper),
+        + em.residual_misfit(fit.hyper)
+        + em.implausible_angle_error(fit.hyper, _specified_accuracy(model)),
     }
     return out, diag
+
+
+def _specified_accuracy(model) -> float:
+    """The platform's angle accuracy (arcsec) that its random error may not exceed by much:
+    the specification's 3″, or a larger bound the user states for one of its sensors."""
+    specs = (model.angle_spec, model.angle_spec_x)
+    return max([DEFAULT_BOUND_ARCSEC, *(s.bound_arcsec for s in specs if s is not None)])
 
 
 def map_result(fit: MapFit, base: dict, options: CalibrationOptions, t_start: float) -> dict:
