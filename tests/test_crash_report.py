@@ -10,6 +10,18 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 
 
+def _report(folder: Path) -> str:
+    """What ``tests/crash_report.py FOLDER`` prints."""
+    run = subprocess.run(
+        [sys.executable, str(HERE / "crash_report.py"), str(folder)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    return run.stdout
+
+
 def test_a_segfault_in_a_thread_is_reported_with_that_thread_last(tmp_path):
     code = textwrap.dedent(
         f"""
@@ -29,13 +41,7 @@ def test_a_segfault_in_a_thread_is_reported_with_that_thread_last(tmp_path):
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, timeout=60)
     assert run.returncode != 0
     (tmp_path / "gw0.log").write_text("")  # a worker that did not crash
-    out = subprocess.run(
-        [sys.executable, str(HERE / "crash_report.py"), str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=True,
-    ).stdout
+    out = _report(tmp_path)
     assert out.startswith("== gw7 died: Fatal Python error: Segmentation fault")
     assert "gw0" not in out and "Extension modules" not in out
     last = out[out.rindex("Current thread") :]
@@ -44,11 +50,5 @@ def test_a_segfault_in_a_thread_is_reported_with_that_thread_last(tmp_path):
 
 
 def test_no_crash_says_so(tmp_path):
-    out = subprocess.run(
-        [sys.executable, str(HERE / "crash_report.py"), str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=True,
-    ).stdout
+    out = _report(tmp_path)
     assert out.startswith("no crashed process left its stacks")
