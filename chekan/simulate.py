@@ -14,8 +14,9 @@ Defaults give classical residuals like the paper's (RMS 0.5–1 mGal per column)
 
 from __future__ import annotations
 
+import dataclasses
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -69,9 +70,11 @@ class Truth:
     # sensor's clock: a row carries the latest report, up to one period old; 0: on time
     platform_report_period_s: float = 0.0
     platform_report_phase_s: float | None = None  # of the reports in the period; None: drawn
-    # the pendulums follow the platform's continuous motion: the equilibrium linear in time
-    # between samples (first-order hold), not held over each sample as the model has it
-    continuous_motion: bool = False
+    # the platform's motion and the pendulums followed at this many steps per sample, the
+    # record keeping each sample's reading and the angle reported then (10: close to a
+    # platform that moves continuously; 1: each sample held over the second before it, as
+    # the model has it)
+    motion_substeps: int = 1
     slew_deg_per_s: float = 0.5
     platform_settle_s: float = 3.0
     temp_c: float = 45.0
@@ -360,26 +363,10 @@ def simulate_readings(
     if off.size:  # a per-hold offset settles in with the lag like any equilibrium change
         m_eq = m_eq + np.where(tl.step[:, None] >= 0, off[np.maximum(tl.step, 0)], 0.0)
     dt = np.diff(tl.t_s, prepend=tl.t_s[0])
-    if truth.continuous_motion:
-        m_eq = _first_order_hold(m_eq, dt, truth.tau_s)
     m = fm.lag_filter_np(m_eq, dt, truth.tau_s)
     m = m + np.asarray(fm.drift_pix(np.asarray(truth.drift_coeffs()), tl.t_s))
     m = m + rng.normal(0.0, 1.0, m.shape) * np.asarray(truth.noise_pix)
     return m
-
-
-def _first_order_hold(x: np.ndarray, dt_s: np.ndarray, tau_s: float) -> np.ndarray:
-    r"""The input that, held over each sample (the lag filter's ZOH), gives the exact
-    response to ``x`` linear in time between samples (uniform ``dt``):
-
-        yₖ = α yₖ₋₁ + (1 − α) xₖ − c (xₖ − xₖ₋₁),  c = (1 − α) τ/Δt − α  (≈ (1 − α)/2),
-
-    i.e. xₖ − (c/(1 − α))(xₖ − xₖ₋₁): for τ ≫ Δt the value half a sample earlier."""
-    if len(dt_s) < 2:
-        return x
-    a = float(np.exp(-dt_s[1] / tau_s))
-    lead = tau_s / float(dt_s[1]) - a / (1.0 - a)
-    return x - lead * np.diff(x, axis=0, prepend=x[:1])
 
 
 def simulate_session(
@@ -405,15 +392,21 @@ def simulate_session(
     cross = None
     if truth.cross_axis_error or (truth.cross_axis_error is None and len(axes) > 1):
         cross = _cross_axis_errors(truth, program, seed, fns)
+    sub = int(truth.motion_substeps)
+    if sub < 1:
+        raise ValueError(f"motion_substeps must be ≥ 1, got {truth.motion_substeps}")
+    # the motion at sub steps per sample (the rates in the timeline are the fine ones)
+    fine = truth if sub == 1 else replace(truth, sample_rate_hz=truth.sample_rate_hz * sub)
     tl, err = program_timeline(
         program,
-        truth,
+        fine,
         rng,
         systematic,
         (fns if len(axes) > 1 else fns[axes[0]]) if fns else None,
         cross,
     )
     truth.angle_error_arcsec = [float(e) for e in err]
+    truth.platform_report_phase_s = fine.platform_report_phase_s
     if not truth.hold_offset_pix:
         off = rng.normal(0.0, truth.hold_offset_sd_pix, (program.n_steps, 2))
         truth.hold_offset_pix = [[float(a), float(b)] for a, b in off]
@@ -421,6 +414,10 @@ def simulate_session(
     m = simulate_readings(truth, tl, rng, x_max)
     n = tl.t_s.size
     temp = truth.temp_c + 0.002 * rng.normal(size=n) + 0.01 * np.sin(2 * np.pi * tl.t_s / 7200.0)
+    if sub > 1:  # every sample's reading and the angle reported then
+        keep = np.arange(0, n, sub)
+        tl = Timeline(*(np.asarray(a)[keep] for a in dataclasses.astuple(tl)))
+        m, temp = m[keep], temp[keep]
     meta = {
         "format": "chekan-record/1",
         "serial": truth.serial,

@@ -29,8 +29,8 @@ mixed, with a random part of 0.3–0.8″), ``late_angles`` (the serial protocol
 angle stream: the platform reports once a second at its own phase, and a row carries its
 latest report, so the recorded angles are up to 1 s old — 1 800″ along a slew at 0.5°/s —
 on a platform that moves continuously; ``Truth.platform_report_period_s``), ``continuous``
-(the pendulums see the platform move within a sample, the equilibrium linear in time
-between samples, where the model holds each sample's: ``Truth.continuous_motion``).
+(the pendulums see the platform move within a sample — simulated at 0.1 s, the record
+keeping each second's sample — where the model holds each sample's: ``Truth.motion_substeps``).
 ``--calibration-u-arcsec U``: every platform has its own angle calibration (a table every
 5′ whose residual error has U at k = 2).
 

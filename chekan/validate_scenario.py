@@ -59,6 +59,8 @@ CALIBRATION_STEP_ARCSEC = 300.0  # a lab's table: one angle every 5′
 # in shapes (0.7 sin + 0.3 sin³, (1 − cos)²) that the model's terms (sin, 1 − cos per
 # angle, continued along the slews) do not contain
 X_ODD_PIX = 2.0
+# a platform that moves continuously: its motion and the pendulums followed at 0.1 s
+MOTION_SUBSTEPS = 10
 
 
 DEFAULT_SCENARIO = Scenario()
@@ -95,11 +97,11 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
         kw.update(
             platform_report_period_s=1.0,
             platform_report_phase_s=float(late.uniform()),
-            continuous_motion=True,
+            motion_substeps=MOTION_SUBSTEPS,
         )
     elif case == "continuous":  # the platform moves continuously: the pendulums see the
         # equilibrium change within a sample, not held over it as the model has it
-        kw.update(continuous_motion=True)
+        kw.update(motion_substeps=MOTION_SUBSTEPS)
     elif case == "x_response":  # what eq. (6) lacks about X, up to the model's bounds
         from chekan.joint.xresponse import B_NOMINAL_MGAL_PER_PIX, EVEN_BOUND_MGAL
 

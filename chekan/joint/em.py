@@ -120,8 +120,8 @@ def implausible_angle_error(h: Hyper, bound_arcsec: float) -> list[str]:
     """The holds' random angle error, in words, where the EM put it beyond what a platform
     within its specification can have (σ_θ > ``IMPLAUSIBLE_ANGLE_FACTOR`` × the bound):
     there the fit explains a misfit of the slews by the holds' angles, which frees b to
-    follow the transients (angles 0.4–0.55 s late on a continuously moving platform moved
-    b by up to 7.6 sd with σ_θ 15–30″: README, "Angles up to a second late")."""
+    follow the transients (σ_θ 15–30″ came with b off by up to 9 sd on simulated records
+    whose slew paths the model misreads: README, "Angles up to a second late")."""
     v = float(h["sigma_theta_arcsec"])
     if v <= IMPLAUSIBLE_ANGLE_FACTOR * bound_arcsec:
         return []
