@@ -416,7 +416,7 @@ def simulate_session(
     temp = truth.temp_c + 0.002 * rng.normal(size=n) + 0.01 * np.sin(2 * np.pi * tl.t_s / 7200.0)
     if sub > 1:  # every sample's reading and the angle reported then
         keep = np.arange(0, n, sub)
-        tl = Timeline(*(np.asarray(a)[keep] for a in dataclasses.astuple(tl)))
+        tl = Timeline(*(getattr(tl, f.name)[keep] for f in dataclasses.fields(tl)))
         m, temp = m[keep], temp[keep]
     meta = {
         "format": "chekan-record/1",

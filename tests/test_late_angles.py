@@ -11,13 +11,18 @@ from chekan.demo import demo_program
 from chekan.simulate import random_truth, simulate_session
 
 
-def _session(seed: int, period_s: float, phase_s: float | None):
+def _session(seed: int, period_s: float, phase_s: float | None, *, quiet=(), **overrides):
+    """A 3 h session; ``quiet`` names the noises set to zero after the draw
+    ("tilt_jitter_arcsec", "noise_pix"), ``overrides`` go to the drawn instrument."""
     truth = random_truth(
         np.random.default_rng(seed),
         serial="LATE",
         platform_report_period_s=period_s,
         platform_report_phase_s=phase_s,
+        **overrides,
     )
+    for name in quiet:
+        setattr(truth, name, 0.0 if name == "tilt_jitter_arcsec" else (0.0, 0.0))
     return simulate_session(demo_program(quick=True), truth, seed=seed)
 
 
@@ -108,10 +113,8 @@ def test_sub_steps_keep_each_sample_and_converge_to_a_continuous_motion():
     better than 1 and 10 (the held sample is a first-order error in Δt)."""
 
     def session(sub: int):
-        truth = random_truth(np.random.default_rng(5), serial="SUB", motion_substeps=sub)
-        truth.tilt_jitter_arcsec = 0.0
-        truth.noise_pix = (0.0, 0.0)
-        return simulate_session(demo_program(quick=True), truth, seed=5)[0]
+        quiet = ("tilt_jitter_arcsec", "noise_pix")
+        return _session(5, 0.0, None, quiet=quiet, motion_substeps=sub)[0]
 
     held, ten, twenty = session(1), session(10), session(20)
     n = min(len(held.t_s), len(ten.t_s), len(twenty.t_s))
@@ -123,16 +126,9 @@ def test_sub_steps_keep_each_sample_and_converge_to_a_continuous_motion():
 
 
 def test_late_reports_on_the_fine_grid_are_the_path_lambda_earlier():
-    def session(period: float):
-        truth = random_truth(
-            np.random.default_rng(6),
-            serial="SUB",
-            motion_substeps=10,
-            platform_report_period_s=period,
-            platform_report_phase_s=0.7 if period else None,  # every report 0.3 s late
-        )
-        truth.tilt_jitter_arcsec = 0.0
-        return simulate_session(demo_program(quick=True), truth, seed=6)
+    def session(period: float):  # every report 0.3 s late
+        phase = 0.7 if period else None
+        return _session(6, period, phase, quiet=("tilt_jitter_arcsec",), motion_substeps=10)
 
     (on, _), (late, truth) = session(0.0), session(1.0)
     assert truth.platform_report_phase_s == 0.7
