@@ -167,3 +167,45 @@ def test_log_density_gradient_equals_the_dense_assemblys(dual_axis_record):
     got = np.asarray(jax.jit(jax.grad(prob.log_density))(z, data))
     want = np.asarray(jax.jit(jax.grad(dense))(z, data))
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("record", ["short", "padded", "dual"])
+def test_e_step_moments_from_the_blocks_equal_the_dense_inverse(
+    short_session, dual_axis_record, record
+):
+    """What the EM's E-step reads (:func:`chekan.joint.hold_blocks.block_moments`): β̂, the
+    variances diag(M⁻¹), the whitened residuals and the bins' leverages (Ã M⁻¹ Ãᵀ)ᵢᵢ equal
+    those of the dense M and its inverse; the design's rows by their support
+    (:func:`~chekan.joint.hold_blocks.bin_rows`) hold every non-zero of the dense design."""
+    model = _model(short_session, dual_axis_record, record)
+    st, data = model.structure, model.data
+    prob = joint.problem_for(st)
+    space = prob.bayes_space
+
+    @jax.jit
+    def parts(z, data):
+        v = space.to_values(z)
+        ne, (_, G, s, r, _, nv, _, P) = cm.normal_equations(v, v, st, data)
+        A = cm.dense_design(G, s, st, data, P)
+        return ne, cm.beta_prior_var(v, st, data), A, r, nv, hb.block_moments(v, v, st, data)
+
+    z0 = np.asarray(space.to_z(space.to_values(np.zeros(space.size))))
+    z = z0 + 0.3 * np.random.default_rng(3).standard_normal(space.size)
+    ne, pv, A, r, nv, m = parts(jnp.asarray(z), data)
+    Z = np.linalg.inv(np.asarray(ne.G) + np.diag(1.0 / np.asarray(pv)))
+    beta = Z @ np.asarray(ne.g)
+    mask = np.asarray(data.mask)
+    sw = np.where(mask, 1.0 / np.sqrt(np.asarray(nv)), 0.0)
+    At = np.asarray(A) * sw[..., None]
+    lev = np.einsum("njp,pq,njq->nj", At, Z, At)
+    rw = sw * (np.asarray(r) - np.einsum("njp,p->nj", np.asarray(A), beta))
+    np.testing.assert_allclose(m.beta, beta, rtol=1e-9, atol=1e-10 * np.abs(beta).max())
+    np.testing.assert_allclose(m.var, np.diag(Z), rtol=1e-9)
+    np.testing.assert_allclose(m.rw, rw, atol=1e-9 * np.abs(rw).max())
+    np.testing.assert_allclose(m.lev, lev, rtol=1e-9, atol=1e-12)
+    # the rows' support holds all of the design: scattered back, they are At itself
+    back = np.zeros_like(At)
+    cols, vals = np.asarray(m.rows.columns), np.asarray(m.rows.values)
+    for n in np.flatnonzero(mask.any(axis=1)):
+        np.add.at(back[n], (slice(None), cols[n]), vals[n])
+    np.testing.assert_allclose(back, At, atol=1e-12 * np.abs(At).max())

@@ -16,6 +16,8 @@ from inference.normal_eq import (
     marginal_loglik_banded,
     marginal_loglik_normal,
     posterior_beta_normal,
+    selected_inverse,
+    solve_banded,
     solve_banded_transposed,
 )
 
@@ -39,6 +41,27 @@ def _random_problem(H=7, k=3, m=5, seed=0):
         jnp.asarray(3.0), jnp.asarray(rng.standard_normal(p)), jnp.asarray(G), jnp.asarray(1.5), 40
     )
     return ne, jnp.asarray(prior_var), bands
+
+
+def test_selected_inverse_and_solve_equal_the_dense_inverse():
+    """The entries of M⁻¹ on M's pattern (diagonal and sub-diagonal hold blocks, their rows
+    against the dense variables, the dense block) and M⁻¹U equal the dense inverse's."""
+    ne, pv, bands = _random_problem(H=9, k=3, m=6, seed=4)
+    Z = np.linalg.inv(np.asarray(ne.G) + np.diag(1.0 / np.asarray(pv)))
+    dense = np.setdiff1d(np.arange(Z.shape[0]), bands.reshape(-1))
+    f = banded_factor(ne, pv, bands)
+    s = selected_inverse(f)
+    scale = np.max(np.abs(Z))
+    for i in range(len(bands)):
+        np.testing.assert_allclose(s.diag[i], Z[np.ix_(bands[i], bands[i])], atol=1e-13 * scale)
+        np.testing.assert_allclose(s.cross[i], Z[np.ix_(bands[i], dense)], atol=1e-13 * scale)
+        if i:
+            want = Z[np.ix_(bands[i], bands[i - 1])]
+            np.testing.assert_allclose(s.sub[i], want, atol=1e-13 * scale)
+    assert np.all(np.asarray(s.sub[0]) == 0)
+    np.testing.assert_allclose(s.dense, Z[np.ix_(dense, dense)], atol=1e-13 * scale)
+    U = np.random.default_rng(5).standard_normal((Z.shape[0], 4))
+    np.testing.assert_allclose(solve_banded(f, bands, jnp.asarray(U)), Z @ U, atol=1e-12 * scale)
 
 
 def test_banded_equals_dense_on_a_random_structure():

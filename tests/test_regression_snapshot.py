@@ -36,6 +36,15 @@ the joint (θ, β) problem's projector and the influences use ∂R/∂β. Agains
 snapshot: means unchanged; the drift slopes' sds by up to 1.9 % (their uₕ), every other sd
 by at most 6.6e-5 relative; the budget's hyperparameter line by 0.14 %, ν_eff by 0.056 %,
 k and U by 0.03 %; the paper's protocol bit for bit.
+
+Re-taken for issue 31's E-step through the hold blocks (sim502's, sim504's and sim509's MAP
+entries; a refactor: the same equations, other factorisations): the EM's hyperparameters
+moved by ≤ 1e-11 relative, and Levenberg–Marquardt, the snapshot's solver, then takes
+another path through flat valleys (sim502 and sim504: 15 → 18 and 13 → 11 steps in a pass)
+and stops elsewhere inside its tolerance: means by at most 4e-6 of their sd (a drift slope
+near zero, sim509's, by 1.5e-6 of itself), the budget's hyperparameter line by 1.2e-5
+relative. Every Gauss–Newton (default) figure of the eleven
+inputs within 1.1e-9 relative of the code before.
 """
 
 from __future__ import annotations

@@ -24,6 +24,11 @@ equilibria, of the holds' angle shifts and of the X-response terms
 (:func:`chekan.joint.likelihood._unsettled_carry`, a linear recurrence over the holds) is
 one associative scan over all their columns.
 
+The EM's E-step reads the same blocks (:func:`block_moments`): β̂ and diag(M⁻¹) from M's
+block factor and the entries of M⁻¹ on M's pattern, the design A by the support of its rows
+(:class:`BinRows`: a bin touches its hold's and the previous hold's (o₁, o₂, δ) and the
+dense variables) and the bins' leverages from both.
+
 Values: the blocks equal those gathered from the dense M to round-off (tests).
 """
 
@@ -39,6 +44,7 @@ import chekan.jaxconfig  # noqa: F401
 from chekan import model as fm
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import (
+    beta_prior_var,
     lag_weights,
     noise_var,
     sensor_params,
@@ -47,7 +53,13 @@ from chekan.joint.likelihood import (
 )
 from chekan.units import ARCSEC_PER_RAD
 from inference.barrier import fusion_barrier
-from inference.normal_eq import BlockNormalEquations
+from inference.normal_eq import (
+    BandedFactor,
+    BlockNormalEquations,
+    banded_factor_blocks,
+    selected_inverse,
+    solve_banded_transposed,
+)
 
 
 class BinTerms(NamedTuple):
@@ -62,6 +74,7 @@ class BinTerms(NamedTuple):
     U: jax.Array | None  # (H, L, 2) the slews' share of the angle columns, per hold
     r: jax.Array  # (N, 2) residual y − f (0 where masked)
     nv: jax.Array  # (N, 2) variance of each bin mean
+    trans: jax.Array  # (N, 2) the transient left in each bin (what κ scales)
 
 
 def _next(x):
@@ -258,7 +271,7 @@ def block_normal_equations(
         jnp.sum(mask),
     )
     slew_U = U if (structure.n_systematic or structure.n_x_response) else None
-    return ne, BinTerms(k, a, b, c, Q, s, slew_U, r, nv)
+    return ne, BinTerms(k, a, b, c, Q, s, slew_U, r, nv, trans)
 
 
 def apply_blocks(beta, t: BinTerms, structure: ModelStructure, data: RecordData):
@@ -278,3 +291,110 @@ def apply_blocks(beta, t: BinTerms, structure: ModelStructure, data: RecordData)
     if t.U is not None:
         y = y + t.c[:, None] * jnp.einsum("hqj,q->hj", t.U, zeta)[t.hold]
     return y
+
+
+class BinRows(NamedTuple):
+    """β's design A by the support of its rows (:func:`bin_rows`): bin i of hold kᵢ touches
+    only the (o₁, o₂, δ) of hold kᵢ, those of hold kᵢ − 1 and the m dense variables."""
+
+    values: jax.Array  # (N, 2, 6 + m, …) the entries at ``columns``
+    columns: jax.Array  # (N, 6 + m) int: their β indices
+
+
+def row_columns(structure: ModelStructure, data: RecordData) -> jax.Array:
+    """(N, 6 + m) each bin's support in β's order: its hold's band (o₁, o₂, δ), the band
+    of the hold before (the first hold's bins repeat their own there, with weight bᵢ = 0),
+    the dense variables."""
+    bands = structure.hold_bands
+    dense_ix = np.setdiff1d(np.arange(structure.n_beta), bands.reshape(-1))
+    k = data.bin_hold
+    band_ix = jnp.asarray(bands)
+    dense = jnp.broadcast_to(jnp.asarray(dense_ix), (k.shape[0], dense_ix.size))
+    return jnp.concatenate([band_ix[k], band_ix[jnp.maximum(k - 1, 0)], dense], axis=1)
+
+
+def bin_rows(t: BinTerms, structure: ModelStructure, data: RecordData) -> BinRows:
+    """β's design A by its rows' support, from the per-bin terms (as :func:`apply_blocks`
+    applies it): system j's row has aᵢ·(oⱼ, sⱼₖδ) at hold kᵢ, bᵢ·(oⱼ, sⱼₖ₋₁δ) at kᵢ − 1, Q at
+    qⱼ, and aᵢsⱼₖEₖ + bᵢsⱼₖ₋₁Eₖ₋₁ + cᵢUₖⱼ at the shared angle terms (e, ζ)."""
+    k = t.hold
+    kp = jnp.maximum(k - 1, 0)
+    E = data.angle_basis
+    zero_b, zero_q = jnp.zeros_like(t.a), jnp.zeros_like(t.Q)
+    rows = []
+    for j in range(2):
+        own = [t.a if j == 0 else zero_b, t.a if j == 1 else zero_b, t.a * t.s[k, j]]
+        prev = [t.b if j == 0 else zero_b, t.b if j == 1 else zero_b, t.b * t.s[kp, j]]
+        angle = (t.a * t.s[k, j])[:, None] * E[k] + (t.b * t.s[kp, j])[:, None] * E[kp]
+        if t.U is not None and structure.n_systematic:
+            angle = angle + t.c[:, None] * t.U[k, :, j]
+        q = [t.Q, zero_q] if j == 0 else [zero_q, t.Q]
+        rows.append(jnp.concatenate([jnp.stack(own + prev, axis=1), *q, angle], axis=1))
+    return BinRows(jnp.stack(rows, axis=1), row_columns(structure, data))
+
+
+def rows_times(R: BinRows, X: jax.Array) -> jax.Array:
+    """A X (N, 2, …) for X (p, …) from the rows' support."""
+    return jnp.einsum("nje...,ne...->nj...", R.values, X[R.columns])
+
+
+def rows_t_times(R: BinRows, U: jax.Array, n_beta: int) -> jax.Array:
+    """Σᵢⱼ Aᵢⱼᵀ Uᵢⱼ (p, …) for U (N, 2, …) (with ``R.values`` (N, 2, E): Aᵀ U; with a
+    trailing axis q on ``R.values`` and U (N, 2): the derivative (∂A)ᵀ U per q)."""
+    per = jnp.einsum("nje...,nj...->ne...", R.values, U)
+    return jax.ops.segment_sum(
+        per.reshape(-1, *per.shape[2:]), R.columns.reshape(-1), num_segments=n_beta
+    )
+
+
+class BlockMoments(NamedTuple):
+    """β | θ, h and the bins' moments from the hold blocks (:func:`block_moments`)."""
+
+    factor: BandedFactor  # M's factor in the order [hold bands; dense]
+    beta: jax.Array  # (p,) β̂ = M⁻¹g
+    var: jax.Array  # (p,) diag(M⁻¹)
+    rows: BinRows  # the whitened design √w A by its rows' support
+    rw: jax.Array  # (N, 2) whitened residuals √w (y − f − Aβ̂)
+    lev: jax.Array  # (N, 2) leverages (Ã M⁻¹ Ãᵀ)ᵢᵢ
+    terms: BinTerms
+
+
+def block_moments(v: dict, h: dict, structure: ModelStructure, data: RecordData) -> BlockMoments:
+    """β̂, diag(M⁻¹), the whitened rows, residuals and leverages at θ (values ``v``) and h,
+    from the hold blocks and the entries of M⁻¹ on M's pattern
+    (:func:`inference.normal_eq.selected_inverse`): a bin's row touches only the (o₁, o₂, δ)
+    of its hold and of the hold before and the dense variables, so neither M nor M⁻¹
+    (p × p) is formed. Values: those of the dense solve to round-off (tests)."""
+    blocks, t = block_normal_equations(v, h, structure, data)
+    bands = structure.hold_bands
+    dense_ix = np.setdiff1d(np.arange(structure.n_beta), bands.reshape(-1))
+    pv = beta_prior_var(h, structure, data)
+    f = banded_factor_blocks(blocks, pv[bands], pv[dense_ix], unroll=1)
+    beta = solve_banded_transposed(f, bands, jnp.concatenate([f.y, f.c]), unroll=1)
+    Z = selected_inverse(f, unroll=1)
+    var = (
+        jnp.zeros(structure.n_beta)
+        .at[bands.reshape(-1)]
+        .set(jnp.diagonal(Z.diag, axis1=1, axis2=2).reshape(-1))
+        .at[dense_ix]
+        .set(jnp.diagonal(Z.dense))
+    )
+    sw = jnp.where(data.mask, 1.0 / jnp.sqrt(t.nv), 0.0)
+    A = bin_rows(t, structure, data)
+    At = BinRows(A.values * sw[:, :, None], A.columns)
+    rw = sw * t.r - rows_times(At, beta)
+    k = t.hold
+    kp = jnp.maximum(k - 1, 0)
+    own, prev, dense = At.values[:, :, :3], At.values[:, :, 3:6], At.values[:, :, 6:]
+    cross = 2.0 * (
+        jnp.einsum("nja,nab,njb->nj", own, Z.sub[k], prev)
+        + jnp.einsum("nja,nam,njm->nj", own, Z.cross[k], dense)
+        + jnp.einsum("nja,nam,njm->nj", prev, Z.cross[kp], dense)
+    )
+    lev = (
+        jnp.einsum("nja,nab,njb->nj", own, Z.diag[k], own)
+        + jnp.einsum("nja,nab,njb->nj", prev, Z.diag[kp], prev)
+        + jnp.einsum("njm,ml,njl->nj", dense, Z.dense, dense)
+        + cross
+    )
+    return BlockMoments(f, beta, var, At, rw, lev, t)
