@@ -198,12 +198,13 @@ def timed_calibrate(case: str, rec: Path, method: str, tmp: Path, env: dict[str,
     return run
 
 
-def timed_reanalyze(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> dict[str, Any]:
-    """``chekan reanalyze FOLDER --method bayes --jobs J`` as a new process, a fresh archive."""
+def _reanalyze_once(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> dict[str, Any]:
     store = tmp / "archive"
     shutil.rmtree(store, ignore_errors=True)
     cmd = [sys.executable, "-m", "chekan.cli", "reanalyze", str(folder), "--method", "bayes"]
     cmd += ["--jobs", str(jobs), "-q", "--db", str(store / "archive.sqlite")]
+    cache = cache_dir(env)
+    before = _entries(cache)
     t = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t
@@ -222,7 +223,20 @@ def timed_reanalyze(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> 
         "jobs": jobs,
         "exit_status": proc.returncode,
         "summary": proc.stdout.strip().splitlines()[-6:],
+        "cache_entries_added": _entries(cache) - before,
     }
+
+
+def timed_reanalyze(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> dict[str, Any]:
+    """``chekan reanalyze FOLDER --method bayes --jobs J`` as a new process, a fresh archive;
+    again, once, when the first run added entries to the persistent cache (its workers run
+    with their own thread limits, so their executables are not the ``calibrate`` runs')."""
+    r = _reanalyze_once(folder, tmp, jobs, env)
+    if r["cache_entries_added"] > 0:
+        first = r["seconds"]
+        r = _reanalyze_once(folder, tmp, jobs, env)
+        r["first_run_seconds"] = first
+    return r
 
 
 def _ratio(x: float, bare: float) -> float:
@@ -349,6 +363,8 @@ def _reanalyze_row(r: dict[str, Any], n_records: int) -> Row:
         f"{r['sessions']}/{n_records} sessions in {r['seconds']:.1f} s, {r['jobs']} workers, "
         "new process, fresh archive, worker start-up included"
     )
+    if r.get("first_run_seconds") is not None:
+        note += f"; first run {r['first_run_seconds']:.1f} s compiled (cache entries added), rerun"
     if r.get("exit_status"):
         note += f"; exit {r['exit_status']}, some failed: {' | '.join(r.get('summary', []))}"
     if inner:
