@@ -242,8 +242,9 @@ def program_timeline(
     systematic_arcsec: np.ndarray | None = None,
     systematic_fn=None,
     cross_arcsec: np.ndarray | None = None,
-) -> tuple[Timeline, np.ndarray]:
-    """Lay the program out at the sample rate: slews between holds, holds of ``dwell_s``.
+) -> tuple[Timeline, np.ndarray, float | None]:
+    """Lay the program out at the sample rate: slews between holds, holds of ``dwell_s``;
+    ``(timeline, angle errors (arcsec), the report phase (s; None: every sample reports))``.
 
     The angle error of step k about its own axis is the random draw (or
     ``truth.angle_error_arcsec``) plus ``systematic_arcsec[k]`` when given.
@@ -304,24 +305,22 @@ def program_timeline(
     n = step.size
     seg_t = np.arange(n) * dt
     rx, ry = np.concatenate(seg_rx), np.concatenate(seg_ry)
-    if truth.platform_report_period_s > 0:
-        rx, ry = _latest_reports(truth, seg_t, rx, ry, rng)
+    period, phase = truth.platform_report_period_s, truth.platform_report_phase_s
+    if period > 0:
+        if phase is None:
+            phase = float(rng.uniform(0.0, period))
+        rx, ry = _latest_reports(period, phase, seg_t, rx, ry)
     rx = rx + rng.normal(0, truth.tilt_jitter_arcsec, n)
     ry = ry + rng.normal(0, truth.tilt_jitter_arcsec, n)
     tl = Timeline(seg_t, step, np.concatenate(seg_tx), np.concatenate(seg_ty), rx, ry)
-    return tl, err
+    return tl, err, phase
 
 
-def _latest_reports(truth: Truth, t_s: np.ndarray, rx: np.ndarray, ry: np.ndarray, rng):
+def _latest_reports(period_s: float, phase_s: float, t_s: np.ndarray, rx, ry):
     """The angles as a row records them: the platform's latest report at or before each
-    sample, its reports every ``platform_report_period_s`` from its phase (the angle path
-    in between is the reported path, linear between samples)."""
-    period = truth.platform_report_period_s
-    phase = truth.platform_report_phase_s
-    if phase is None:
-        phase = float(rng.uniform(0.0, period))
-        truth.platform_report_phase_s = phase
-    t_report = np.maximum(np.floor((t_s - phase) / period) * period + phase, t_s[0])
+    sample, its reports every ``period_s`` from ``phase_s`` (the angle path in between is
+    the reported path, linear between samples)."""
+    t_report = np.maximum(np.floor((t_s - phase_s) / period_s) * period_s + phase_s, t_s[0])
     return np.interp(t_report, t_s, rx), np.interp(t_report, t_s, ry)
 
 
@@ -375,12 +374,13 @@ def simulate_session(
     seed: int = 0,
     started: str = "2015-07-09T06:00:00Z",
 ):
-    """Simulate a session; returns ``(record, truth)`` with the drawn angle errors in truth."""
+    """Simulate a session; returns ``(record, truth)``: a copy of ``truth`` (which is left
+    as it was) with what was drawn filled in (angle errors, hold offsets, the report phase)."""
     from chekan.records import Record
 
     program = program or default_program()
     rng = np.random.default_rng(seed)
-    truth = truth or Truth()
+    truth = replace(truth or Truth())
     systematic = None
     fns: dict = {}
     axes = program.tilt_axes
@@ -397,7 +397,7 @@ def simulate_session(
         raise ValueError(f"motion_substeps must be ≥ 1, got {truth.motion_substeps}")
     # the motion at sub steps per sample (the rates in the timeline are the fine ones)
     fine = truth if sub == 1 else replace(truth, sample_rate_hz=truth.sample_rate_hz * sub)
-    tl, err = program_timeline(
+    tl, err, phase = program_timeline(
         program,
         fine,
         rng,
@@ -406,7 +406,7 @@ def simulate_session(
         cross,
     )
     truth.angle_error_arcsec = [float(e) for e in err]
-    truth.platform_report_phase_s = fine.platform_report_phase_s
+    truth.platform_report_phase_s = phase
     if not truth.hold_offset_pix:
         off = rng.normal(0.0, truth.hold_offset_sd_pix, (program.n_steps, 2))
         truth.hold_offset_pix = [[float(a), float(b)] for a, b in off]

@@ -49,6 +49,24 @@ def test_the_phase_is_drawn_when_not_given_and_kept_in_the_truth():
     assert 0.0 <= truth.platform_report_phase_s < 1.0
 
 
+def test_the_truth_handed_to_the_simulator_is_left_as_it_was():
+    """What is drawn (angle errors, hold offsets, the report phase) goes into the returned
+    copy; the caller's Truth, and so a second session from it, are unchanged."""
+    import dataclasses
+
+    from chekan.demo import demo_program
+    from chekan.simulate import Truth, simulate_session
+
+    given = Truth(platform_report_period_s=1.0, motion_substeps=2)
+    before = dataclasses.asdict(given)
+    rec1, drawn = simulate_session(demo_program(quick=True), given, seed=4)
+    assert dataclasses.asdict(given) == before
+    assert drawn.platform_report_phase_s is not None and drawn.angle_error_arcsec
+    rec2, again = simulate_session(demo_program(quick=True), given, seed=4)
+    assert dataclasses.asdict(again) == dataclasses.asdict(drawn)
+    np.testing.assert_array_equal(rec2.tilt_y_arcsec, rec1.tilt_y_arcsec)
+
+
 def test_the_validation_case_draws_a_one_second_stream():
     from chekan.validate import CASES
     from chekan.validate_scenario import DEFAULT_SCENARIO, session_truth
