@@ -68,6 +68,7 @@ def _cmd_simulate(args) -> int:
         if args.random_truth
         else Truth(serial=args.serial)
     )
+    truth = dataclasses.replace(truth, **_platform_timing(args))
     rec, truth = simulate_session(program, truth, seed=args.seed)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -152,6 +153,23 @@ def _cmd_design(args) -> int:
     return run_design_command(args)
 
 
+def _platform_timing(args) -> dict:
+    """``Truth`` fields from ``--report-period-s``, ``--report-phase-s``, ``--motion-substeps``."""
+    from chekan.errors import ChekanError
+
+    period, phase = args.report_period_s, args.report_phase_s
+    if phase is not None and not 0.0 <= phase < period:
+        raise ChekanError(
+            f"--report-phase-s {phase:g} must lie in [0, --report-period-s) = [0, {period:g})"
+            + ("" if period > 0 else ": give --report-period-s first")
+        )
+    return {
+        "platform_report_period_s": period,
+        "platform_report_phase_s": phase,
+        "motion_substeps": args.motion_substeps,
+    }
+
+
 def _cmd_demo(args) -> int:
     from chekan.demo import run_demo
     from chekan.errors import ChekanError
@@ -189,6 +207,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--serial", default="SIM-1", help="serial number written into the record")
     p.add_argument(
         "--random-truth", action="store_true", help="draw the instrument's parameters at random"
+    )
+    p.add_argument(
+        "--report-period-s",
+        type=argtypes.non_negative,
+        default=0.0,
+        help="the platform reports its angles every this many seconds and a row carries the "
+        "latest report (angles up to a period late; default 0: each row's own instant)",
+    )
+    p.add_argument(
+        "--report-phase-s",
+        type=argtypes.non_negative,
+        help="when in the period the reports fall (default: drawn from the seed)",
+    )
+    p.add_argument(
+        "--motion-substeps",
+        type=argtypes.integer(1, 1000),
+        default=1,
+        help="follow the platform and the pendulums at this many steps per sample, keeping "
+        "each sample (a platform that moves within a sample; default 1)",
     )
     p.add_argument(
         "-q", "--quiet", action="store_true", help="print nothing on success (errors still)"

@@ -401,3 +401,46 @@ def test_quiet_prints_nothing_on_success(tmp_path, capsys):
         assert capsys.readouterr().out == "", argv
     for name in ("s.csv", "c.html", "a.sqlite", "e.csv", "b.sqlite"):
         assert (tmp_path / name).stat().st_size > 0, name
+
+
+def test_simulate_writes_late_angles_and_a_moving_platform_from_the_command_line(tmp_path, capsys):
+    """``--report-period-s``, ``--report-phase-s`` and ``--motion-substeps`` reach the
+    simulator (the truth file states them, the record equals the one simulated in Python);
+    a phase outside the period is refused with exit 2."""
+    import json
+
+    import numpy as np
+
+    from chekan.program import load_program
+    from chekan.records import read_record
+    from chekan.simulate import Truth, simulate_session
+
+    toml = tmp_path / "p.toml"
+    toml.write_text(
+        'name = "short"\nangles = ["4°30\'"]\ndwell_s = 120\nsettle_s = 60\nrounds = 1\n',
+        encoding="utf-8",
+    )
+    prog = load_program(toml)
+    out, truth = tmp_path / "r.csv", tmp_path / "t.json"
+    argv = ["simulate", "-o", str(out), "--truth", str(truth), "--program", str(toml)]
+    argv += ["--seed", "3", "--report-period-s", "1", "--report-phase-s", "0.25"]
+    assert main([*argv, "--motion-substeps", "3", "-q"]) == 0
+    t = json.loads(truth.read_text(encoding="utf-8"))
+    assert (t["platform_report_period_s"], t["platform_report_phase_s"]) == (1.0, 0.25)
+    assert t["motion_substeps"] == 3
+    want, _ = simulate_session(
+        prog,
+        Truth(
+            serial="SIM-1",
+            platform_report_period_s=1.0,
+            platform_report_phase_s=0.25,
+            motion_substeps=3,
+        ),
+        seed=3,
+    )
+    got = read_record(out)  # the file's resolution: 0.01″, 0.0001 pix
+    np.testing.assert_allclose(got.tilt_y_arcsec, want.tilt_y_arcsec, atol=0.005 + 1e-9)
+    np.testing.assert_allclose(got.m1_pix, want.m1_pix, atol=0.00005 + 1e-9)
+    bad = [*argv[:-4], "--report-period-s", "1", "--report-phase-s", "1"]
+    assert main([*bad[:1], "-o", str(tmp_path / "x.csv"), *bad[3:]]) == 2
+    assert "--report-phase-s 1 must lie in [0, --report-period-s)" in capsys.readouterr().err
