@@ -242,9 +242,8 @@ def program_timeline(
     systematic_arcsec: np.ndarray | None = None,
     systematic_fn=None,
     cross_arcsec: np.ndarray | None = None,
-) -> tuple[Timeline, np.ndarray, float | None]:
-    """Lay the program out at the sample rate: slews between holds, holds of ``dwell_s``;
-    ``(timeline, angle errors (arcsec), the report phase (s; None: every sample reports))``.
+) -> tuple[Timeline, np.ndarray]:
+    """Lay the program out at the sample rate: slews between holds, holds of ``dwell_s``.
 
     The angle error of step k about its own axis is the random draw (or
     ``truth.angle_error_arcsec``) plus ``systematic_arcsec[k]`` when given.
@@ -252,6 +251,19 @@ def program_timeline(
     sensor reads the slews, so their reported angles carry its error too.
     ``cross_arcsec`` (n_steps,): the error of the other axis's sensor in each step (the
     platform then holds that axis at minus it; None: exact)."""
+    tl, err, _ = _timeline(program, truth, rng, systematic_arcsec, systematic_fn, cross_arcsec)
+    return tl, err
+
+
+def _timeline(
+    program: TiltProgram,
+    truth: Truth,
+    rng: np.random.Generator,
+    systematic_arcsec: np.ndarray | None = None,
+    systematic_fn=None,
+    cross_arcsec: np.ndarray | None = None,
+) -> tuple[Timeline, np.ndarray, float | None]:
+    """:func:`program_timeline` and the report phase (s; None: every sample reports)."""
     dt = 1.0 / truth.sample_rate_hz
     n_steps = program.n_steps
     fns = systematic_fn if isinstance(systematic_fn, dict) else None
@@ -397,7 +409,7 @@ def simulate_session(
         raise ValueError(f"motion_substeps must be ≥ 1, got {truth.motion_substeps}")
     # the motion at sub steps per sample (the rates in the timeline are the fine ones)
     fine = truth if sub == 1 else replace(truth, sample_rate_hz=truth.sample_rate_hz * sub)
-    tl, err, phase = program_timeline(
+    tl, err, phase = _timeline(
         program,
         fine,
         rng,
