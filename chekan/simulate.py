@@ -259,9 +259,9 @@ def _timeline(
     program: TiltProgram,
     truth: Truth,
     rng: np.random.Generator,
-    systematic_arcsec: np.ndarray | None = None,
-    systematic_fn=None,
-    cross_arcsec: np.ndarray | None = None,
+    systematic_arcsec,
+    systematic_fn,
+    cross_arcsec,
 ) -> tuple[Timeline, np.ndarray, float | None]:
     """:func:`program_timeline` and the report phase (s; None: every sample reports)."""
     dt = 1.0 / truth.sample_rate_hz
