@@ -68,43 +68,33 @@ PRELOAD_THREADS = 2
 
 
 class _LoadsOrCompile:
-    """Many loads at once, or one compile (or serialisation) alone.
+    """One XLA operation at a time: a load, a compile or a serialisation, each alone.
 
-    XLA's CPU client is not safe for a deserialisation beside a compile: a loading thread
-    segfaulted inside the deserialiser while the main thread compiled (jaxlib 0.10.2, CI),
-    and again in CI once the store's own compiles were guarded, where only JAX's own compiles
-    (a ``jax.jit`` outside the store, an eager operation) could still run beside a load; see
-    docs/tuning.md. Loads beside loads never failed (40 stress runs, up to 9 at once), and a
-    new process's warm start overlaps them, so they share. A thread that holds the compile
-    side may compile again inside it (a store's compile passes through JAX's). It guards the
-    library, so there is one per process.
+    XLA's CPU client is not safe for a deserialisation beside a compile (a loading thread
+    segfaulted inside the deserialiser while the main thread compiled, jaxlib 0.10.2, CI),
+    nor beside another deserialisation: a test worker died with two background threads both
+    inside ``deserialize_and_load`` while the main thread only traced (2026-11-27, the stacks
+    from ``.crash``; docs/tuning.md). Loads shared until then, which a new process's warm start
+    used on two cores. A thread that holds the guard may take it again inside (a store's
+    compile passes through JAX's, a load through JAX's cache). It guards the library, so
+    there is one per process.
     """
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
-        self._loads = 0
-        self._owner: int | None = None  # the thread compiling, if any
+        self._owner: int | None = None  # the thread in XLA, if any
         self._depth = 0
 
-    @contextlib.contextmanager
     def load(self):
-        me = threading.get_ident()
-        with self._cond:
-            self._cond.wait_for(lambda: self._owner in (None, me))
-            self._loads += 1
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._loads -= 1
-                self._cond.notify_all()
+        """A deserialisation: alone, as everything else (class docstring)."""
+        return self.alone()
 
     @contextlib.contextmanager
     def alone(self):
         me = threading.get_ident()
         with self._cond:
             if self._owner != me:
-                self._cond.wait_for(lambda: self._owner is None and self._loads == 0)
+                self._cond.wait_for(lambda: self._owner is None)
                 self._owner = me
             self._depth += 1
         try:
