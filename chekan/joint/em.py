@@ -443,10 +443,9 @@ def _moments(v: dict, h: Hyper, structure: ModelStructure, data: RecordData) -> 
     """The E-step's moments from the hold blocks (:func:`block_moments`); padding bins 0."""
     m = block_moments(v, h, structure, data)
     t = m.terms
-    sw = jnp.where(data.mask, 1.0 / jnp.sqrt(t.nv), 0.0)
     trans = jnp.where(data.mask, t.trans, 0.0)
     return _Moments(
-        m.rw, m.beta, m.factor, m.var, m.rows, sw, t.nv, noise_var(h, data), trans, m.lev
+        m.rw, m.beta, m.factor, m.var, m.rows, m.sw, t.nv, noise_var(h, data), trans, m.lev
     )
 
 

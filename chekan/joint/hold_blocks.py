@@ -59,6 +59,7 @@ from inference.normal_eq import (
     banded_factor_blocks,
     selected_inverse,
     solve_banded_transposed,
+    split_prior,
 )
 
 
@@ -301,14 +302,18 @@ class BinRows(NamedTuple):
     columns: jax.Array  # (N, 6 + m) int: their β indices
 
 
+def _dense_columns(structure: ModelStructure) -> np.ndarray:
+    """β's indices outside the hold bands, ascending (the dense block's order)."""
+    return np.setdiff1d(np.arange(structure.n_beta), structure.hold_bands.reshape(-1))
+
+
 def row_columns(structure: ModelStructure, data: RecordData) -> jax.Array:
     """(N, 6 + m) each bin's support in β's order: its hold's band (o₁, o₂, δ), the band
     of the hold before (the first hold's bins repeat their own there, with weight bᵢ = 0),
     the dense variables."""
-    bands = structure.hold_bands
-    dense_ix = np.setdiff1d(np.arange(structure.n_beta), bands.reshape(-1))
+    dense_ix = _dense_columns(structure)
     k = data.bin_hold
-    band_ix = jnp.asarray(bands)
+    band_ix = jnp.asarray(structure.hold_bands)
     dense = jnp.broadcast_to(jnp.asarray(dense_ix), (k.shape[0], dense_ix.size))
     return jnp.concatenate([band_ix[k], band_ix[jnp.maximum(k - 1, 0)], dense], axis=1)
 
@@ -353,6 +358,7 @@ class BlockMoments(NamedTuple):
     factor: BandedFactor  # M's factor in the order [hold bands; dense]
     beta: jax.Array  # (p,) β̂ = M⁻¹g
     var: jax.Array  # (p,) diag(M⁻¹)
+    sw: jax.Array  # (N, 2) √w (0 for masked bins)
     rows: BinRows  # the whitened design √w A by its rows' support
     rw: jax.Array  # (N, 2) whitened residuals √w (y − f − Aβ̂)
     lev: jax.Array  # (N, 2) leverages (Ã M⁻¹ Ãᵀ)ᵢᵢ
@@ -366,10 +372,9 @@ def block_moments(v: dict, h: dict, structure: ModelStructure, data: RecordData)
     of its hold and of the hold before and the dense variables, so neither M nor M⁻¹
     (p × p) is formed. Values: those of the dense solve to round-off (tests)."""
     blocks, t = block_normal_equations(v, h, structure, data)
-    bands = structure.hold_bands
-    dense_ix = np.setdiff1d(np.arange(structure.n_beta), bands.reshape(-1))
-    pv = beta_prior_var(h, structure, data)
-    f = banded_factor_blocks(blocks, pv[bands], pv[dense_ix], unroll=1)
+    bands, dense_ix = structure.hold_bands, _dense_columns(structure)
+    pv = split_prior(beta_prior_var(h, structure, data), bands)
+    f = banded_factor_blocks(blocks, *pv, unroll=1)
     beta = solve_banded_transposed(f, bands, jnp.concatenate([f.y, f.c]), unroll=1)
     Z = selected_inverse(f, unroll=1)
     var = (
@@ -397,4 +402,4 @@ def block_moments(v: dict, h: dict, structure: ModelStructure, data: RecordData)
         + jnp.einsum("njm,ml,njl->nj", dense, Z.dense, dense)
         + cross
     )
-    return BlockMoments(f, beta, var, At, rw, lev, t)
+    return BlockMoments(f, beta, var, sw, At, rw, lev, t)
