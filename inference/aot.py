@@ -45,6 +45,7 @@ import pickle
 import platform
 import tempfile
 import threading
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -62,6 +63,9 @@ _SUFFIX = ".jaxexe"
 MAX_STORE_BYTES = 1 << 30
 PRUNE_TO = 0.75
 _FORMAT = "chekan-aot/2"  # part of every key: a new format never reads an old file
+#: share of the system's limit on memory maps (vm.max_map_count) that a store's loaded
+#: executables may fill: one XLA CPU executable of the joint model maps ≈ 1 600 regions
+MAP_SHARE = 0.5
 # preload threads, taking the executables in their order of first use: 2 beat 1 in every
 # interleaved pair of CLI map runs on 2 cores (9 h record: 3.1–5.0 s against 3.5–6.0 s)
 PRELOAD_THREADS = 2
@@ -108,6 +112,9 @@ class _LoadsOrCompile:
 
 
 _XLA = _LoadsOrCompile()
+#: every live store: the memory maps that their executables hold are the process's, so a
+#: store over its budget may let go of another's (a store that a cache somewhere keeps alive)
+_STORES: weakref.WeakSet[ExecutableStore] = weakref.WeakSet()
 
 
 #: where JAX itself reaches XLA to compile (``jax.jit``, eager operations, ``Lowered.compile``;
@@ -182,6 +189,26 @@ def source_fingerprint(*folders: str | Path, extra: tuple[str, ...] = ()) -> str
     return h.hexdigest()
 
 
+def _maps_in_use() -> int | None:
+    """The memory maps of this process (lines of ``/proc/self/maps``); None where the system
+    has no such file."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return None
+
+
+@functools.cache
+def _default_map_budget() -> int | None:
+    """``MAP_SHARE`` of the system's limit on memory maps; None where it cannot be read."""
+    try:
+        limit = int(Path("/proc/sys/vm/max_map_count").read_text())
+    except (OSError, ValueError):
+        return None
+    return int(MAP_SHARE * limit) if _maps_in_use() is not None else None
+
+
 @functools.cache
 def _machine() -> str:
     """What makes machine code unsafe to share: versions, backend, CPU model and flags."""
@@ -240,8 +267,8 @@ class ExecutableStore:
     fingerprint: str
     loaded: dict[str, Any] = field(default_factory=dict, repr=False)
     events: list[tuple[str, str]] = field(default_factory=list, repr=False)
-    """``(name, "loaded" | "compiled" | "discarded" | "not stored: <why>")`` per
-    executable, oldest first."""
+    """``(name, "loaded" | "compiled" | "discarded" | "let go" | "not stored: <why>")`` per
+    executable, oldest first (an unused preload let go is named by its key)."""
     unproven: set[str] = field(default_factory=set, repr=False)
     """Keys loaded from a file that have not run yet (a failure there recompiles)."""
     pending: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -254,9 +281,18 @@ class ExecutableStore:
     cost ≈ 0.3 ms a call."""
     max_bytes: int = MAX_STORE_BYTES
     """Size cap of the folder's executables (see the module docstring)."""
+    map_budget: int | None = field(default_factory=_default_map_budget)
+    """Memory maps this process may hold before the least recently used executables are
+    let go (None: never). Each executable maps its kernels separately (≈ 1 600 regions for
+    one of the joint model's); past the system's limit (``vm.max_map_count``, 65 530 by
+    default) the next load or compile dies inside XLA with a segfault or an abort, which a
+    test worker holding every structure's executables reached (56 000 seen). A let-go
+    executable is loaded again from its file (or compiled again, in memory only) when called.
+    """
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_machine", _machine())
+        _STORES.add(self)
 
     def scoped(self, label: str) -> ExecutableStore:
         """The same store for code that also depends on ``label`` (a model structure, say,
@@ -272,6 +308,7 @@ class ExecutableStore:
             self.used,
             self.keys,
             self.max_bytes,
+            self.map_budget,
         )
 
     def jit(self, name: str, fn: Callable) -> Callable:
@@ -288,10 +325,11 @@ class ExecutableStore:
                 loaded = self.pending.pop(key).result()
                 if loaded is not None:
                     self.loaded[key] = loaded
-            exe = self.loaded.get(key)
+            exe = self.loaded.pop(key, None)
+            fresh = exe is None or key in self.unproven  # new here: it maps its code on its run
             if exe is None:
                 exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn)
-                self.loaded[key] = exe
+            self.loaded[key] = exe  # last: the dict's order is the order of last use
             compiled, out_tree = exe
             try:
                 outs = compiled(*[leaves[i] for i in dyn])
@@ -309,6 +347,8 @@ class ExecutableStore:
                 outs = compiled(*[leaves[i] for i in dyn])
             self.unproven.discard(key)
             self.used.setdefault(key, name)
+            if fresh:  # a loaded executable maps its code when it first runs, not on load
+                self._within_map_budget(key)
             return jax.tree_util.tree_unflatten(out_tree, outs)
 
         call.__name__ = f"aot_{name}"
@@ -378,6 +418,33 @@ class ExecutableStore:
         return len(jobs)
 
     # ----------------------------------------------------------------- internals
+    def _within_map_budget(self, keep: str) -> None:
+        """While this process holds more memory maps than ``map_budget`` (see that field),
+        let go of executables, all but ``keep``: first the preloads not yet asked for (a
+        guess from the last process's list, which may name other structures'), then those of
+        other stores (their order of use is their own), then this store's, least recently
+        used first."""
+        if self.map_budget is None:
+            return
+        in_use = _maps_in_use()
+        if in_use is None or in_use <= self.map_budget:
+            return
+        stores = list(_STORES)
+        for store in stores:
+            for key in [k for k in store.pending if k != keep]:
+                store.pending.pop(key, None)  # a load still running is freed when it ends
+                store.events.append((key, "let go"))
+        others = {id(s.loaded): s for s in stores if s.loaded is not self.loaded}
+        for store in [*others.values(), self]:
+            while any(k != keep for k in store.loaded):
+                in_use = _maps_in_use()
+                if in_use is None or in_use <= self.map_budget:
+                    return
+                oldest = next(k for k in store.loaded if k != keep)
+                del store.loaded[oldest]  # freed here: nothing else holds a loaded executable
+                store.unproven.discard(oldest)
+                store.events.append((store.used.get(oldest, oldest), "let go"))
+
     def _signature(self, name: str, args: tuple):
         leaves, treedef = jax.tree_util.tree_flatten(args)
         dyn = [i for i, x in enumerate(leaves) if _is_array(x)]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mmap
 import os
 import subprocess
 import sys
@@ -229,6 +230,50 @@ def test_a_store_over_its_cap_deletes_the_least_recently_used(tmp_path):
     assert (tmp_path / "recent" / "calibrate-map.json").is_file()
     assert store.prune() == 0  # under the cap: nothing more
     assert ExecutableStore(None, "memory only").prune() == 0
+
+
+def test_past_the_map_budget_the_least_recently_used_executables_are_let_go(tmp_path):
+    """Each loaded executable holds memory maps, and past the system's limit XLA dies: a
+    store over its ``map_budget`` lets go of other stores' executables, then of its own
+    least recently used ones (never the one in hand), and one let go is loaded again from
+    its file, same numbers."""
+    from inference import aot
+
+    in_use = aot._maps_in_use()
+    if in_use is None:  # pragma: no cover - not Linux
+        pytest.skip("this system has no /proc/self/maps")
+    held = [
+        mmap.mmap(-1, 4096, prot=mmap.PROT_READ | (i % 2) * mmap.PROT_WRITE) for i in range(200)
+    ]
+    assert aot._maps_in_use() >= in_use + 200  # counted afresh (200 regions not merged)
+    del held
+    budget = aot._default_map_budget()
+    assert budget is not None and budget == int(
+        aot.MAP_SHARE * int(Path("/proc/sys/vm/max_map_count").read_text())
+    )
+    store = ExecutableStore(tmp_path, "code-v1", map_budget=1)  # always over it
+    fs = {k: store.jit(f"f{k}", lambda x, k=k: jnp.sin(x) * k + x) for k in range(3)}
+    first = float(fs[1](0.5))
+    fs[2](0.5)
+    fs[0](0.5)
+    assert [e for e in store.events if e[1] == "let go"] == [("f1", "let go"), ("f2", "let go")]
+    assert len(store.loaded) == 1  # only the one in hand
+    assert float(fs[1](0.5)) == first
+    assert store.events[-2:] == [("f1", "loaded"), ("f0", "let go")]
+    other = ExecutableStore(tmp_path, "code-v2", map_budget=None)  # another root, kept alive
+    other.jit("g", lambda x: x + 1.0)(0.5)
+    fs[2](0.5)  # loaded again: the other store's executable goes first
+    assert other.events[-1] == ("g", "let go") and not other.loaded
+    assert store.events[-2:] == [("f2", "loaded"), ("f1", "let go")]
+    ahead = ExecutableStore(tmp_path, "code-v1", map_budget=1)
+    ahead.prefetch("f0", 0.5)  # a guess that no call asks for
+    (guess,) = ahead.pending
+    assert float(ahead.jit("f1", lambda x: jnp.sin(x) * 1 + x)(0.5)) == first
+    assert not ahead.pending and (guess, "let go") in ahead.events
+    roomy = ExecutableStore(tmp_path, "code-v1", map_budget=in_use + 10**6)  # far from it
+    for k in range(3):
+        roomy.jit(f"f{k}", lambda x, k=k: jnp.sin(x) * k + x)(0.5)
+    assert len(roomy.loaded) == 3 and all(e[1] == "loaded" for e in roomy.events)
 
 
 def test_a_load_marks_the_file_recently_used_under_both_its_names(tmp_path):
