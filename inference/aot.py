@@ -326,7 +326,7 @@ class ExecutableStore:
                 if loaded is not None:
                     self.loaded[key] = loaded
             exe = self.loaded.pop(key, None)
-            fresh = exe is None or key in self.unproven  # new here: it maps its code on its run
+            fresh = exe is None or key in self.unproven  # new in this process's memory
             if exe is None:
                 exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn)
             self.loaded[key] = exe  # last: the dict's order is the order of last use
@@ -347,7 +347,7 @@ class ExecutableStore:
                 outs = compiled(*[leaves[i] for i in dyn])
             self.unproven.discard(key)
             self.used.setdefault(key, name)
-            if fresh:  # a loaded executable maps its code when it first runs, not on load
+            if fresh:  # its maps are made: let go of others past the budget
                 self._within_map_budget(key)
             return jax.tree_util.tree_unflatten(out_tree, outs)
 
