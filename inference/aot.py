@@ -436,12 +436,12 @@ class ExecutableStore:
                 store.events.append((key, "let go"))
         others = {id(s.loaded): s for s in stores if s.loaded is not self.loaded}
         for store in [*others.values(), self]:
-            while any(k != keep for k in store.loaded):
+            for oldest in [k for k in list(store.loaded) if k != keep]:  # a copy: threads
                 in_use = _maps_in_use()
                 if in_use is None or in_use <= self.map_budget:
                     return
-                oldest = next(k for k in store.loaded if k != keep)
-                del store.loaded[oldest]  # freed here: nothing else holds a loaded executable
+                if store.loaded.pop(oldest, None) is None:  # freed here, if still there
+                    continue
                 store.unproven.discard(oldest)
                 store.events.append((store.used.get(oldest, oldest), "let go"))
 
