@@ -74,24 +74,18 @@ PRELOAD_THREADS = 2
 class _LoadsOrCompile:
     """One XLA operation at a time: a load, a compile or a serialisation, each alone.
 
-    XLA's CPU client is not safe for a deserialisation beside a compile (a loading thread
-    segfaulted inside the deserialiser while the main thread compiled, jaxlib 0.10.2, CI),
-    nor beside another deserialisation: a test worker died with two background threads both
-    inside ``deserialize_and_load`` while the main thread only traced (2026-11-27, the stacks
-    from ``.crash``; docs/tuning.md). Loads shared until then, which a new process's warm start
-    used on two cores. A thread that holds the guard may take it again inside (a store's
-    compile passes through JAX's, a load through JAX's cache). It guards the library, so
-    there is one per process.
+    Test workers died inside XLA's deserialiser and compiler, once with two loads at once;
+    the cause was later found to be the process's memory maps running out (``map_budget``,
+    docs/tuning.md), not the overlap. The guard stays as a precaution until that is proven
+    (it costs a new ``map`` process ≈ 10 %). A thread that holds the guard may take it again
+    inside (a store's compile passes through JAX's, a load through JAX's cache). It guards
+    the library, so there is one per process.
     """
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
         self._owner: int | None = None  # the thread in XLA, if any
         self._depth = 0
-
-    def load(self):
-        """A deserialisation: alone, as everything else (class docstring)."""
-        return self.alone()
 
     @contextlib.contextmanager
     def alone(self):
@@ -119,12 +113,12 @@ _STORES: weakref.WeakSet[ExecutableStore] = weakref.WeakSet()
 
 #: where JAX itself reaches XLA to compile (``jax.jit``, eager operations, ``Lowered.compile``;
 #: older JAX names it ``backend_compile``), to serialise for its persistent cache, and to
-#: load from it: (module, function, side of ``_XLA``)
+#: load from it: (module, function)
 _JAX_XLA_CALLS = (
-    ("jax._src.compiler", "backend_compile_and_load", "alone"),
-    ("jax._src.compiler", "backend_compile", "alone"),
-    ("jax._src.compilation_cache", "put_executable_and_time", "alone"),
-    ("jax._src.compilation_cache", "get_executable_and_time", "load"),
+    ("jax._src.compiler", "backend_compile_and_load"),
+    ("jax._src.compiler", "backend_compile"),
+    ("jax._src.compilation_cache", "put_executable_and_time"),
+    ("jax._src.compilation_cache", "get_executable_and_time"),
 )
 
 
@@ -136,24 +130,23 @@ def _guard_jax() -> tuple[str, ...]:
     import importlib
 
     done = []
-    for module_name, name, side in _JAX_XLA_CALLS:
+    for module_name, name in _JAX_XLA_CALLS:
         module = importlib.import_module(module_name)
         inner = getattr(module, name, None)
         if inner is None:
             continue
         done.append(f"{module_name}.{name}")
         if not getattr(inner, "guarded_by_chekan", False):
-            setattr(module, name, _guarded(inner, side))
+            setattr(module, name, _guarded(inner))
     return tuple(done)
 
 
-def _guarded(inner: Callable, side: str) -> Callable:
-    """``inner`` run on ``side`` ("alone" or "load") of ``_XLA``."""
-    enter = getattr(_XLA, side)
+def _guarded(inner: Callable) -> Callable:
+    """``inner`` run alone under ``_XLA``."""
 
     @functools.wraps(inner)
     def guarded(*args, **kwargs):
-        with enter():
+        with _XLA.alone():
             return inner(*args, **kwargs)
 
     guarded.guarded_by_chekan = True  # type: ignore[attr-defined]
@@ -553,7 +546,7 @@ class ExecutableStore:
         initialise_lapack()
         try:
             payload, in_tree, out_tree = pickle.loads(path.read_bytes())
-            with _XLA.load():
+            with _XLA.alone():
                 compiled = se.deserialize_and_load(payload, in_tree, out_tree[0])
         except Exception:  # unreadable or from another build: recompile, never guess
             path.unlink(missing_ok=True)

@@ -411,8 +411,8 @@ def test_loads_and_compiles_run_one_at_a_time(tmp_path, monkeypatch):
     import itertools
     import time
 
-    # XLA's CPU client segfaulted in a deserialisation beside a compile (jaxlib 0.10.2, CI)
-    # and beside another deserialisation (a test worker, 2026-11-27)
+    # workers died inside XLA's deserialiser beside a compile and beside another load; the
+    # cause was the memory maps running out, but the guard stays (docs/tuning.md)
     first = ExecutableStore(tmp_path, "code-v1")
     for name in ("a", "b"):
         first.jit(name, lambda x: x + 1)(jnp.ones(3))
