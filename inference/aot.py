@@ -140,9 +140,9 @@ _JAX_XLA_CALLS = (
 
 def _guard_jax() -> tuple[str, ...]:
     """Put JAX's own compiles and cache writes (alone) and cache loads (shared with loads)
-    under ``_XLA`` as the store's are (:class:`_LoadsOrCompile`): JAX offers no hook, so its module functions are wrapped,
-    once per process. Returns the names guarded (none where this JAX has none of them:
-    then only the store's own calls are)."""
+    under ``_XLA`` as the store's are (:class:`_LoadsOrCompile`): JAX offers no hook, so its
+    module functions are wrapped, once per process. Returns the names guarded (none where
+    this JAX has none of them: then only the store's own calls are)."""
     import importlib
 
     done = []
