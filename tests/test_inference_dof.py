@@ -186,3 +186,29 @@ def test_projection_hat_is_the_least_squares_hat_also_when_rank_deficient():
     assert np.linalg.eigvalsh(summed).max() > 1.0 + 1e-6
     assert projection_hat(np.zeros((5, 2))).shape == (5, 5)
     assert not projection_hat(np.zeros((5, 2))).any()
+
+
+def test_the_information_from_the_basis_equals_the_one_from_the_hat():
+    """basis_information(U, D) = component_information(U Uᵀ, D) (the identity in its
+    docstring), with shares that touch some rows only and a rank-deficient basis; and the
+    pivoted QR's basis spans what the SVD's did."""
+    from inference.dof import basis_information, component_information, projection_basis
+
+    rng = np.random.default_rng(21)
+    B = rng.normal(size=(60, 7))
+    B = np.concatenate([B, B[:, :2] @ np.array([[2.0], [-1.0]])], axis=1)  # rank 7
+    U = projection_basis(B)
+    assert U.shape == (60, 7)
+    np.testing.assert_allclose(U.T @ U, np.eye(7), atol=1e-12)
+    Us, s, _ = np.linalg.svd(B, full_matrices=False)
+    Us = Us[:, s > 1e-8 * s.max()]
+    np.testing.assert_allclose(U @ U.T, Us @ Us.T, atol=1e-12)
+    shares = np.abs(rng.normal(size=(4, 60)))
+    shares[0, 30:] = 0.0  # a component of the first rows only
+    shares[1, :45] = 0.0
+    shares[3] = 0.0  # one that touches nothing
+    want = component_information(U @ U.T, shares)
+    got = basis_information(U, shares)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+    assert not got[3].any()
+    assert projection_basis(np.zeros((5, 2))).shape == (5, 0)

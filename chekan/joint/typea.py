@@ -16,7 +16,7 @@ rows], with the columns J (the MAP's Jacobian in θ, β projected out) and
 ∂R/∂β = [−Ã; Λ^{-1/2}; 0] (r_w = √w (r − Aβ): the data rows carry −Ã, the prior rows
 +Λ^{-1/2}). J is orthogonal to ∂R/∂β (β̂ is stationary given θ; 2e-6 relative on a 9 h
 record), and the hat matrix of the joint (θ, β) problem is the projector onto their span
-(:func:`inference.dof.projection_hat`). (With K = [Ã; Λ^{-1/2}; 0], whose data rows have
+(:func:`inference.dof.projection_basis`). (With K = [Ã; Λ^{-1/2}; 0], whose data rows have
 the other sign, J is not orthogonal to K: H_β + J C_θ Jᵀ was no projection, eigenvalues up
 to 1.9, and on a six-hold record the information came out indefinite.) The
 shares of each row's variance: sⱼ: (sⱼσⱼ)²/n / vᵢ of system j's bins, κ: (κ tᵢ)²/vᵢ, σ_θ
@@ -38,9 +38,9 @@ from chekan.joint.map import MapFit
 from chekan.joint.problem import hyper_params
 from inference.dof import (
     TypeAReliability,
+    basis_information,
     cov_of_information,
-    projection_hat,
-    total_information,
+    projection_basis,
     type_a_reliability,
 )
 
@@ -92,10 +92,17 @@ def beta_columns(fit: MapFit, A_w: np.ndarray, prior_var: np.ndarray) -> np.ndar
     return K
 
 
+def stacked_basis(fit: MapFit, dR_dbeta: np.ndarray) -> np.ndarray:
+    """U with orthonormal columns spanning [J, ∂R/∂β]: the joint (θ, β) problem's hat matrix
+    of the stacked rows is U Uᵀ, the projector onto that span (module docstring)."""
+    return projection_basis(np.concatenate([np.asarray(fit.result.jacobian), dR_dbeta], axis=1))
+
+
 def stacked_hat(fit: MapFit, dR_dbeta: np.ndarray) -> np.ndarray:
-    """The joint (θ, β) problem's hat matrix of the stacked rows: the projector onto the span
-    of [J, ∂R/∂β] (module docstring)."""
-    return projection_hat(np.concatenate([np.asarray(fit.result.jacobian), dR_dbeta], axis=1))
+    """The joint (θ, β) problem's hat matrix of the stacked rows, U Uᵀ (:func:`stacked_basis`;
+    the reliabilities use U and never form it)."""
+    U = stacked_basis(fit, dR_dbeta)
+    return U @ U.T
 
 
 def reliabilities(
@@ -117,13 +124,11 @@ def reliabilities(
     C = np.where(np.isfinite(cov), cov, 0.0)
     K = beta_columns(fit, A_w, prior_var)  # ∂R/∂β
     KM = K @ Minv
-    hat = stacked_hat(fit, K)
+    U = stacked_basis(fit, K)
     D = row_shares(fit, base, trans)
     # rows that no component touches (θ's and β's fixed priors) drop out of the traces
     used = np.any(D != 0, axis=0)
-    V, clipped = cov_of_information(
-        total_information(hat[np.ix_(used, used)], D[:, used], PRIOR_INFO)
-    )
+    V, clipped = cov_of_information(basis_information(U[used], D[:, used]) + PRIOR_INFO)
     infl = np.asarray(Jz) @ C @ J.T + np.asarray(Jb) @ KM.T  # (q, rows)
     R = np.asarray(res.residuals)
-    return [type_a_reliability(h, R, hat, D, cov_log_var=V, clipped=clipped) for h in infl]
+    return [type_a_reliability(h, R, None, D, cov_log_var=V, clipped=clipped) for h in infl]
