@@ -73,16 +73,44 @@ def calibrate(
         return result
     # once the input has been read (a bad file fails at once, not after the loads), before
     # the heavy imports: a new process starts loading, in the background, the compiled
-    # functions that the last calibration of this method ran
+    # functions that the last calibration of this method and program ran
     from chekan.jaxconfig import executable_store
 
     store = executable_store()
-    store.preload(f"calibrate-{opts.method}")
+    label = preload_label(result, opts)
+    store.preload(label)
     from chekan.joint import estimate  # heavy imports only when needed
 
     out = estimate(data, kind=kind, classical=cres, base=result, options=opts)
-    store.remember(f"calibrate-{opts.method}")
+    store.remember(label)
     return out
+
+
+def preload_label(result: dict, opts: CalibrationOptions) -> str:
+    """The executable store's label of this calibration (:meth:`inference.aot.ExecutableStore.
+    preload`): the method and a hash of what shapes the joint model — the tilt program as the
+    classical result states it (axes, angles, rounds, dwell; not its name) and the options
+    that add or drop model terms — so that a process preloads what the last calibration of
+    the *same* program ran, not another program's executables (a guess: a wrong one only
+    wastes background time)."""
+    import hashlib
+    import json
+
+    program = {k: v for k, v in (result.get("tilt_program") or {}).items() if k != "name"}
+    shape = {
+        "program": program,
+        "input": result.get("input_kind"),
+        "options": [
+            opts.encoder_error,
+            opts.angle_errors,
+            opts.angle_calibration is not None,
+            opts.settle_s,
+            opts.quick,
+            opts.map_solver,
+        ],
+    }
+    text = json.dumps(shape, sort_keys=True, default=str)
+    return f"calibrate-{opts.method}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
 
 
 def _checked(options: CalibrationOptions | None) -> CalibrationOptions:

@@ -40,3 +40,37 @@ def test_a_protocol_in_memory_equals_its_file(paper_protocol):
 def test_anything_else_is_refused():
     with pytest.raises(ChekanError, match="give a Record or a Protocol"):
         calibrate({"t_s": [0.0]})
+
+
+def test_the_preload_label_follows_the_program_not_the_instrument(short_session, monkeypatch):
+    """A process preloads what the last calibration of the same tilt program ran: two records
+    of one program share the label, another program (rounds about X too) or other model
+    options do not, and the program's name does not count. calibrate() asks the store for
+    that label and writes its manifest under it."""
+    import copy
+    import dataclasses
+
+    from chekan import jaxconfig
+    from chekan.pipeline import classical_of, preload_label
+
+    path, rec, _ = short_session
+    opts = CalibrationOptions(method="map", progress=False)
+    _, _, result = classical_of(read_input(path), opts)
+    label = preload_label(result, opts)
+    assert label.startswith("calibrate-map-")
+    other = copy.deepcopy(result)
+    other["serial"], other["g_local_mgal"] = "other", result["g_local_mgal"] + 3.0
+    other["tilt_program"]["name"] = "renamed"
+    assert preload_label(other, opts) == label  # another instrument, the same program
+    xy = copy.deepcopy(result)
+    xy["tilt_program"]["rounds"][-1]["axis"] = "x"
+    assert preload_label(xy, opts) != label
+    assert preload_label(result, dataclasses.replace(opts, encoder_error=True)) != label
+    assert preload_label(result, dataclasses.replace(opts, method="bayes")) != label
+
+    asked: list = []
+    store = jaxconfig.executable_store()
+    monkeypatch.setattr(type(store), "preload", lambda self, lab: asked.append(("p", lab)) or 0)
+    monkeypatch.setattr(type(store), "remember", lambda self, lab: asked.append(("r", lab)))
+    calibrate(rec, opts)
+    assert asked == [("p", label), ("r", label)]
