@@ -19,6 +19,7 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 
 # isort: split
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -31,7 +32,7 @@ from jax.typing import ArrayLike
 from .jacobian import jacobian_once
 from .laplace import DEFAULT_RCOND, LaplaceCovariance, laplace_from_svd
 from .params import ParamSpace
-from .problem import LeastSquaresProblem
+from .problem import LeastSquaresProblem, stacked_residuals_of
 
 __all__ = [
     "MapResult",
@@ -129,7 +130,7 @@ class MapResult:
 # --------------------------------------------------------------------------- compiled core
 def trace_count(problem: LeastSquaresProblem) -> int:
     """How many times the compiled MAP functions of ``problem`` have been traced (for tests)."""
-    return problem._compiled.get("traces", 0)
+    return problem._compiled.get("traces", [0])[0]
 
 
 def _check_solver(solver: SolverName) -> None:
@@ -178,14 +179,18 @@ def _core(
     that passed the Cauchy test), and the residuals there to first order, r + Jδ. J is
     the linearisation's, δ away: the covariance changes by far less than sd_tol."""
     p = problem.space.size
+    # ``run`` holds the problem's parts, never the problem: JAX keeps what it traced (a
+    # static ``run``, the residual function) in process-wide caches, and the problem would
+    # keep its store and every executable in it alive there
+    space, residuals = problem.space, problem.residuals
+    traces = problem._compiled.setdefault("traces", [0])
 
     def run(z0, data):
         import optimistix as optx
 
         solver_ = _make_solver(solver, rtol, atol, sd_tol)
-        cache = problem._compiled
-        cache["traces"] = cache.get("traces", 0) + 1  # Python side effect: counts traces
-        fn = problem.stacked_residuals
+        traces[0] += 1  # Python side effect: counts traces
+        fn = functools.partial(stacked_residuals_of, space, residuals)
         if solver == "gn":
             # LM keeps its linearisation as before: the regression snapshot was taken with
             # it, and J formed once moves a near-zero drift slope there by 1.8e-6 relative

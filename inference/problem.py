@@ -62,7 +62,7 @@ class LeastSquaresProblem:
 
     def stacked_residuals(self, z: ArrayLike, data: Any) -> Array:
         """``concat(data residuals, prior residuals)``: the vector whose squared norm is 2·cost."""
-        return jnp.concatenate([self.data_residuals(z, data), self.space.prior_residuals(z)])
+        return stacked_residuals_of(self.space, self.residuals, z, data)
 
     def cost(self, z: ArrayLike, data: Any) -> Array:
         r"""½‖stacked residuals‖² (the negative log posterior up to a constant)."""
@@ -79,3 +79,12 @@ class LeastSquaresProblem:
         """
         r = self.data_residuals(z, data)
         return -0.5 * jnp.sum(r**2) + self.space.log_prior(z)
+
+
+def stacked_residuals_of(space: ParamSpace, residuals: Callable, z: ArrayLike, data: Any) -> Array:
+    """:meth:`LeastSquaresProblem.stacked_residuals` from the problem's space and residual
+    function alone. A solver is handed this (bound to the two, not the problem's method):
+    JAX keeps the static leaves of what it traced in a process-wide cache, and a bound
+    method there kept the problem, its executable store and every executable in it alive."""
+    r = jnp.asarray(residuals(space.to_values(z), data)).reshape(-1)
+    return jnp.concatenate([r, space.prior_residuals(z)])

@@ -190,3 +190,26 @@ def test_a_failed_lane_keeps_its_code_and_says_it_in_words() -> None:
     table = optx.RESULTS._index_to_message  # type: ignore[attr-defined]
     assert failed.message == table[failed.result_code] != "success"
     assert batch.item(0).message == "success" and batch.messages == ["success", failed.message]
+
+
+@pytest.mark.parametrize("stored", [False, True])
+def test_a_solved_problem_and_its_store_are_freed_with_their_last_reference(tmp_path, stored):
+    """JAX keeps the argument trees of what it traced in a process-wide cache
+    (``jax._src.api_util.donation_vector``, which ``jax.clear_caches()`` leaves alone). A solve
+    whose residual function was the problem's bound method left the problem there, and with
+    it its executable store and every executable loaded in it, after the last reference
+    went (a worker that met many structures kept them all)."""
+    import gc
+    import weakref
+
+    from inference.aot import ExecutableStore
+
+    base, data, mean, _ = _linreg(seed=4)
+    store = ExecutableStore(tmp_path, "freed-test") if stored else None
+    problem = LeastSquaresProblem(base.space, base.residuals, executables=store)
+    res = fit_map(problem, data, solver="gn")
+    np.testing.assert_allclose(res.values["beta"], mean, atol=1e-8)
+    alive = [weakref.ref(problem)] + ([weakref.ref(store)] if store is not None else [])
+    del problem, store, res
+    gc.collect()
+    assert [r() for r in alive] == [None] * len(alive)
