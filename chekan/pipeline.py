@@ -87,12 +87,12 @@ def calibrate(
 
 
 def preload_label(result: dict, opts: CalibrationOptions) -> str:
-    """The executable store's label of this calibration (:meth:`inference.aot.ExecutableStore.
-    preload`): the method and a hash of what shapes the joint model — the tilt program as the
-    classical result states it (axes, angles, rounds, dwell; not its name) and the options
-    that add or drop model terms — so that a process preloads what the last calibration of
-    the *same* program ran, not another program's executables (a guess: a wrong one only
-    wastes background time)."""
+    """The label under which the executable store keeps and preloads the executables of
+    this calibration (:meth:`~inference.aot.ExecutableStore.preload`): the method and a hash
+    of what shapes the joint model — the tilt program as the classical result states it
+    (axes, angles, rounds, dwell; not its name) and the options that add or drop model
+    terms — so that a process preloads what the last calibration of the *same* program ran,
+    not another program's executables (a guess: a wrong one only wastes background time)."""
     import hashlib
     import json
 
