@@ -129,7 +129,7 @@ _STORES: weakref.WeakSet[ExecutableStore] = weakref.WeakSet()
 
 #: where JAX itself reaches XLA to compile (``jax.jit``, eager operations, ``Lowered.compile``;
 #: older JAX names it ``backend_compile``), to serialise for its persistent cache, and to
-#: load from it: (module, function, side of the guard)
+#: load from it: (module, function, side of ``_XLA``)
 _JAX_XLA_CALLS = (
     ("jax._src.compiler", "backend_compile_and_load", "alone"),
     ("jax._src.compiler", "backend_compile", "alone"),
@@ -160,7 +160,7 @@ def _guard_jax() -> tuple[str, ...]:
 def _guarded(inner: Callable, side: str) -> Callable:
     """``inner`` run under ``_XLA``: ``side`` "alone" (a compile, a serialisation) or
     "load" (a deserialisation, shared with other loads)."""
-    enter = _XLA.alone if side == "alone" else _XLA.load
+    enter = getattr(_XLA, side)
 
     @functools.wraps(inner)
     def guarded(*args, **kwargs):

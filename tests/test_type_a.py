@@ -97,7 +97,8 @@ def test_the_hat_of_the_type_a_terms_is_the_joint_problems(fitted, joint_jacobia
     fit, _ = fitted
     _, _, _, Minv, _, A_w, _, _, pv = _pieces(fit)
     dR = typea.beta_columns(fit, A_w, pv)
-    hat = typea.stacked_hat(fit, dR)
+    U = typea.stacked_basis(fit, dR)
+    hat = U @ U.T
     J = joint_jacobian
     want = J @ np.linalg.solve(J.T @ J, J.T)
     np.testing.assert_allclose(hat, want, atol=1e-8)

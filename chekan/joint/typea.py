@@ -98,13 +98,6 @@ def stacked_basis(fit: MapFit, dR_dbeta: np.ndarray) -> np.ndarray:
     return projection_basis(np.concatenate([np.asarray(fit.result.jacobian), dR_dbeta], axis=1))
 
 
-def stacked_hat(fit: MapFit, dR_dbeta: np.ndarray) -> np.ndarray:
-    """The joint (θ, β) problem's hat matrix of the stacked rows, U Uᵀ (:func:`stacked_basis`;
-    the reliabilities use U and never form it)."""
-    U = stacked_basis(fit, dR_dbeta)
-    return U @ U.T
-
-
 def reliabilities(
     fit: MapFit,
     Jz: np.ndarray,
