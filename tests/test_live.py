@@ -683,6 +683,74 @@ def test_the_axis_of_each_hold_from_the_record_and_from_the_plan(short_session, 
     assert _plan_axes(plan) == {0: "y", 1: "y", 2: "x", 3: "x", 4: "x"}
 
 
+def test_a_stall_alone_completes_the_last_hold_and_a_late_row_refits_it(short_session, tmp_path):
+    """No journal: a record that stops mid-dwell counts its last hold complete once quiet for
+    stall_s, though no row arrived (the poll that notices changes nothing else); rows that
+    then come for that hold refit it."""
+    path, rec, _ = short_session
+    lines = path.read_text().splitlines(keepends=True)
+    header = next(i for i, ln in enumerate(lines) if ln.startswith("t_s"))
+    last_tilt = int(rec.step.max()) - 1
+    rows = np.flatnonzero(rec.step == last_tilt)
+    cut = header + 1 + int(rows[0]) + 260  # 260 s into the last tilt's 300 s dwell
+    p = tmp_path / "stalled.csv"
+    p.write_text("".join(lines[:cut]))
+    now = [0.0]
+    st = LiveState(p, map_runner=_FakeRunner(), clock=lambda: now[0], stall_s=5.0)
+    assert st.update()
+    assert last_tilt not in st.classical["hold_axis"]
+    now[0] = 10.0
+    assert st.update()  # quiet for 10 s: the hold is complete, its pair is fitted
+    assert last_tilt in st.classical["hold_axis"]
+    pairs = st.classical["pairs"]
+    with p.open("a") as f:  # the rest of that hold arrives in one poll
+        f.write("".join(lines[cut : header + 1 + int(rows[-1]) + 1]))
+    v = st.version
+    now[0] = 20.0
+    assert st.update() and st.version == v + 1
+    assert st.classical["pairs"] == pairs and st.classical is not None
+    ref = calib.classical_snapshot(calib.partial_record(
+        st.record.meta, st.cols(), st.complete_steps(), path=str(p)))  # fmt: skip
+    assert st.classical["dg_mgal"] == ref["dg_mgal"]  # the whole hold, not its first 260 s
+
+
+def test_an_update_landing_while_the_page_connects_is_sent(short_session, tmp_path):
+    """The event stream takes the version before the first status: an update that completes
+    between them (here: inside status()) reaches the page at once, not never."""
+    import threading
+
+    from chekan.live.server import LiveServer
+
+    class _Late(LiveState):
+        bumped = False
+
+        def status(self):
+            out = super().status()
+            if not self.bumped:  # an update lands right after the page's first status
+                self.bumped = True
+                with self.changed:
+                    self.version += 1
+                    self.changed.notify_all()
+            return out
+
+    st = _Late(short_session[0], map_runner=_FakeRunner())
+    st.update()
+    srv = LiveServer(("127.0.0.1", 0), st)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    try:
+        events = []
+        with urllib.request.urlopen(srv.url + "events", timeout=5) as r:
+            for raw in r:
+                if raw.startswith(b"event: "):
+                    events.append(raw[7:].strip().decode())
+                if len(events) == 2:
+                    break
+        assert events == ["init", "status"]
+    finally:
+        srv.stop()
+        srv.server_close()
+
+
 def test_live_on_all_interfaces_prints_the_bound_address_and_a_warning(tmp_path):
     """``chekan live REC --live 0.0.0.0:0`` (and ``acquire --live``, through start_beside):
     the address actually bound, and that anyone on the network can read the page."""

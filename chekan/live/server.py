@@ -111,9 +111,11 @@ class _Handler(BaseHTTPRequestHandler):
             self.wfile.write(f"event: {event}\ndata: {_dumps(data)}\n\n".encode())
             self.wfile.flush()
 
-        sent = st.n
-        send("init", {"rows": st.rows_since(0), "status": st.status()})
-        seen = st.version
+        with st.changed:
+            seen = st.version  # before the status: an update landing meanwhile is sent again
+        rows = st.rows_since(0)
+        sent = rows["n"]
+        send("init", {"rows": rows, "status": st.status()})
         last = time.monotonic()
         while not self.server.stopping.is_set():
             with st.changed:

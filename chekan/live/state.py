@@ -115,7 +115,7 @@ class LiveState:
         self.classical: dict | None = None
         self.plan_axes: dict[int, str] = {}  # step → axis, from the journal's plan
         self.pace: tuple[tuple[datetime, float], tuple[datetime, float]] | None = None
-        self._done_seen: set[int] = set()
+        self._done_seen: tuple = (frozenset(), ())  # completed steps and their last t_s
         self._rounds_sent = 0
         self.expected: dict | None = None
         if self.program is not None:
@@ -144,8 +144,8 @@ class LiveState:
             changed = True
         if self.map.poll():
             changed = True
-        if changed:
-            self._recalibrate()
+        if self._recalibrate():  # also when a stall alone completes the last step
+            changed = True
         with self.changed:
             self.version += 1 if changed else 0
             self.changed.notify_all()
@@ -252,23 +252,27 @@ class LiveState:
                 done.add(last[2])
         return done
 
-    def _recalibrate(self) -> None:
+    def _recalibrate(self) -> bool:
+        """Refit the classical snapshot when a step has completed; True if it changed."""
         meta = self.record.meta
         if not self.n or "g_local_mgal" not in meta or self.record.problem:
-            return  # no calibration of a file that is no valid record (the alarm says why)
+            return False  # no calibration of a file that is no valid record (the alarm says why)
         done = self.complete_steps()
-        if not done or done == self._done_seen:
-            return  # the classical fit changes only when a step completes
-        self._done_seen = set(done)
+        # the fit changes only when a step completes, or a step a stall completed grows again
+        seen = (frozenset(done), tuple(r[1] for r in self.runs if r[2] in done))
+        if not done or seen == self._done_seen:
+            return False
+        self._done_seen = seen
         rec = calib.partial_record(meta, self.cols(), done, path=str(self.path))
         snap = calib.classical_snapshot(rec)
         if snap is None:
-            return
+            return False
         with self.lock:
             self.classical = snap
         if snap["rounds_complete"] > self._rounds_sent:
             self._rounds_sent = snap["rounds_complete"]
             self.map.submit(self._rounds_sent, rec)
+        return True
 
     # ------------------------------------------------------------------ reading
     def cols(self) -> dict[str, np.ndarray]:
