@@ -69,6 +69,9 @@ MAP_SHARE = 0.5
 # preload threads, taking the executables in their order of first use: 2 beat 1 in every
 # interleaved pair of CLI map runs on 2 cores (9 h record: 3.1–5.0 s against 3.5–6.0 s)
 PRELOAD_THREADS = 2
+#: preload manifests kept in a store's ``recent/`` (one per label: a tilt program and its
+#: options): the most recently written stay, the oldest go
+MAX_MANIFESTS = 64
 
 
 class _LoadsOrCompile:
@@ -198,6 +201,25 @@ def source_fingerprint(*folders: str | Path, extra: tuple[str, ...] = ()) -> str
     for item in extra:
         h.update(item.encode())
     return h.hexdigest()
+
+
+def _keep_newest(folder: Path, pattern: str, n: int) -> int:
+    """Delete all but the ``n`` most recently modified files of ``folder`` matching
+    ``pattern`` (one another process deletes first is skipped); the number deleted."""
+    stamped = []
+    for f in folder.glob(pattern):
+        try:
+            stamped.append((f.stat().st_mtime_ns, f))
+        except OSError:
+            continue
+    gone = 0
+    for _, f in sorted(stamped, reverse=True)[n:]:
+        try:
+            f.unlink()
+            gone += 1
+        except OSError:
+            continue
+    return gone
 
 
 def _maps_in_use() -> int | None:
@@ -395,6 +417,7 @@ class ExecutableStore:
             _write_atomic(path, json.dumps(entry, indent=1).encode())
         except OSError:
             return None  # a read-only cache: the next process just does not preload
+        _keep_newest(path.parent, "*.json", MAX_MANIFESTS)
         return path
 
     def preload(self, label: str) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import mmap
 import os
 import subprocess
@@ -205,6 +206,29 @@ def test_an_executable_that_cannot_be_stored_says_so_and_still_runs(tmp_path, mo
     names = [e for e in store.events if e[0] == "toy"]
     assert names[0] == ("toy", "compiled")
     assert names[1:] == [("toy", "not stored: NotImplementedError: const_args")]
+
+
+def test_a_store_keeps_the_newest_preload_manifests(tmp_path, monkeypatch):
+    """One manifest per label (a tilt program and its options): past MAX_MANIFESTS the
+    oldest go when a process remembers, the one it wrote and the newest others stay."""
+    from inference import aot
+
+    monkeypatch.setattr(aot, "MAX_MANIFESTS", 3)
+    store = aot.ExecutableStore(tmp_path, "fp")
+    store.used["k"] = "toy"  # as if it had run one executable
+    recent = tmp_path / "recent"
+    recent.mkdir()
+    for i in range(5):  # older manifests of other programs, oldest first
+        f = recent / f"program-{i}.json"
+        f.write_text("{}")
+        os.utime(f, ns=(10**18 + i * 10**9, 10**18 + i * 10**9))
+    path = store.remember("this-program")
+    assert sorted(p.name for p in recent.iterdir()) == [
+        "program-3.json",
+        "program-4.json",
+        "this-program.json",
+    ]
+    assert json.loads(path.read_text())["executables"] == [{"key": "k", "name": "toy"}]
 
 
 def test_a_store_over_its_cap_deletes_the_least_recently_used(tmp_path):
