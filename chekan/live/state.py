@@ -115,7 +115,8 @@ class LiveState:
         self.classical: dict | None = None
         self.plan_axes: dict[int, str] = {}  # step → axis, from the journal's plan
         self.pace: tuple[tuple[datetime, float], tuple[datetime, float]] | None = None
-        self._done_seen: tuple = (frozenset(), ())  # completed steps and their last t_s
+        # the completed steps and the last t_s of each: what the classical snapshot was fitted to
+        self._done_seen: tuple[frozenset[int], tuple[float, ...]] = (frozenset(), ())
         self._rounds_sent = 0
         self.expected: dict | None = None
         if self.program is not None:
