@@ -196,6 +196,14 @@ LABELS: dict[str, dict[str, str]] = {
         "en": "Posterior summary: mean, standard deviation and {p} % HDI",
         "ru": "Апостериорные оценки: среднее, СКО и {p} %-й интервал наибольшей плотности",
     },
+    "cap_params_tau": {
+        "en": "τ is a parameter of the model, its u the fit's alone: the model holds each "
+        "sample's attitude over the second before it, so a platform that moves within a "
+        "sample or reports its angles late biases τ by many times u",
+        "ru": "τ — параметр модели, его u — только от подгонки: модель считает положение "
+        "платформы постоянным в течение секунды до отсчёта, поэтому платформа, движущаяся "
+        "внутри отсчёта или выдающая углы с запаздыванием, смещает τ на много u",
+    },
     "param": {"en": "Parameter", "ru": "Параметр"},
     "mean": {"en": "Estimate", "ru": "Оценка"},
     "sd": {"en": "u (1σ)", "ru": "u (1σ)"},

@@ -111,6 +111,8 @@ def param_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: str
             row += [Cell(""), Cell("")]
         rows.append(row)
     cap = t("cap_params_bayes", p=p) if bayes else t("cap_params")
+    if "tau_s" in params:  # its sd is statistical only (README: "Angles up to a second late")
+        cap = f"{cap}. {t('cap_params_tau')}"
     rep.add(
         Table([[Cell(h, bold=True) for h in head]], rows, "lrrcl" + ("rr" if diag else ""), cap)
     )
