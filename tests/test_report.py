@@ -614,3 +614,71 @@ def test_certificate_of_a_record_with_rounds_about_both_axes(tmp_path, lang):
     bad["classical_by_axis"] = {"z": {}}
     with pytest.raises(FormatError, match=r"classical_by_axis\.z: the axis must be"):
         build_report(bad, figures=False)
+
+
+def _many_rounds(n_rounds: int) -> dict:
+    """A classical residual table of ``n_rounds`` rounds (odd numbers, as the rounds about Y
+    of an alternating program), 3 angles."""
+    cols = [f"r{2 * r + 1}_s{s}" for r in range(n_rounds) for s in (1, 2)]
+    val = {c: [0.1 * k + i for i in range(3)] for k, c in enumerate(cols)}
+    return {
+        "angle_label": ["±4°30'", "±4°51'", "±5°10'"],
+        "columns": cols,
+        "da_ref_mgal": [3026.9, 3515.8, 3989.6],
+        "dg_mgal": val,
+        "delta_g_mgal": val,
+        "mean_delta_g_mgal": [1.0, 2.0, 3.0],
+        "rms_mgal": {c: 0.5 for c in cols},
+    }
+
+
+def test_a_program_of_many_rounds_gets_its_round_tables_in_legible_parts():
+    """The designer's 20-round program printed 42 numeric columns in one table (digits
+    overlapping on the page): a table holds at most ROUNDS_PER_TABLE rounds, the parts
+    captioned with their rounds, every column once, the mean Δg in the last part; a
+    program of few rounds keeps its one table and caption."""
+    from chekan.report.i18n import tr
+    from chekan.report.rounds import ROUNDS_PER_TABLE, deviations_tables, increments_tables
+
+    t = tr("en")
+    rs = _many_rounds(10)
+    inc = increments_tables(rs, t, "Table a")
+    dev = deviations_tables(rs, t, "Table b")
+    assert ROUNDS_PER_TABLE == 6 and len(inc) == len(dev) == 2
+    assert [tb.caption for tb in inc] == ["Table a, rounds 1–11", "Table a, rounds 13–19"]
+    assert [tb.caption for tb in dev] == ["Table b, rounds 1–11", "Table b, rounds 13–19"]
+    assert [tb.ncols for tb in inc] == [2 + 12, 2 + 8]
+    assert [tb.ncols for tb in dev] == [1 + 12, 1 + 8 + 1]  # the mean column once, last
+    assert dev[-1].header[0][-1].text == "Mean Δg" and dev[0].header[0][-1].text != "Mean Δg"
+    got = [c.text for tb in inc for c in tb.header[0][2:]]
+    assert got == [f"Round {2 * r + 1}" for r in range(10)]
+    assert [row[2].text for row in inc[1].rows] == ["1.20", "2.20", "3.20"]  # r13_s1's values
+    few = _many_rounds(2)
+    (one,) = increments_tables(few, t, "Table a")
+    assert one.caption == "Table a" and one.ncols == 2 + 4
+    (one,) = deviations_tables(few, t, "Table b")
+    assert one.caption == "Table b" and one.ncols == 1 + 4 + 1
+
+
+def test_a_figure_of_many_rounds_has_a_legend_that_leaves_room_for_its_axes():
+    """Past the six round markers the legend names the rounds together, once per system
+    (20 rounds gave 40 entries, collapsed the axes and a matplotlib warning on the
+    terminal); up to six, one entry per round as before."""
+    import warnings
+
+    from chekan.report.figures import residual_figure, round_labels
+    from chekan.report.i18n import tr
+
+    t = tr("en")
+    assert round_labels([0, 1, 2], t, 0) == {
+        0: "level, system 1",
+        1: "round 1, system 1",
+        2: "round 2, system 1",
+    }
+    many = round_labels([0, *range(1, 21)], t, 1)
+    assert many[0] == "level, system 2" and many[1] == "rounds 1–20, system 2"
+    assert all(many[r] is None for r in range(2, 21))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # constrained_layout's "axes sizes collapsed"
+        png = residual_figure(_many_rounds(10), t, tol_mgal=5.0)
+    assert png.startswith(b"\x89PNG")

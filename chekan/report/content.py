@@ -29,7 +29,7 @@ from chekan.report.numbers import (
     statement,
     unc,
 )
-from chekan.report.rounds import deviations_table, increments_table, rounds_table
+from chekan.report.rounds import deviations_tables, increments_tables, rounds_table
 from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
     BUDGET_ORDER,  # noqa: F401
     PARAM_ORDER,  # noqa: F401
@@ -339,10 +339,10 @@ def _items(
     by_axis = result.get("classical_by_axis") or {}
     about = t("cap_about", axis="Y") if by_axis else ""  # the certificate's rounds
     if rs:
-        rep.add(increments_table(rs, t, t("cap_a") + about))
+        rep.add(*increments_tables(rs, t, t("cap_a") + about))
         # б) deviations
         rep.add(Heading(t("sec_b")), Para(t("sec_b_text")))
-        rep.add(deviations_table(rs, t, t("cap_b") + about))
+        rep.add(*deviations_tables(rs, t, t("cap_b") + about))
         tol_mgal = tol / 100.0 * FULL_RANGE_MGAL
         cap = t("fig_resid", tol=plain(tol)) + (t("fig_resid_pp") if pp else "")
         if figures:
@@ -386,8 +386,8 @@ def _other_axis(rep: Report, axis: str, entry: Mapping[str, Any], t: Translator)
     about = t("cap_about", axis=axis.upper())
     rs = entry.get("residuals_mgal")
     if rs:
-        rep.add(increments_table(rs, t, t("cap_a") + about))
-        rep.add(deviations_table(rs, t, t("cap_b") + about))
+        rep.add(*increments_tables(rs, t, t("cap_a") + about))
+        rep.add(*deviations_tables(rs, t, t("cap_b") + about))
     if rounds:
         rep.add(rounds_table(rounds, t, t("cap_rounds") + about))
     p = entry.get("parameters") or {}

@@ -31,6 +31,20 @@ RC = {
 PAIR_VARS = ("b1", "b2", "a", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin")
 
 
+def round_labels(rounds, t: Translator, system: int) -> dict[int, str | None]:
+    """The legend label of each round's markers for ``system`` (0-based): one per round
+    while every round has a marker of its own; past :data:`ROUND_MARKERS` the markers
+    repeat, so one label names the rounds together (a legend of 40 entries squashed the
+    axes of a 20-round certificate). Round 0 is the level holds."""
+    tilt = sorted(int(r) for r in set(rounds) if r)
+    sys_part = f", {t('lg_s', n=system + 1)}"
+    out: dict[int, str | None] = {0: t("lg_level") + sys_part} if 0 in set(rounds) else {}
+    if len(tilt) <= len(ROUND_MARKERS):
+        return out | {r: t("lg_round", n=r) + sys_part for r in tilt}
+    together = t("lg_rounds", a=tilt[0], b=tilt[-1]) + sys_part
+    return out | {r: together if k == 0 else None for k, r in enumerate(tilt)}
+
+
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
@@ -194,12 +208,11 @@ def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> b
             ax2.fill_between(
                 theta_deg[order], -band[order, s], band[order, s], color=col, alpha=0.12, lw=0
             )
+            labels = round_labels(rounds.tolist(), t, s)
             for r in np.unique(rounds):
                 sel = rounds == r
                 mk = "x" if r == 0 else ROUND_MARKERS[(r - 1) % len(ROUND_MARKERS)]
-                label = (
-                    t("lg_level") if r == 0 else t("lg_round", n=r)
-                ) + f", {t('lg_s', n=s + 1)}"
+                label = labels[int(r)]
                 style = dict(ls="none", marker=mk, ms=3.5, mfc="none", mew=0.8, color=col)
                 ax1.plot(theta_deg[sel], holds.m_mean_pix[sel, s], label=label, **style)
                 ax2.plot(theta_deg[sel], resid[sel, s], **style)
@@ -243,15 +256,14 @@ def residual_figure(
     cols = list(residuals["columns"])
     x = np.arange(len(labels), dtype=float)
     offs = np.linspace(-0.27, 0.27, len(cols)) if len(cols) > 1 else np.zeros(1)
+    col_round = {c: _round_of(c) for c in cols}
+    legend = [round_labels(list(col_round.values()), t, s) for s in range(2)]
     with _rc():
         fig = new_figure((7.0, 3.4), constrained=True)
         ax = fig.subplots()
         for j, c in enumerate(cols):
             s = 1 if c.endswith("s2") else 0
-            try:
-                r = int(c.split("_")[0].lstrip("r"))
-            except ValueError:
-                r = 1
+            r = col_round[c]
             mk = ROUND_MARKERS[(r - 1) % len(ROUND_MARKERS)]
             y = np.asarray(residuals["delta_g_mgal"][c], dtype=float)
             if band is not None and c in band.get("delta_g_low", {}):
@@ -277,7 +289,7 @@ def residual_figure(
                 mfc="none",
                 mew=0.9,
                 color=SYS_COLORS[s],
-                label=f"{t('lg_round', n=r)}, {t('lg_s', n=s + 1)}",
+                label=legend[s][r],
             )
         ax.plot(
             x,
@@ -305,6 +317,14 @@ def residual_figure(
         ax.set_ylabel(t("ax_dg"))
         ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=6.5)
         return _png(fig)
+
+
+def _round_of(column: str) -> int:
+    """The round of a column ``r<round>_s<system>`` (1 if it names none)."""
+    try:
+        return int(column.split("_")[0].lstrip("r"))
+    except ValueError:
+        return 1
 
 
 def read_posterior(path: str | Path, names: Sequence[str] = PAIR_VARS) -> dict[str, np.ndarray]:

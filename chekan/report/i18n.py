@@ -494,6 +494,8 @@ LABELS: dict[str, dict[str, str]] = {
     "lg_tilt_y": {"en": "tilt Y", "ru": "наклон Y"},
     "lg_band": {"en": "95 % band", "ru": "95 %-й интервал"},
     "lg_round": {"en": "round {n}", "ru": "приём {n}"},
+    "lg_rounds": {"en": "rounds {a}–{b}", "ru": "приёмы {a}–{b}"},
+    "cap_rounds_part": {"en": ", rounds {a}–{b}", "ru": ", приёмы {a}–{b}"},
 }
 
 # Parameter display names; units; known metadata values that have a Russian name.

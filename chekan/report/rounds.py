@@ -1,6 +1,11 @@
 """The classical method's tables of the certificate, per round and system (the paper's
 protocol, Fig. 6): а) the increments Δg, б) the deviations δg with their mean and СКП,
-г) b, its uncertainty, b₀, mₕ and СКП of every round."""
+г) b, its uncertainty, b₀, mₕ and СКП of every round.
+
+A table with a column per round and system holds at most :data:`ROUNDS_PER_TABLE` rounds:
+a program of more rounds (the designer's, 10 about each axis) gets one such table per group
+of rounds, each captioned with its rounds, so that its numbers stay legible on the page.
+"""
 
 from __future__ import annotations
 
@@ -13,6 +18,8 @@ from chekan.report.i18n import Translator
 from chekan.report.numbers import DASH, fixed, unc
 
 _COL_RE = re.compile(r"^r(\d+)_s(\d+)$")
+#: rounds (two columns each) in one table of а) or б): 14 columns fit an A4 page's width
+ROUNDS_PER_TABLE = 6
 
 
 def _cols_by_round(cols: list[str]) -> list[tuple[str, list[tuple[str, str]]]]:
@@ -34,9 +41,29 @@ def _col_header(cols: list[str], t: Translator) -> tuple[list[Cell], list[Cell]]
     return top, sub
 
 
-def increments_table(rs: Mapping[str, Any], t: Translator, caption: str) -> Table:
-    """а) da_ref and dg per angle (rows) and round × system (columns)."""
-    cols = list(rs["columns"])
+def _parts(cols: list[str], t: Translator, caption: str) -> list[tuple[list[str], str]]:
+    """The columns in groups of at most :data:`ROUNDS_PER_TABLE` rounds, each with its
+    caption (the rounds it holds named when there is more than one group)."""
+    groups = _cols_by_round(cols)
+    chunks = [groups[i : i + ROUNDS_PER_TABLE] for i in range(0, len(groups), ROUNDS_PER_TABLE)]
+    if len(chunks) <= 1:
+        return [(cols, caption)]
+    return [
+        (
+            [c for _, items in chunk for _, c in items],
+            caption + t("cap_rounds_part", a=chunk[0][0], b=chunk[-1][0]),
+        )
+        for chunk in chunks
+    ]
+
+
+def increments_tables(rs: Mapping[str, Any], t: Translator, caption: str) -> list[Table]:
+    """а) da_ref and dg per angle (rows) and round × system (columns), one table per group
+    of rounds."""
+    return [_increments_table(rs, cols, t, cap) for cols, cap in _parts(rs["columns"], t, caption)]
+
+
+def _increments_table(rs: Mapping[str, Any], cols: list[str], t: Translator, caption: str) -> Table:
     top, sub = _col_header(cols, t)
     rows = []
     for i, lab in enumerate(rs["angle_label"]):
@@ -55,29 +82,42 @@ def increments_table(rs: Mapping[str, Any], t: Translator, caption: str) -> Tabl
     )
 
 
-def deviations_table(rs: Mapping[str, Any], t: Translator, caption: str) -> Table:
-    """б) δg per angle and column, their mean and the СКП row."""
-    cols = list(rs["columns"])
+def deviations_tables(rs: Mapping[str, Any], t: Translator, caption: str) -> list[Table]:
+    """б) δg per angle and column and the СКП row, one table per group of rounds; the mean
+    over every column (Δg) in the last."""
+    parts = _parts(rs["columns"], t, caption)
+    return [
+        _deviations_table(rs, cols, t, cap, with_mean=k == len(parts) - 1)
+        for k, (cols, cap) in enumerate(parts)
+    ]
+
+
+def _deviations_table(
+    rs: Mapping[str, Any], cols: list[str], t: Translator, caption: str, *, with_mean: bool
+) -> Table:
     top, sub = _col_header(cols, t)
     rows = []
     mean_dg = rs.get("mean_delta_g_mgal") or [None] * len(rs["angle_label"])
+    last = [Cell(t("mean_dg"), bold=True)] if with_mean else []
     for i, lab in enumerate(rs["angle_label"]):
         rows.append(
             [Cell(str(lab))]
             + [Cell(fixed(rs["delta_g_mgal"][c][i], 2)) for c in cols]
-            + [Cell(fixed(mean_dg[i], 2), bold=True)]
+            + ([Cell(fixed(mean_dg[i], 2), bold=True)] if with_mean else [])
         )
     rms = rs.get("rms_mgal") or {}
     rows.append(
-        [Cell(t("rms_row"), bold=True)] + [Cell(fixed(rms.get(c), 2)) for c in cols] + [Cell("")]
+        [Cell(t("rms_row"), bold=True)]
+        + [Cell(fixed(rms.get(c), 2)) for c in cols]
+        + ([Cell("")] if with_mean else [])
     )
     return Table(
         [
-            [Cell(t("angle"), bold=True), *top, Cell(t("mean_dg"), bold=True)],
-            [Cell(""), *sub, Cell("")],
+            [Cell(t("angle"), bold=True), *top, *last],
+            [Cell(""), *sub, *([Cell("")] if with_mean else [])],
         ],
         rows,
-        "l" + "r" * (len(cols) + 1),
+        "l" + "r" * (len(cols) + int(with_mean)),
         caption,
         footer_rows=1,
     )
