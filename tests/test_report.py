@@ -682,3 +682,51 @@ def test_a_figure_of_many_rounds_has_a_legend_that_leaves_room_for_its_axes():
         warnings.simplefilter("error")  # constrained_layout's "axes sizes collapsed"
         png = residual_figure(_many_rounds(10), t, tol_mgal=5.0)
     assert png.startswith(b"\x89PNG")
+
+
+def test_the_cosinusoid_residuals_follow_the_sensors_lag_through_the_record():
+    """A program whose settling time is short beside τ (the designer's: 120 s settle, τ
+    60 s here) leaves part of each slew's transient in the hold means, several pixels: the
+    figure's lower panel compares a hold mean with the model's mean over that hold with the
+    lag followed (as the joint model fits it), not with the equilibrium alone. With the
+    truth as the fitted model, the residuals are the noise; without the lag they were not."""
+    import dataclasses
+
+    import numpy as np
+
+    from chekan.holds import segment_record
+    from chekan.program import build_program
+    from chekan.report.figures import fitted_model, lagged_hold_means, model_at_holds
+    from chekan.simulate import Truth, simulate_session
+
+    program = build_program(
+        [4.5, 5 + 10 / 60], name="short-settle", axis="xy", order="alternate", rounds=2,
+        dwell_s=188.0, settle_s=120.0,
+    )  # fmt: skip
+    truth = Truth(tau_s=60.0, angle_systematic_arcsec=0.0, drift_pix_per_h=(0.0, 0.0),
+                  drift_pix_per_h2=(0.0, 0.0), hold_offset_sd_pix=0.0)  # fmt: skip
+    rec, _ = simulate_session(program, truth, seed=4)
+    holds = segment_record(rec, settle_s=120.0)
+    g = truth.g_local_mgal
+    a = g / (2.0 * truth.K_pix_per_rad**2)  # eq. 13: a = g/(2K²)
+    mean = {"b1": truth.b_mgal_per_pix[0], "b2": truth.b_mgal_per_pix[1], "a": a,
+            "eps1_arcmin": truth.eps_arcmin[0], "eps2_arcmin": truth.eps_arcmin[1],
+            "dgamma_arcmin": truth.dgamma_arcmin, "tau_s": truth.tau_s}  # fmt: skip
+    result = {
+        "parameters": {k: {"mean": v} for k, v in mean.items()},
+        "g_local_mgal": g,
+        "level_reading_pix": {"m1": truth.m_level_pix[0], "m2": truth.m_level_pix[1]},
+        "ccd_center_pix": truth.m0_pix,
+    }
+    params = fitted_model(result)
+    m = np.asarray(holds.m_mean_pix)
+    lagged = m - lagged_hold_means(params, holds, rec, truth.tau_s)
+    held = m - model_at_holds(params, holds)
+    assert np.nanmax(np.abs(held)) > 5.0  # the transient left in the hold means
+    assert np.nanmax(np.abs(lagged)) < 0.5  # noise and angle jitter only
+    # τ short beside the settling time: the two agree (a slow sensor is what differs)
+    fast = dataclasses.replace(truth, tau_s=10.0)
+    rec2, _ = simulate_session(program, fast, seed=4)
+    holds2 = segment_record(rec2, settle_s=120.0)
+    diff = lagged_hold_means(params, holds2, rec2, 10.0) - model_at_holds(params, holds2)
+    assert np.nanmax(np.abs(diff)) < 0.05

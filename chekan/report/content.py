@@ -493,13 +493,16 @@ def _record_figures(
     except (ChekanError, OSError, ValueError) as e:
         return [], None, [Para(t("record_unreadable", path=str(path), err=str(e)), "warn")]
     fig_rec = Figure("record", figs.record_figure(rec, holds, t), t("fig_record"))
-    png = figs.cosinusoid_figure(holds, result, t)
+    png = figs.cosinusoid_figure(holds, result, t, rec)
     if png is None:
         a, _ = _a_value(result)
         return [fig_rec], None, [Para(t("no_cos_model", a=general(a)), "note")]
     gamma = t("fig_cos_gamma") if "dgamma_arcmin" in result["parameters"] else ""
     band = t("fig_cos_band_model" if figs.has_noise_model(result) else "fig_cos_band_rms")
-    return [fig_rec], Figure("cosinusoid", png, t("fig_cos", gamma=gamma, band=band)), []
+    cap = t("fig_cos", gamma=gamma, band=band)
+    if is_num((result["parameters"].get("tau_s") or {}).get("mean")):
+        cap += " " + t("fig_cos_lag")  # the residuals of figs.lagged_hold_means
+    return [fig_rec], Figure("cosinusoid", png, cap), []
 
 
 def _posterior_figures(

@@ -6,6 +6,7 @@ Each function returns PNG bytes. ``t`` is the translator of :mod:`chekan.report.
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -179,15 +180,51 @@ def residual_band_pix(
     return 2.0 * np.sqrt(s_hold**2 + (slope * s_theta) ** 2)
 
 
-def cosinusoid_figure(holds: Any, result: Mapping[str, Any], t: Translator) -> bytes | None:
+def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarray:
+    """The model's mean reading (n, 2) over the settled samples of each hold with the
+    sensor's first-order lag followed through the record: yᵢ = ρyᵢ₋₁ + (1 − ρ)E(θᵢ),
+    ρ = e^{−Δt/τ}, Eᵢ the equilibrium at the attitude recorded with sample i (each held
+    over the sample before it, as the joint model holds it). A hold whose settling time is
+    short beside τ still carries part of the slew's transient; E at the hold alone misses it."""
+    from scipy.signal import lfilter
+
+    from chekan import model
+
+    tx = np.asarray(record.tilt_x_arcsec, dtype=float) * ARCSEC_RAD
+    ty = np.asarray(record.tilt_y_arcsec, dtype=float) * ARCSEC_RAD
+    ok = np.isfinite(tx) & np.isfinite(ty)
+    idx = np.maximum.accumulate(np.where(ok, np.arange(tx.size), 0))  # last finite attitude
+    E = np.asarray(model.equilibrium_readings(params, tx[idx], ty[idx]), dtype=float)
+    rho = math.exp(-1.0 / (float(record.sample_rate_hz) * tau_s))
+    y = lfilter([1.0 - rho], [1.0, -rho], E - E[0], axis=0) + E[0]
+    t = np.asarray(record.t_s, dtype=float)
+    out = np.full((holds.n, 2), np.nan)
+    for k in range(holds.n):
+        a, b = int(holds.start[k]), int(holds.stop[k])
+        sel = t[a:b] - t[a] >= holds.settle_s
+        if sel.any():
+            out[k] = y[a:b][sel].mean(axis=0)
+    return out
+
+
+def cosinusoid_figure(
+    holds: Any, result: Mapping[str, Any], t: Translator, record: Any = None
+) -> bytes | None:
     """Hold means against the signed tilt angle θ (Fig. 3 of the paper) with the fitted
     model's readings; below, each hold mean minus the model's reading at the angles measured
-    in that hold, with the model's 95 % band. None when the result has no model (a ≤ 0)."""
+    in that hold (for a joint result with ``record``: its mean over the hold with the lag τ
+    followed, :func:`lagged_hold_means`), with the model's 95 % band. None when the result
+    has no model (a ≤ 0)."""
     params = fitted_model(result)
     if params is None:
         return None
     theta = np.asarray(holds.theta_rad, dtype=float)
-    resid = np.asarray(holds.m_mean_pix, dtype=float) - model_at_holds(params, holds)
+    tau = (result["parameters"].get("tau_s") or {}).get("mean")
+    if record is not None and isinstance(tau, int | float) and tau > 0:
+        expected = lagged_hold_means(params, holds, record, float(tau))
+    else:
+        expected = model_at_holds(params, holds)
+    resid = np.asarray(holds.m_mean_pix, dtype=float) - expected
     band = residual_band_pix(result, params, holds, resid)
     theta_deg = np.rad2deg(theta)
     lim = float(np.nanmax(np.abs(theta_deg))) * 1.05 if theta.size else 6.0

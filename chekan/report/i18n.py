@@ -391,6 +391,14 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "Запись: отсчёты обеих систем и наклон гироплатформы во времени; "
         "удержания закрашены (синие — горизонт, оранжевые — наклон), время успокоения светлее.",
     },
+    "fig_cos_lag": {
+        "en": "The model's reading of a hold is its mean over the hold's settled samples with "
+        "the sensor's lag τ followed through the record (a short settling time leaves part of "
+        "the slew's transient in a hold mean).",
+        "ru": "Отсчёт модели для удержания — его среднее по установившимся отсчётам удержания "
+        "с запаздыванием датчика τ, прослеженным по всей записи (при коротком времени "
+        "успокоения в среднем удержания остаётся часть переходного процесса после поворота).",
+    },
     "fig_cos": {
         "en": "Readings against the tilt angle θ (the «cosinusoid», Fig. 3 of the paper): hold "
         "means and the fitted model's readings (the characteristic with the inclinations ε₁, "
