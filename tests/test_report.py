@@ -724,6 +724,11 @@ def test_the_cosinusoid_residuals_follow_the_sensors_lag_through_the_record():
     held = m - model_at_holds(params, holds)
     assert np.nanmax(np.abs(held)) > 5.0  # the transient left in the hold means
     assert np.nanmax(np.abs(lagged)) < 0.5  # noise and angle jitter only
+    gappy = dataclasses.replace(  # rows without angles, the first ones included
+        rec, tilt_x_arcsec=np.where(np.arange(rec.n) % 500 < 3, np.nan, rec.tilt_x_arcsec)
+    )
+    again = m - lagged_hold_means(params, holds, gappy, truth.tau_s)
+    assert np.all(np.isfinite(again)) and np.nanmax(np.abs(again - lagged)) < 0.01
     # τ short beside the settling time: the two agree (a slow sensor is what differs)
     fast = dataclasses.replace(truth, tau_s=10.0)
     rec2, _ = simulate_session(program, fast, seed=4)

@@ -193,7 +193,8 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     tx = np.asarray(record.tilt_x_arcsec, dtype=float) * ARCSEC_RAD
     ty = np.asarray(record.tilt_y_arcsec, dtype=float) * ARCSEC_RAD
     ok = np.isfinite(tx) & np.isfinite(ty)
-    idx = np.maximum.accumulate(np.where(ok, np.arange(tx.size), 0))  # last finite attitude
+    first = int(np.argmax(ok))  # a sample without angles takes the last finite attitude
+    idx = np.maximum.accumulate(np.where(ok, np.arange(tx.size), first))
     E = np.asarray(model.equilibrium_readings(params, tx[idx], ty[idx]), dtype=float)
     rho = math.exp(-1.0 / (float(record.sample_rate_hz) * tau_s))
     y = lfilter([1.0 - rho], [1.0, -rho], E - E[0], axis=0) + E[0]
