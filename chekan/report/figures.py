@@ -32,7 +32,7 @@ RC = {
 PAIR_VARS = ("b1", "b2", "a", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin")
 
 
-def round_labels(rounds, t: Translator, system: int) -> dict[int, str | None]:
+def round_labels(rounds: Sequence[int], t: Translator, system: int) -> dict[int, str | None]:
     """The legend label of each round's markers for ``system`` (0-based): one per round
     while every round has a marker of its own; past :data:`ROUND_MARKERS` the markers
     repeat, so one label names the rounds together (a legend of 40 entries squashed the
