@@ -729,9 +729,18 @@ def test_the_cosinusoid_residuals_follow_the_sensors_lag_through_the_record():
     )
     again = m - lagged_hold_means(params, holds, gappy, truth.tau_s)
     assert np.all(np.isfinite(again)) and np.nanmax(np.abs(again - lagged)) < 0.01
+    # the certificate warns that the classical items carry it; not where a hold settles
+    from chekan.report.content import transient_note
+    from chekan.report.i18n import tr
+
+    (note,) = transient_note(result, holds, rec, tr("en"))
+    assert note.kind == "warn" and "up to 48.2 pix of the slews' transients" in note.text
+    assert "τ = 60.0 s" in note.text and "biased by them" in note.text
     # τ short beside the settling time: the two agree (a slow sensor is what differs)
     fast = dataclasses.replace(truth, tau_s=10.0)
     rec2, _ = simulate_session(program, fast, seed=4)
     holds2 = segment_record(rec2, settle_s=120.0)
     diff = lagged_hold_means(params, holds2, rec2, 10.0) - model_at_holds(params, holds2)
     assert np.nanmax(np.abs(diff)) < 0.05
+    settled = {**result, "parameters": {**result["parameters"], "tau_s": {"mean": 10.0}}}
+    assert transient_note(settled, holds2, rec2, tr("en")) == []

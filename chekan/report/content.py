@@ -12,6 +12,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from chekan.errors import ChekanError, FormatError
 from chekan.report import figures as figs
 from chekan.report.checks import check_certificate_input
@@ -502,7 +504,25 @@ def _record_figures(
     cap = t("fig_cos", gamma=gamma, band=band)
     if is_num((result["parameters"].get("tau_s") or {}).get("mean")):
         cap += " " + t("fig_cos_lag")  # the residuals of figs.lagged_hold_means
-    return [fig_rec], Figure("cosinusoid", png, cap), []
+    return [fig_rec], Figure("cosinusoid", png, cap), transient_note(result, holds, rec, t)
+
+
+#: a slew's transient left in a hold mean past this (pix, ≈ a hold's own scatter) biases
+#: the classical items, which take the hold means as settled
+TRANSIENT_NOTE_PIX = 0.1
+
+
+def transient_note(result: Mapping[str, Any], holds: Any, record: Any, t: Translator) -> list:
+    """A warning where the hold means still carry the slews' transients (a settling time
+    short beside τ): the classical items and the verdict's reduced error are biased by
+    them, the joint model is not (:func:`chekan.report.figures.unsettled_transient_pix`)."""
+    tr_pix = figs.unsettled_transient_pix(result, holds, record)
+    if tr_pix is None or not np.any(np.abs(tr_pix) > TRANSIENT_NOTE_PIX):
+        return []
+    tau = float(result["parameters"]["tau_s"]["mean"])
+    worst = float(np.nanmax(np.abs(tr_pix)))
+    text = t("transient_note", pix=fixed(worst, 1), settle=plain(holds.settle_s), tau=fixed(tau, 1))
+    return [Para(text, "warn")]
 
 
 def _posterior_figures(

@@ -208,6 +208,17 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     return out
 
 
+def unsettled_transient_pix(result: Mapping[str, Any], holds: Any, record: Any):
+    """What the sensor's lag leaves in each hold's settled mean (n, 2), pix: the model's
+    mean over the hold with the lag followed (:func:`lagged_hold_means`) minus its
+    equilibrium there. None for a result without a model or without τ (classical)."""
+    params = fitted_model(result)
+    tau = (result["parameters"].get("tau_s") or {}).get("mean")
+    if params is None or record is None or not (isinstance(tau, int | float) and tau > 0):
+        return None
+    return lagged_hold_means(params, holds, record, float(tau)) - model_at_holds(params, holds)
+
+
 def cosinusoid_figure(
     holds: Any, result: Mapping[str, Any], t: Translator, record: Any = None
 ) -> bytes | None:
@@ -220,11 +231,10 @@ def cosinusoid_figure(
     if params is None:
         return None
     theta = np.asarray(holds.theta_rad, dtype=float)
-    tau = (result["parameters"].get("tau_s") or {}).get("mean")
-    if record is not None and isinstance(tau, int | float) and tau > 0:
-        expected = lagged_hold_means(params, holds, record, float(tau))
-    else:
-        expected = model_at_holds(params, holds)
+    expected = model_at_holds(params, holds)
+    transient = unsettled_transient_pix(result, holds, record)
+    if transient is not None:
+        expected = expected + transient
     resid = np.asarray(holds.m_mean_pix, dtype=float) - expected
     band = residual_band_pix(result, params, holds, resid)
     theta_deg = np.rad2deg(theta)

@@ -391,6 +391,17 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "Запись: отсчёты обеих систем и наклон гироплатформы во времени; "
         "удержания закрашены (синие — горизонт, оранжевые — наклон), время успокоения светлее.",
     },
+    "transient_note": {
+        "en": "The hold means still carry up to {pix} pix of the slews' transients (settling "
+        "time {settle} s against the sensor's τ = {tau} s). The joint model fits them; the "
+        "classical items а)–в) and the reduced error of the verdict, computed from the hold "
+        "means as Calibr.exe computes them, are biased by them.",
+        "ru": "Средние удержаний ещё содержат до {pix} пикс переходного процесса после "
+        "поворотов (время успокоения {settle} с при постоянной времени датчика τ = {tau} с). "
+        "Совместная модель его учитывает; классические пункты а)–в) и приведённая "
+        "погрешность в заключении, вычисленные по средним удержаний как в Calibr.exe, им "
+        "смещены.",
+    },
     "fig_cos_lag": {
         "en": "The model's reading of a hold is its mean over the hold's settled samples with "
         "the sensor's lag τ followed through the record (a short settling time leaves part of "
