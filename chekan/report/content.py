@@ -512,7 +512,7 @@ def _record_figures(
 TRANSIENT_NOTE_PIX = 0.1
 
 
-def transient_note(result: Mapping[str, Any], holds: Any, record: Any, t: Translator) -> list:
+def transient_note(result: Mapping[str, Any], holds: Any, record: Any, t: Translator) -> list[Para]:
     """A warning where the hold means still carry the slews' transients (a settling time
     short beside τ): the classical items and the verdict's reduced error are biased by
     them, the joint model is not (:func:`chekan.report.figures.unsettled_transient_pix`)."""

@@ -394,7 +394,7 @@ LABELS: dict[str, dict[str, str]] = {
     "transient_note": {
         "en": "The hold means still carry up to {pix} pix of the slews' transients (settling "
         "time {settle} s against the sensor's τ = {tau} s). The joint model fits them; the "
-        "classical items а)–в) and the reduced error of the verdict, computed from the hold "
+        "classical items a)–c) and the reduced error of the verdict, computed from the hold "
         "means as Calibr.exe computes them, are biased by them.",
         "ru": "Средние удержаний ещё содержат до {pix} пикс переходного процесса после "
         "поворотов (время успокоения {settle} с при постоянной времени датчика τ = {tau} с). "
