@@ -696,7 +696,12 @@ def test_the_cosinusoid_residuals_follow_the_sensors_lag_through_the_record():
 
     from chekan.holds import segment_record
     from chekan.program import build_program
-    from chekan.report.figures import fitted_model, lagged_hold_means, model_at_holds
+    from chekan.report.figures import (
+        fitted_model,
+        lagged_hold_means,
+        model_at_holds,
+        unsettled_transient_pix,
+    )
     from chekan.simulate import Truth, simulate_session
 
     program = build_program(
@@ -733,7 +738,7 @@ def test_the_cosinusoid_residuals_follow_the_sensors_lag_through_the_record():
     from chekan.report.content import transient_note
     from chekan.report.i18n import tr
 
-    (note,) = transient_note(result, holds, rec, tr("en"))
+    (note,) = transient_note(result, holds, unsettled_transient_pix(result, holds, rec), tr("en"))
     assert note.kind == "warn" and "up to 48.2 pix of the slews' transients" in note.text
     assert "τ = 60.0 s" in note.text and "biased by them" in note.text
     # τ short beside the settling time: the two agree (a slow sensor is what differs)
@@ -743,4 +748,7 @@ def test_the_cosinusoid_residuals_follow_the_sensors_lag_through_the_record():
     diff = lagged_hold_means(params, holds2, rec2, 10.0) - model_at_holds(params, holds2)
     assert np.nanmax(np.abs(diff)) < 0.05
     settled = {**result, "parameters": {**result["parameters"], "tau_s": {"mean": 10.0}}}
-    assert transient_note(settled, holds2, rec2, tr("en")) == []
+    assert (
+        transient_note(settled, holds2, unsettled_transient_pix(settled, holds2, rec2), tr("en"))
+        == []
+    )

@@ -495,16 +495,17 @@ def _record_figures(
     except (ChekanError, OSError, ValueError) as e:
         return [], None, [Para(t("record_unreadable", path=str(path), err=str(e)), "warn")]
     fig_rec = Figure("record", figs.record_figure(rec, holds, t), t("fig_record"))
-    png = figs.cosinusoid_figure(holds, result, t, rec)
+    transient = figs.unsettled_transient_pix(result, holds, rec)  # once: figure and note
+    png = figs.cosinusoid_figure(holds, result, t, transient)
     if png is None:
         a, _ = _a_value(result)
         return [fig_rec], None, [Para(t("no_cos_model", a=general(a)), "note")]
     gamma = t("fig_cos_gamma") if "dgamma_arcmin" in result["parameters"] else ""
     band = t("fig_cos_band_model" if figs.has_noise_model(result) else "fig_cos_band_rms")
     cap = t("fig_cos", gamma=gamma, band=band)
-    if is_num((result["parameters"].get("tau_s") or {}).get("mean")):
+    if transient is not None:
         cap += " " + t("fig_cos_lag")  # the residuals of figs.lagged_hold_means
-    return [fig_rec], Figure("cosinusoid", png, cap), transient_note(result, holds, rec, t)
+    return [fig_rec], Figure("cosinusoid", png, cap), transient_note(result, holds, transient, t)
 
 
 #: a slew's transient left in a hold mean past this (pix, ≈ a hold's own scatter) biases
@@ -512,15 +513,17 @@ def _record_figures(
 TRANSIENT_NOTE_PIX = 0.1
 
 
-def transient_note(result: Mapping[str, Any], holds: Any, record: Any, t: Translator) -> list[Para]:
-    """A warning where the hold means still carry the slews' transients (a settling time
-    short beside τ): the classical items and the verdict's reduced error are biased by
-    them, the joint model is not (:func:`chekan.report.figures.unsettled_transient_pix`)."""
-    tr_pix = figs.unsettled_transient_pix(result, holds, record)
-    if tr_pix is None or not np.any(np.abs(tr_pix) > TRANSIENT_NOTE_PIX):
+def transient_note(
+    result: Mapping[str, Any], holds: Any, transient: np.ndarray | None, t: Translator
+) -> list[Para]:
+    """A warning where the hold means still carry the slews' transients (``transient``,
+    :func:`chekan.report.figures.unsettled_transient_pix`; a settling time short beside τ):
+    the classical items and the verdict's reduced error are biased by them, the joint model
+    is not."""
+    if transient is None or not np.any(np.abs(transient) > TRANSIENT_NOTE_PIX):
         return []
     tau = float(result["parameters"]["tau_s"]["mean"])
-    worst = float(np.nanmax(np.abs(tr_pix)))
+    worst = float(np.nanmax(np.abs(transient)))
     text = t("transient_note", pix=fixed(worst, 1), settle=plain(holds.settle_s), tau=fixed(tau, 1))
     return [Para(text, "warn")]
 

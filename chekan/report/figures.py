@@ -220,19 +220,18 @@ def unsettled_transient_pix(result: Mapping[str, Any], holds: Any, record: Any):
 
 
 def cosinusoid_figure(
-    holds: Any, result: Mapping[str, Any], t: Translator, record: Any = None
+    holds: Any, result: Mapping[str, Any], t: Translator, transient: np.ndarray | None = None
 ) -> bytes | None:
     """Hold means against the signed tilt angle θ (Fig. 3 of the paper) with the fitted
     model's readings; below, each hold mean minus the model's reading at the angles measured
-    in that hold (for a joint result with ``record``: its mean over the hold with the lag τ
-    followed, :func:`lagged_hold_means`), with the model's 95 % band. None when the result
-    has no model (a ≤ 0)."""
+    in that hold (plus ``transient``, what the lag leaves in each hold mean:
+    :func:`unsettled_transient_pix`), with the model's 95 % band. None when the result has
+    no model (a ≤ 0)."""
     params = fitted_model(result)
     if params is None:
         return None
     theta = np.asarray(holds.theta_rad, dtype=float)
     expected = model_at_holds(params, holds)
-    transient = unsettled_transient_pix(result, holds, record)
     if transient is not None:
         expected = expected + transient
     resid = np.asarray(holds.m_mean_pix, dtype=float) - expected
