@@ -61,6 +61,26 @@ def integer(low: int, high: int = SEED_MAX) -> Callable[[str], int]:
     return parse
 
 
+def zero_or(low: float, high: float = math.inf) -> Callable[[str], float]:
+    """0 (the option off), or a finite number in [low, high]: a value between would mean
+    nothing and overflow what it divides."""
+    inner = real(low, high)
+
+    def parse(text: str) -> float:
+        v = _number(text)
+        if v == 0.0:
+            return 0.0
+        try:
+            return inner(text)
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(
+                f"{text} is neither 0 nor in [{low:g}, {high:g}]"
+            ) from None
+
+    parse.__name__ = f"0 or a number in [{low:g}, {high:g}]"
+    return parse
+
+
 #: Probabilities of an interval: 0 and 1 are not intervals.
 probability = real(0.0, 1.0, open_low=True, open_high=True)
 seed = integer(0)

@@ -29,6 +29,10 @@ from chekan.outputs import (
     sniff_format,
 )
 
+#: ``simulate --report-period-s``: a platform reporting its angles faster than every
+#: millisecond is a platform without a report period (0); slower than hourly is no platform.
+REPORT_PERIOD_MIN_S, REPORT_PERIOD_MAX_S = 1e-3, 3600.0
+
 EXIT_STATUS = """\
 exit status (every command):
   0    done
@@ -210,10 +214,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--report-period-s",
-        type=argtypes.non_negative,
+        type=argtypes.zero_or(REPORT_PERIOD_MIN_S, REPORT_PERIOD_MAX_S),
         default=0.0,
-        help="the platform reports its angles every this many seconds and a row carries the "
-        "latest report (angles up to a period late; default 0: each row's own instant)",
+        help="the platform reports its angles every this many seconds, 0.001 to 3600, and a "
+        "row carries the latest report (angles up to a period late; default 0: each row's "
+        "own instant)",
     )
     p.add_argument(
         "--report-phase-s",

@@ -406,7 +406,8 @@ def test_quiet_prints_nothing_on_success(tmp_path, capsys):
 def test_simulate_writes_late_angles_and_a_moving_platform_from_the_command_line(tmp_path, capsys):
     """``--report-period-s``, ``--report-phase-s`` and ``--motion-substeps`` reach the
     simulator (the truth file states them, the record equals the one simulated in Python);
-    a phase outside the period is refused with exit 2."""
+    a phase outside the period, or a period below a millisecond or above an hour, is
+    refused with exit 2."""
     import json
 
     import numpy as np
@@ -444,3 +445,12 @@ def test_simulate_writes_late_angles_and_a_moving_platform_from_the_command_line
     bad = [*argv[:-4], "--report-period-s", "1", "--report-phase-s", "1"]
     assert main([*bad[:1], "-o", str(tmp_path / "x.csv"), *bad[3:]]) == 2
     assert "--report-phase-s 1 must lie in [0, --report-period-s)" in capsys.readouterr().err
+    # a period too short to mean anything is refused, not divided by (it overflowed)
+    for period in ("1e-300", "0.0005", "5000"):
+        tiny = [*argv[:-4], "--report-period-s", period]
+        with pytest.raises(SystemExit) as stop:  # argparse's usage error
+            main([*tiny[:1], "-o", str(tmp_path / "t.csv"), *tiny[3:]])
+        assert stop.value.code == 2
+        err = capsys.readouterr().err
+        assert f"--report-period-s: {period} is neither 0 nor in [0.001, 3600]" in err
+    assert not (tmp_path / "t.csv").exists()
