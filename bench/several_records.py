@@ -467,9 +467,9 @@ def _nuts_agreement(path: Path, case: str, seed: int, quick: bool) -> Row:
     from chekan.classical import calibrate_record
     from chekan.joint import fit_map_em, initial_values, prepare, problem_for
     from chekan.joint.sampling import sample_posterior
-    from chekan.joint.start import tau_from_transients
     from chekan.options import CalibrationOptions
     from chekan.records import read_record
+    from chekan.settling import tau_from_transients
     from inference.diagnostics import ess_bulk
 
     rec = read_record(path)

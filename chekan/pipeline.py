@@ -7,6 +7,7 @@ by ``chekan calibrate``, re-analysis, validation, the live page and the demo, so
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from chekan.protocol import Protocol
 from chekan.records import Record
 from chekan.records.framing import count_rows
 from chekan.result import base_result, classical_result, tilt_program_entry
+from chekan.settling import unsettled_problem
 
 #: ``result["record"]`` of a calibration of data that came from no file.
 IN_MEMORY = "<memory>"
@@ -193,6 +195,9 @@ def classical_of(
 
     if isinstance(data, Record):
         cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
+        unsettled = unsettled_problem(holds, data)
+        if unsettled is not None:
+            cres = dataclasses.replace(cres, problems=[*cres.problems, unsettled])
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)

@@ -164,7 +164,7 @@ def test_tau_read_off_the_transients_of_simulated_sessions():
     (120 s dwells) from 2 s to 2 dwells, within 2 %."""
     from chekan.archive.synth import short_program
     from chekan.holds import segment_record
-    from chekan.joint.start import tau_from_transients
+    from chekan.settling import tau_from_transients
     from chekan.simulate import Truth, simulate_session
 
     for tau in (2.0, 5.0, 30.0, 240.0):

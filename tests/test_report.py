@@ -696,7 +696,7 @@ def test_the_cosinusoid_residuals_follow_the_sensors_lag_through_the_record():
 
     from chekan.holds import segment_record
     from chekan.program import build_program
-    from chekan.report.figures import (
+    from chekan.settling import (
         fitted_model,
         lagged_hold_means,
         model_at_holds,

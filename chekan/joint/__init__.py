@@ -27,7 +27,8 @@ from chekan.joint.estimate import estimate, map_result, posterior_result
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel, padded_shape
 from chekan.joint.map import MapFit, fit_map_em
 from chekan.joint.problem import CalibrationProblem, default_hyper
-from chekan.joint.start import initial_values, tau_from_transients
+from chekan.joint.start import initial_values
+from chekan.settling import tau_from_transients
 
 __all__ = [
     "BIN_EDGES_S",

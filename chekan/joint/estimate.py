@@ -25,10 +25,11 @@ from chekan.joint.layout import padded_shape
 from chekan.joint.map import MapFit, fit_map_em
 from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.sampling import sample_posterior
-from chekan.joint.start import initial_values, tau_from_transients
+from chekan.joint.start import initial_values
 from chekan.options import CalibrationOptions
 from chekan.parameters import PARAMETER_UNITS
 from chekan.result import param_entry, posterior_entry
+from chekan.settling import settled_items, tau_from_transients
 
 
 def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOptions) -> dict:
@@ -84,9 +85,11 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         tau_hint_s=functools.partial(tau_from_transients, record, holds),
     )
     if options.method == "map":
-        return map_result(fit, base, options, t_start)
-    sampler_imports.result()  # done before this thread imports anything more (deadlock-free)
-    return posterior_result(fit, holds, record, base, options, t_start)
+        out = map_result(fit, base, options, t_start)
+    else:
+        sampler_imports.result()  # done before this thread imports more (deadlock-free)
+        out = posterior_result(fit, holds, record, base, options, t_start)
+    return settled_items(out, holds, record, a_fixed=options.a_fixed)
 
 
 def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict, dict]:

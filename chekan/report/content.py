@@ -40,6 +40,7 @@ from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
     diagnostics_table,
     param_table,
 )
+from chekan.settling import UNSETTLED_PIX, unsettled_transient_pix
 
 FULL_RANGE_MGAL = 5000.0  # Δ₀ = 5 Gal
 
@@ -495,7 +496,7 @@ def _record_figures(
     except (ChekanError, OSError, ValueError) as e:
         return [], None, [Para(t("record_unreadable", path=str(path), err=str(e)), "warn")]
     fig_rec = Figure("record", figs.record_figure(rec, holds, t), t("fig_record"))
-    transient = figs.unsettled_transient_pix(result, holds, rec)  # once: figure and note
+    transient = unsettled_transient_pix(result, holds, rec)  # once: figure and note
     png = figs.cosinusoid_figure(holds, result, t, transient)
     if png is None:
         a, _ = _a_value(result)
@@ -504,28 +505,53 @@ def _record_figures(
     band = t("fig_cos_band_model" if figs.has_noise_model(result) else "fig_cos_band_rms")
     cap = t("fig_cos", gamma=gamma, band=band)
     if transient is not None:
-        cap += " " + t("fig_cos_lag")  # the residuals of figs.lagged_hold_means
+        cap += " " + t("fig_cos_lag")  # the residuals of chekan.settling.lagged_hold_means
     return [fig_rec], Figure("cosinusoid", png, cap), transient_note(result, holds, transient, t)
-
-
-#: a slew's transient left in a hold mean past this (pix, ≈ a hold's own scatter) biases
-#: the classical items, which take the hold means as settled
-TRANSIENT_NOTE_PIX = 0.1
 
 
 def transient_note(
     result: Mapping[str, Any], holds: Any, transient: np.ndarray | None, t: Translator
 ) -> list[Para]:
     """A warning where the hold means still carry the slews' transients (``transient``,
-    :func:`chekan.report.figures.unsettled_transient_pix`; a settling time short beside τ):
-    the classical items and the verdict's reduced error are biased by them, the joint model
-    is not."""
-    if transient is None or not np.any(np.abs(transient) > TRANSIENT_NOTE_PIX):
+    :func:`chekan.settling.unsettled_transient_pix`; a settling time short beside τ) and the
+    result's classical items were computed from them (a result written before
+    :func:`chekan.settling.settled_items` existed): they and the verdict's reduced error are
+    biased by them, the joint model is not. A result whose items were settled states it in
+    :func:`settled_note` instead."""
+    if "hold_transient" in result or transient is None:
+        return []
+    if not np.any(np.abs(transient) > UNSETTLED_PIX):
         return []
     tau = float(result["parameters"]["tau_s"]["mean"])
     worst = float(np.nanmax(np.abs(transient)))
     text = t("transient_note", pix=fixed(worst, 1), settle=plain(holds.settle_s), tau=fixed(tau, 1))
     return [Para(text, "warn")]
+
+
+def settled_note(result: Mapping[str, Any], t: Translator) -> list[Para]:
+    """Where the joint model removed the lag's transient from the hold means before the
+    classical items (``hold_transient``, :func:`chekan.settling.settled_items`): how much,
+    and Calibr.exe's figures from the raw hold means, which the items no longer show."""
+    ht = result.get("hold_transient")
+    if not isinstance(ht, Mapping):
+        return []
+    raw = ht.get("calibr_exe") or {}
+
+    def b(name: str) -> str:
+        v = (raw.get(name) or {}).get("mean")
+        return fixed(v, 6) if is_num(v) else DASH
+
+    rerr = raw.get("reduced_error_percent")
+    text = t(
+        "settled_note",
+        pix=fixed(ht["max_pix"], 2),
+        settle=plain(ht["settle_s"]),
+        tau=fixed(ht["tau_s"], 1),
+        b1=b("b1"),
+        b2=b("b2"),
+        rerr=fixed(rerr, 3) if is_num(rerr) else DASH,
+    )
+    return [Para(text, "note")]
 
 
 def _posterior_figures(
@@ -594,7 +620,7 @@ def build_report(
         rec_figs, cos_fig, notes = (
             _record_figures(result, record_path, source, t) if figures else ([], None, [])
         )
-        rep.add(*rec_figs, *notes)
+        rep.add(*rec_figs, *notes, *settled_note(result, t))
         ok, verdict = _verdict(result, t, tolerance_percent)
         rep.add(Heading(t("sec_summary")), *_statements(result, t, lang), verdict[0])
         if ok is not None:  # a pass/fail said here states its decision rule (17025 7.8.6)

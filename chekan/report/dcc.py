@@ -345,11 +345,13 @@ def _measurement_results(root: ET.Element, result: Mapping[str, Any]) -> None:
     um = _sub(_sub(mr, _d("usedMethods")), _d("usedMethod"), refType="chekan_tiltCalibration")
     _text(um, "name", f"tilt calibration, estimator: {result['method']}")
     desc = _sub(um, _d("description"))
-    from chekan.report.content import program_text  # the certificate's own words
+    from chekan.report.content import program_text, settled_note  # the certificate's words
     from chekan.report.i18n import tr
 
     prog = program_text(result, tr("en"))
     _sub(desc, _d("content"), f"tilt program: {prog or 'not stated'}", lang="en")
+    for para in settled_note(result, tr("en")):  # the classical items from settled hold means
+        _sub(desc, _d("content"), para.text, lang="en")
     sw = _sub(_sub(mr, _d("usedSoftware")), _d("software"))
     _text(sw, "name", "chekan")
     _sub(sw, _d("release"), str((result.get("software") or {}).get("version") or "unknown"))

@@ -6,7 +6,6 @@ Each function returns PNG bytes. ``t`` is the translator of :mod:`chekan.report.
 from __future__ import annotations
 
 import io
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,6 +14,7 @@ import numpy as np
 
 from chekan.plotting import new_figure
 from chekan.report.i18n import Translator, param_name
+from chekan.settling import fitted_model, model_at_holds
 
 DPI = 200
 SYS_COLORS = ("#1f62b4", "#c8382c")
@@ -100,34 +100,7 @@ def record_figure(record: Any, holds: Any, t: Translator) -> bytes:
         return _png(fig)
 
 
-ARCMIN_RAD = np.pi / 10800.0
 ARCSEC_RAD = np.pi / 648000.0
-
-
-def fitted_model(result: Mapping[str, Any]):  # -> chekan.model.SensorParams | None
-    """The result's forward model (chekan.model: eqs. 6, 10 with ε₁, ε₂, Δγ) for its
-    readings at any attitude; None where a ≤ 0 (a = g/(2K²) > 0 for a real pendulum)."""
-    from chekan import model
-
-    p = result["parameters"]
-    a = p["a"]["mean"] if "a" in p else (result.get("fixed") or {}).get("a")
-    if not (isinstance(a, int | float) and a > 0):
-        return None
-    g = float(result["g_local_mgal"])
-    lv = result.get("level_reading_pix") or {}
-
-    def mean(name: str) -> float:
-        return float(p.get(name, {}).get("mean", 0.0))
-
-    return model.make_params(
-        g_mgal=g,
-        K_pix_per_rad=float(model.K_from_a(float(a), g)),
-        b_mgal_per_pix=[mean("b1"), mean("b2")],
-        m_level_pix=[float(lv["m1"]), float(lv["m2"])],
-        eps_rad=[mean("eps1_arcmin") * ARCMIN_RAD, mean("eps2_arcmin") * ARCMIN_RAD],
-        gamma_rad=mean("dgamma_arcmin") * ARCMIN_RAD,
-        m0_pix=float(result.get("ccd_center_pix", 1024.0)),
-    )
 
 
 def _readings(params, axis, theta_rad: np.ndarray, other_rad: np.ndarray) -> np.ndarray:
@@ -180,53 +153,14 @@ def residual_band_pix(
     return 2.0 * np.sqrt(s_hold**2 + (slope * s_theta) ** 2)
 
 
-def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarray:
-    """The model's mean reading (n, 2) over the settled samples of each hold with the
-    sensor's first-order lag followed through the record: yᵢ = ρyᵢ₋₁ + (1 − ρ)E(θᵢ),
-    ρ = e^{−Δt/τ}, Eᵢ the equilibrium at the attitude recorded with sample i (each held
-    over the sample before it, as the joint model holds it). A hold whose settling time is
-    short beside τ still carries part of the slew's transient; E at the hold alone misses it."""
-    from scipy.signal import lfilter
-
-    from chekan import model
-
-    tx = np.asarray(record.tilt_x_arcsec, dtype=float) * ARCSEC_RAD
-    ty = np.asarray(record.tilt_y_arcsec, dtype=float) * ARCSEC_RAD
-    ok = np.isfinite(tx) & np.isfinite(ty)
-    first = int(np.argmax(ok))  # a sample without angles takes the last finite attitude
-    idx = np.maximum.accumulate(np.where(ok, np.arange(tx.size), first))
-    E = np.asarray(model.equilibrium_readings(params, tx[idx], ty[idx]), dtype=float)
-    rho = math.exp(-1.0 / (float(record.sample_rate_hz) * tau_s))
-    y = lfilter([1.0 - rho], [1.0, -rho], E - E[0], axis=0) + E[0]
-    t = np.asarray(record.t_s, dtype=float)
-    out = np.full((holds.n, 2), np.nan)
-    for k in range(holds.n):
-        a, b = int(holds.start[k]), int(holds.stop[k])
-        sel = t[a:b] - t[a] >= holds.settle_s
-        if sel.any():
-            out[k] = y[a:b][sel].mean(axis=0)
-    return out
-
-
-def unsettled_transient_pix(result: Mapping[str, Any], holds: Any, record: Any):
-    """What the sensor's lag leaves in each hold's settled mean (n, 2), pix: the model's
-    mean over the hold with the lag followed (:func:`lagged_hold_means`) minus its
-    equilibrium there. None for a result without a model or without τ (classical)."""
-    params = fitted_model(result)
-    tau = (result["parameters"].get("tau_s") or {}).get("mean")
-    if params is None or record is None or not (isinstance(tau, int | float) and tau > 0):
-        return None
-    return lagged_hold_means(params, holds, record, float(tau)) - model_at_holds(params, holds)
-
-
 def cosinusoid_figure(
     holds: Any, result: Mapping[str, Any], t: Translator, transient: np.ndarray | None = None
 ) -> bytes | None:
     """Hold means against the signed tilt angle θ (Fig. 3 of the paper) with the fitted
     model's readings; below, each hold mean minus the model's reading at the angles measured
     in that hold (plus ``transient``, what the lag leaves in each hold mean:
-    :func:`unsettled_transient_pix`), with the model's 95 % band. None when the result has
-    no model (a ≤ 0)."""
+    :func:`chekan.settling.unsettled_transient_pix`), with the model's 95 % band. None when
+    the result has no model (a ≤ 0)."""
     params = fitted_model(result)
     if params is None:
         return None
@@ -280,15 +214,6 @@ def cosinusoid_figure(
         ax1.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=6.5)
         ax2.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=6.5)
         return _png(fig)
-
-
-def model_at_holds(params, holds: Any) -> np.ndarray:
-    """The model's readings (n, 2) at the attitude measured in each hold (both axes)."""
-    from chekan import model
-
-    tx = np.asarray(holds.tilt_x_rad, dtype=float)
-    ty = np.asarray(holds.tilt_y_rad, dtype=float)
-    return np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
 
 
 def residual_figure(

@@ -391,6 +391,18 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "Запись: отсчёты обеих систем и наклон гироплатформы во времени; "
         "удержания закрашены (синие — горизонт, оранжевые — наклон), время успокоения светлее.",
     },
+    "settled_note": {
+        "en": "The hold means carried up to {pix} pix of the slews' transients (settling time "
+        "{settle} s against the sensor's τ = {tau} s). Items a)–c), the classical b and the "
+        "verdict use the hold means with the transient that the joint model fits removed. "
+        "From the raw hold means, as Calibr.exe computes them: b₁ = {b1}, b₂ = {b2} mGal/pix, "
+        "reduced error {rerr} %.",
+        "ru": "Средние удержаний содержали до {pix} пикс переходного процесса после поворотов "
+        "(время успокоения {settle} с при постоянной времени датчика τ = {tau} с). Пункты "
+        "а)–в), классические b и заключение используют средние удержаний за вычетом "
+        "переходного процесса, учтённого совместной моделью. По исходным средним, как в "
+        "Calibr.exe: b₁ = {b1}, b₂ = {b2} мГал/пикс, приведённая погрешность {rerr} %.",
+    },
     "transient_note": {
         "en": "The hold means still carry up to {pix} pix of the slews' transients (settling "
         "time {settle} s against the sensor's τ = {tau} s). The joint model fits them; the "

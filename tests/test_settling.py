@@ -1,0 +1,141 @@
+"""The lag in the hold means (``chekan.settling``): where a program's settling time is short
+beside τ, the classical method is told that its items are biased, and a joint result's
+items are computed from the hold means with the transient removed; the verdict judges the
+certified b. The truth stands in for the joint fit (no MAP to compile)."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+
+from chekan.holds import segment_record
+from chekan.options import CalibrationOptions
+from chekan.pipeline import calibrate
+from chekan.program import build_program
+from chekan.settling import (
+    UNSETTLED_PIX,
+    certified_instability,
+    raw_transient_pix,
+    settled_items,
+    tau_from_transients,
+    transient_bound_pix,
+    unsettled_transient_pix,
+)
+from chekan.simulate import Truth, simulate_session
+
+PROGRAM = build_program(
+    [2.5, 3.5, 4.5, 5 + 10 / 60], name="short-settle", axis="y", rounds=2, dwell_s=194.0,
+    settle_s=120.0,
+)  # fmt: skip
+TRUTH = Truth(tau_s=45.0, angle_systematic_arcsec=0.0, tilt_jitter_arcsec=0.0)
+
+
+def _as_fitted(classical: dict, truth: Truth) -> dict:
+    """The classical result with the truth as its joint estimate (b, a, ε, Δγ, τ)."""
+    g = truth.g_local_mgal
+    mean = {"b1": truth.b_mgal_per_pix[0], "b2": truth.b_mgal_per_pix[1],
+            "a": g / (2.0 * truth.K_pix_per_rad**2),  # eq. 13: a = g/(2K²)
+            "eps1_arcmin": truth.eps_arcmin[0], "eps2_arcmin": truth.eps_arcmin[1],
+            "dgamma_arcmin": truth.dgamma_arcmin, "tau_s": truth.tau_s}  # fmt: skip
+    return {
+        **classical,
+        "method": "map",
+        "parameters": {k: {"mean": v, "sd": 0.0} for k, v in mean.items()},
+        "level_reading_pix": {"m1": truth.m_level_pix[0], "m2": truth.m_level_pix[1]},
+        "classical": {k: classical["parameters"][k] for k in ("b1", "b2")},
+        "b_prior": {"b1": 7.0, "b2": 6.9},
+    }
+
+
+@pytest.fixture(scope="module")
+def unsettled():
+    rec, truth = simulate_session(PROGRAM, TRUTH, seed=7)
+    holds = segment_record(rec, settle_s=120.0)
+    classical = calibrate(rec, CalibrationOptions(method="classical", progress=False))
+    return rec, truth, holds, classical
+
+
+def test_the_transient_is_read_alike_from_the_readings_and_from_the_model(unsettled):
+    """τ read off the transients, the transient each hold mean keeps by the readings alone,
+    and its cheap bound agree with the model's (the truth, lag followed through the record)."""
+    rec, truth, holds, classical = unsettled
+    tau = tau_from_transients(rec, holds)
+    assert abs(tau / truth.tau_s - 1.0) < 0.05
+    model = unsettled_transient_pix(_as_fitted(classical, truth), holds, rec)
+    raw = raw_transient_pix(holds, rec, tau)
+    tilt = ~holds.is_level
+    assert np.nanmax(np.abs(model)) > 1.0  # 120 s settling at τ 45 s: pixels left
+    gap = np.abs(raw[tilt] - model[tilt])
+    assert np.all(gap < 0.05 + 0.05 * np.abs(model[tilt])), gap.max()
+    assert transient_bound_pix(holds, rec, truth.tau_s) >= np.nanmax(np.abs(model))
+
+
+def test_the_classical_method_flags_unsettled_hold_means_and_not_settled_ones(unsettled):
+    _rec, truth, _holds, classical = unsettled
+    (problem,) = [p for p in classical["diagnostics"]["problems"] if "transients" in p]
+    assert "settling time 120 s" in problem and "τ ≈ 45 s" in problem
+    b_raw = classical["parameters"]["b1"]["mean"]
+    assert abs(b_raw / truth.b_mgal_per_pix[0] - 1.0) > 1e-3  # biased by the transient
+    fast, _ = simulate_session(PROGRAM, dataclasses.replace(TRUTH, tau_s=8.0), seed=7)
+    settled = calibrate(fast, CalibrationOptions(method="classical", progress=False))
+    assert not any("transients" in p for p in settled["diagnostics"].get("problems", []))
+
+
+def test_a_joint_results_items_come_from_settled_hold_means(unsettled):
+    """The items (b, reduced error) from the hold means less the model's transient lie at
+    the truth where the raw ones are biased; Calibr.exe's raw figures are kept beside them."""
+    rec, truth, holds, classical = unsettled
+    fitted = _as_fitted(classical, truth)
+    before = copy.deepcopy(fitted)
+    out = settled_items(fitted, holds, rec)
+    assert fitted == before  # what it is handed is not changed
+    ht = out["hold_transient"]
+    assert ht["max_pix"] > 1.0 and ht["tau_s"] == truth.tau_s and ht["settle_s"] == 120.0
+    raw = ht["calibr_exe"]
+    assert raw["b1"] == classical["parameters"]["b1"]
+    assert raw["reduced_error_percent"] == classical["reduced_error_percent"]
+    for s, name in enumerate(("b1", "b2")):
+        b_true = truth.b_mgal_per_pix[s]
+        before = abs(classical["parameters"][name]["mean"] / b_true - 1.0)
+        after = abs(out["classical"][name]["mean"] / b_true - 1.0)
+        assert after < 2e-4 < before, (name, before, after)
+    assert out["reduced_error_percent"] < classical["reduced_error_percent"]
+    assert out["residuals_mgal"] != classical["residuals_mgal"]
+    assert [r["b1"]["mean"] for r in out["rounds"]] != [
+        r["b1"]["mean"] for r in classical["rounds"]
+    ]
+    # the certificate says so, with Calibr.exe's raw figures, and no longer warns of a bias
+    from chekan.report.content import settled_note, transient_note
+    from chekan.report.i18n import tr
+
+    (note,) = settled_note(out, tr("en"))
+    assert f"up to {ht['max_pix']:.2f} pix" in note.text and "τ = 45.0 s" in note.text
+    assert f"b₁ = {raw['b1']['mean']:.6f}" in note.text
+    assert f"reduced error {raw['reduced_error_percent']:.3f} %" in note.text
+    transient = unsettled_transient_pix(fitted, holds, rec)
+    assert transient_note(fitted, holds, transient, tr("en"))  # a result without settling
+    assert transient_note(out, holds, transient, tr("en")) == []
+    # the instability is the certified b's (the truth here), not the classical one's
+    assert out["instability_percent"]["b1"] == pytest.approx(
+        (truth.b_mgal_per_pix[0] - 7.0) / 7.0 * 100.0, rel=1e-12
+    )
+
+
+def test_settled_hold_means_leave_the_items_as_calibr_exe_computes_them():
+    """τ short beside the settling time: nothing to remove, the items are Calibr.exe's; the
+    instability is still the certified b's."""
+    truth = dataclasses.replace(TRUTH, tau_s=8.0)
+    rec, truth = simulate_session(PROGRAM, truth, seed=7)
+    holds = segment_record(rec, settle_s=120.0)
+    classical = calibrate(rec, CalibrationOptions(method="classical", progress=False))
+    fitted = _as_fitted(classical, truth)
+    assert np.nanmax(np.abs(unsettled_transient_pix(fitted, holds, rec))) < UNSETTLED_PIX
+    out = settled_items(fitted, holds, rec)
+    assert "hold_transient" not in out
+    assert out == certified_instability(fitted)
+    assert out["instability_percent"]["b2"] == pytest.approx(
+        (truth.b_mgal_per_pix[1] - 6.9) / 6.9 * 100.0, rel=1e-12
+    )
