@@ -124,6 +124,24 @@ def test_a_joint_results_items_come_from_settled_hold_means(unsettled):
     )
 
 
+def test_the_settled_items_do_not_depend_on_the_lag(unsettled):
+    """The same platform and noise (the seed) with a sensor twice as slow: Calibr.exe's b
+    moves with τ, the settled items' b does not (it is the instrument's, not the program's)."""
+    rec, truth, holds, classical = unsettled
+    slow_rec, slow = simulate_session(PROGRAM, dataclasses.replace(TRUTH, tau_s=90.0), seed=7)
+    slow_holds = segment_record(slow_rec, settle_s=120.0)
+    slow_cl = calibrate(slow_rec, CalibrationOptions(method="classical", progress=False))
+    fast = settled_items(_as_fitted(classical, truth), holds, rec)
+    slow_out = settled_items(_as_fitted(slow_cl, slow), slow_holds, slow_rec)
+    assert slow_out["hold_transient"]["max_pix"] > 5 * fast["hold_transient"]["max_pix"]
+    for name in ("b1", "b2"):
+        raw = [classical["parameters"][name]["mean"], slow_cl["parameters"][name]["mean"]]
+        settled = [fast["classical"][name]["mean"], slow_out["classical"][name]["mean"]]
+        assert abs(raw[1] / raw[0] - 1.0) > 1e-2  # the raw b moves by percents
+        sd = classical["parameters"][name]["sd"] / settled[0]  # ≈ 3e-4 relative
+        assert abs(settled[1] / settled[0] - 1.0) < min(1e-4, 0.5 * sd), (settled, sd)
+
+
 def test_settled_hold_means_leave_the_items_as_calibr_exe_computes_them():
     """τ short beside the settling time: nothing to remove, the items are Calibr.exe's; the
     instability is still the certified b's."""
