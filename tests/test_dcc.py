@@ -275,3 +275,32 @@ def test_pdf_states_what_iso_17025_7_8_asks(bayes_json, lab, tmp_path, lang):
         assert needle in whole
     assert " ".join(t("only_item").split()) in whole
     assert " ".join(t("decision_rule").split())[:60] in whole
+
+
+def test_dcc_states_that_the_classical_items_come_from_settled_hold_means(
+    bayes_json, lab, tmp_path
+):
+    """A joint result whose hold means were unsettled (chekan.settling.settled_items): the
+    DCC's method description says so with Calibr.exe's raw figures, as the PDF does, and
+    the result it embeds keeps them."""
+    res = json.loads(bayes_json.read_text(encoding="utf-8"))
+    raw_b = {k: {**res["parameters"][k], "mean": res["parameters"][k]["mean"] * 1.003}
+             for k in ("b1", "b2")}  # fmt: skip
+    res["hold_transient"] = {
+        "max_pix": 3.91,
+        "tau_s": 30.0,
+        "settle_s": 120.0,
+        "calibr_exe": {**raw_b, "reduced_error_percent": 0.0957},
+    }
+    src = tmp_path / "settled.json"
+    src.write_text(json.dumps(res), encoding="utf-8")
+    out = _dcc(src, lab, tmp_path / "s.xml")
+    validate_dcc(out)
+    root = ET.parse(out).getroot()
+    method = root.find(f".//{{{DCC_NS}}}usedMethod/{{{DCC_NS}}}description")
+    assert method is not None
+    texts = [c.text or "" for c in method.iter(f"{{{DCC_NS}}}content")]
+    (note,) = [x for x in texts if "hold means carried up to 3.91 pix" in x]
+    assert "τ = 30.0 s" in note and "reduced error 0.096 %" in note
+    assert f"b₁ = {raw_b['b1']['mean']:.6f}" in note
+    assert read_dcc(out)["hold_transient"] == res["hold_transient"]
