@@ -417,6 +417,9 @@ def test_live_page_in_a_browser_end_to_end(tmp_path):
             )
             b1 = page.locator(".map-b1").first.inner_text()
             assert re.match(r"\d+\.\d+ ± \d+\.\d+", b1), b1
+            # 45 s settling at the emulator's τ: the classical preview says it is biased
+            unsettled = page.locator("#cl-unsettled")
+            assert unsettled.is_visible() and "slews' transients" in unsettled.inner_text()
             assert int(page.evaluate("document.body.dataset.points")) > 100
             # issue 33 §5: the readings as numbers, the wall-clock end, each hold's axis
             for rid in ("#r-m1", "#r-m2", "#r-tx", "#r-ty", "#r-temp"):

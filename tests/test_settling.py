@@ -84,6 +84,17 @@ def test_the_classical_method_flags_unsettled_hold_means_and_not_settled_ones(un
     assert not any("transients" in p for p in settled["diagnostics"].get("problems", []))
 
 
+def test_the_live_pages_classical_preview_notes_unsettled_hold_means(unsettled):
+    """The live page's classical preview takes the hold means as Calibr.exe does; it says
+    when they are unsettled (and not otherwise), and the page shows it among its alarms."""
+    from chekan.live.calib import classical_snapshot
+
+    rec, *_ = unsettled
+    assert "slews' transients" in classical_snapshot(rec, settle_s=120.0)["unsettled"]
+    fast, _ = simulate_session(PROGRAM, dataclasses.replace(TRUTH, tau_s=8.0), seed=7)
+    assert classical_snapshot(fast, settle_s=120.0)["unsettled"] is None
+
+
 def test_a_joint_results_items_come_from_settled_hold_means(unsettled):
     """The items (b, reduced error) from the hold means less the model's transient lie at
     the truth where the raw ones are biased; Calibr.exe's raw figures are kept beside them."""

@@ -71,6 +71,7 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
     from chekan import classical
     from chekan.errors import ChekanError
     from chekan.holds import segment_record
+    from chekan.settling import unsettled_problem
 
     if settle_s is None:
         settle_s = float(record.meta.get("program_settle_s", 300.0))
@@ -88,9 +89,11 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
     except (ChekanError, ValueError, IndexError, np.linalg.LinAlgError):
         return None
     rounds_done = sum(1 for r in holds.rounds if r.level_before is not None and r.level_after)
+    unsettled = unsettled_problem(holds, record)  # the preview takes hold means as settled
     return {
         "hold_axis": {int(k): str(a) for k, a in zip(holds.step, holds.hold_axis, strict=True)},
         "notes": [f"{record.path}: {w}" for w in holds.warnings],
+        "unsettled": unsettled,
         "pairs": int(paired.sum()),
         "rounds_complete": int(rounds_done),
         "rounds": [int(r) for r in res.table.rounds],
