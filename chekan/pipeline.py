@@ -195,7 +195,7 @@ def classical_of(
 
     if isinstance(data, Record):
         cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
-        unsettled = unsettled_problem(holds, data)
+        unsettled = unsettled_problem(holds, data, cres, a_fixed=opts.a_fixed)
         if unsettled is not None:
             cres = dataclasses.replace(cres, problems=[*cres.problems, unsettled])
     else:

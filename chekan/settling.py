@@ -297,18 +297,48 @@ def raw_transient_pix(holds: Any, record: Any, tau_s: float) -> np.ndarray:
     return out
 
 
-def unsettled_problem(holds: Any, record: Any) -> str | None:
-    """A problem for the classical result where its hold means are unsettled (the lag τ
-    read off the record, :func:`tau_from_transients`; the transient, :func:`raw_transient_pix`,
-    above :data:`UNSETTLED_PIX`): Calibr.exe's items take them as settled. None otherwise."""
+def unsettled_problem(
+    holds: Any, record: Any, fit: Any, *, a_fixed: float | None = None, preview: bool = False
+) -> str | None:
+    """A problem for the classical ``fit`` (:class:`chekan.classical.ClassicalResult` of
+    ``holds``) where its hold means are unsettled enough to matter. None otherwise.
+
+    The lag τ is read off the record (:func:`tau_from_transients`) and the transient left in
+    each hold mean from the readings (:func:`raw_transient_pix`); where it exceeds
+    :data:`UNSETTLED_PIX`, the classical method runs again on the hold means less it. The
+    problem is stated when b₁ or b₂ moves by more than a third of its sd (an uncorrected
+    bias of sd/3 enlarges the uncertainty by 5 %), with the b it would be."""
     tau = tau_from_transients(record, holds)
-    worst = float(np.nanmax(np.abs(raw_transient_pix(holds, record, tau)), initial=0.0))
+    transient = raw_transient_pix(holds, record, tau)
+    worst = float(np.nanmax(np.abs(transient), initial=0.0))
     if not worst > UNSETTLED_PIX:
         return None
-    return (
+    from chekan.classical import fit_by_axis, increments_from_holds
+    from chekan.errors import ChekanError
+
+    head = (
         f"the hold means still carry up to {worst:.2g} pix of the slews' transients "
         f"(settling time {holds.settle_s:g} s against the lag τ ≈ {tau:.0f} s read off the "
-        "record): the classical items and b, which take the hold means as settled, are "
-        "biased by them; --method map or bayes fits the lag and computes the items from "
-        "settled hold means"
+        "record), which the classical items take as settled"
     )
+    tail = "--method map or bayes fits the lag and computes the items from settled hold means"
+    settled_means = np.asarray(holds.m_mean_pix) - np.nan_to_num(transient)
+    settled = dataclasses.replace(holds, m_mean_pix=settled_means)
+    try:
+        table = increments_from_holds(settled, record.g_local_mgal)
+        again = fit_by_axis(table, a_fixed=a_fixed, preview=preview)
+    except (ChekanError, ValueError, np.linalg.LinAlgError):  # the raw fit of these holds passed
+        return f"{head}; {tail}"
+    shift = np.asarray(fit.b_mean, dtype=float) - np.asarray(again.b_mean, dtype=float)
+    sd = np.asarray(fit.b_mean_sd, dtype=float)
+    known = np.isfinite(sd) & (sd > 0)  # a preview of one pair has no sd yet
+    in_sd = np.abs(shift[known]) / sd[known]
+    if known.any() and not np.nanmax(in_sd, initial=0.0) > 1.0 / 3.0:
+        return None
+    would = ", ".join(
+        f"b{j + 1} {100 * shift[j] / again.b_mean[j]:+.3f} % ("
+        + (f"{abs(shift[j]) / sd[j]:.1f} sd; " if known[j] else "")
+        + f"{again.b_mean[j]:.6f} without)"
+        for j in range(2)
+    )
+    return f"{head}: {would}; {tail}"

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -79,6 +80,9 @@ def test_the_classical_method_flags_unsettled_hold_means_and_not_settled_ones(un
     assert "settling time 120 s" in problem and "τ ≈ 45 s" in problem
     b_raw = classical["parameters"]["b1"]["mean"]
     assert abs(b_raw / truth.b_mgal_per_pix[0] - 1.0) > 1e-3  # biased by the transient
+    # the problem states the b without the transient (read off the record): near the truth
+    without = float(re.search(r"b1 [+-][\d.]+ % \([\d.]+ sd; ([\d.]+) without\)", problem)[1])
+    assert abs(without / truth.b_mgal_per_pix[0] - 1.0) < 3e-4 < abs(b_raw / without - 1.0)
     fast, _ = simulate_session(PROGRAM, dataclasses.replace(TRUTH, tau_s=8.0), seed=7)
     settled = calibrate(fast, CalibrationOptions(method="classical", progress=False))
     assert not any("transients" in p for p in settled["diagnostics"].get("problems", []))

@@ -86,10 +86,11 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
             a_fixed = None if paired.any(axis=0).sum() >= 2 else 0.0
             # rounds about X are fitted apart; the preview shows what the certificate uses
             res = classical.fit_by_axis(table, a_fixed=a_fixed, preview=True)
+            # the preview takes the hold means as settled, as Calibr.exe does
+            unsettled = unsettled_problem(holds, record, res, a_fixed=a_fixed, preview=True)
     except (ChekanError, ValueError, IndexError, np.linalg.LinAlgError):
         return None
     rounds_done = sum(1 for r in holds.rounds if r.level_before is not None and r.level_after)
-    unsettled = unsettled_problem(holds, record)  # the preview takes hold means as settled
     return {
         "hold_axis": {int(k): str(a) for k, a in zip(holds.step, holds.hold_axis, strict=True)},
         "notes": [f"{record.path}: {w}" for w in holds.warnings],
