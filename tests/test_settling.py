@@ -172,3 +172,34 @@ def test_settled_hold_means_leave_the_items_as_calibr_exe_computes_them():
     assert out["instability_percent"]["b2"] == pytest.approx(
         (truth.b_mgal_per_pix[1] - 6.9) / 6.9 * 100.0, rel=1e-12
     )
+
+
+def test_the_designer_predicts_the_transient_a_record_of_the_program_carries(
+    unsettled, tmp_path, capsys
+):
+    """``chekan design`` states what a program's settling leaves in the hold means at the
+    design τ, and up to which τ the classical items hold: the same transient as a simulated
+    record of the program carries (the model with the lag followed through it)."""
+    import json
+
+    from chekan.cli import main
+    from chekan.design.command import program_toml
+    from chekan.design.information import settled_tau_limit_s, settled_transient_pix
+    from chekan.design.layout import DesignValues
+
+    rec, truth, holds, classical = unsettled
+    want = np.nanmax(np.abs(unsettled_transient_pix(_as_fitted(classical, truth), holds, rec)))
+    values = DesignValues(truth=truth)
+    assert settled_transient_pix(PROGRAM, values) == pytest.approx(want, rel=0.02)
+    limit = settled_tau_limit_s(PROGRAM, values)
+    for tau, settled in ((limit, True), (limit * 1.02, False)):
+        at = DesignValues(truth=dataclasses.replace(truth, tau_s=tau))
+        assert (settled_transient_pix(PROGRAM, at) <= UNSETTLED_PIX) is settled, tau
+    toml, out = tmp_path / "short.toml", tmp_path / "design.json"
+    toml.write_text(program_toml(PROGRAM), encoding="utf-8")
+    assert main(["design", str(toml), "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "classical items (--method classical, as Calibr.exe): the 120 s settling" in text
+    assert "they are biased by it where map and bayes remove it" in text
+    s = json.loads(out.read_text(encoding="utf-8"))["given"]["classical_settling"]
+    assert s["settle_s"] == 120.0 and s["transient_pix"] > 1.0 and 1.0 < s["tau_limit_s"] < 45

@@ -9,7 +9,12 @@ import math
 import time
 from pathlib import Path
 
-from chekan.design.information import ExpectedPrecision, expected_precision
+from chekan.design.information import (
+    ExpectedPrecision,
+    expected_precision,
+    settled_tau_limit_s,
+    settled_transient_pix,
+)
 from chekan.design.layout import DesignValues, program_clock_s
 from chekan.design.reliability import ExpectedReliability, expected_reliability
 from chekan.design.search import Candidate, SearchResult, search_programs
@@ -315,6 +320,40 @@ def design_json(
     return out
 
 
+def classical_settling(program: TiltProgram, values: DesignValues) -> dict:
+    """What the program's settling leaves of the slews' transients in the hold means that
+    the classical method (Calibr.exe) averages: the largest, pix, at the design τ, and the
+    longest τ that keeps it within :data:`chekan.settling.UNSETTLED_PIX`."""
+    return {
+        "settle_s": program.settle_s,
+        "tau_s": values.truth.tau_s,
+        "transient_pix": settled_transient_pix(program, values),
+        "tau_limit_s": settled_tau_limit_s(program, values),
+    }
+
+
+def settling_text(s: dict) -> str:
+    """One line for :func:`classical_settling`."""
+    from chekan.settling import UNSETTLED_PIX
+
+    lim = s["tau_limit_s"]
+    span = (
+        f"within {UNSETTLED_PIX:g} pix for τ ≤ {lim:.0f} s only" if lim < 1000.0
+        else f"within {UNSETTLED_PIX:g} pix for any τ up to 1000 s"
+    )  # fmt: skip
+    biased = s["transient_pix"] > UNSETTLED_PIX
+    return (
+        f"classical items (--method classical, as Calibr.exe): the {s['settle_s']:g} s settling "
+        f"leaves up to {s['transient_pix']:.2g} pix of a slew's transient in a hold mean at "
+        f"τ = {s['tau_s']:g} s, {span}"
+        + (
+            "; they are biased by it where map and bayes remove it (README, «Unsettled hold means»)"
+            if biased
+            else ""
+        )
+    )
+
+
 def _k_text(c: Candidate, objective: str) -> str:
     """A candidate's expected k for an objective, "—" where it was not assessed."""
     return "—" if c.reliability is None else f"{c.reliability.k_of(objective):.2f}"
@@ -350,6 +389,8 @@ def run_design_command(args) -> int:
     rnd = expected_precision(program, no_sys) if values.angle_bound_arcsec else None
     rel = expected_reliability(program, values)
     print(format_precision(prec, rnd, rel))
+    settling = classical_settling(program, values)
+    print(settling_text(settling))
     print(
         f"(design model evaluated in {1e3 * (time.perf_counter() - t0):.0f} ms, first call "
         "includes the one-off JAX grid)"
@@ -380,6 +421,7 @@ def run_design_command(args) -> int:
             print(f"\nbest: {best.spec.label()}, dwell {best.program.dwell_s:g} s")
             rnd = expected_precision(best.program, no_sys) if values.angle_bound_arcsec else None
             print(format_precision(best.precision, rnd, best.reliability))
+            print(settling_text(classical_settling(best.program, values)))
             print(f"objective {result.objective}: {gain:.2f}× smaller sd than the given program")
             if best is not result.ranked[0]:
                 print(
@@ -393,9 +435,9 @@ def run_design_command(args) -> int:
         path = Path(args.json)
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_output(path) as f:
-            f.write(
-                json.dumps(design_json(prec, result, values, rel), indent=2, ensure_ascii=False)
-            )
+            doc = design_json(prec, result, values, rel)
+            doc["given"]["classical_settling"] = settling
+            f.write(json.dumps(doc, indent=2, ensure_ascii=False))
             f.write("\n")
         print(f"wrote {path}")
     return 0
