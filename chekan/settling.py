@@ -168,11 +168,14 @@ def settled_items(
     (:func:`unsettled_transient_pix`), the classical method (eqs. 21–25, as Calibr.exe) runs
     again on the hold means less that transient; its items (:data:`ITEM_KEYS`) and the
     classical b replace those computed from the raw hold means, which are kept under
-    ``hold_transient.calibr_exe`` with the transient's size. Elsewhere the items stay
-    Calibr.exe's. Either way the instability (item д), the verdict) is that of the result's
-    own b₁, b₂, the certified values (:func:`certified_instability`)."""
+    ``hold_transient.calibr_exe`` with the transient's size. Elsewhere, and where the fit
+    did not converge, the items stay Calibr.exe's. Either way the instability (item д),
+    the verdict) is that of the result's own b₁, b₂, the certified values
+    (:func:`certified_instability`)."""
     out = certified_instability(result)
     tau = result_tau_s(result)
+    if not (result.get("diagnostics") or {}).get("converged"):
+        return out  # a fit that did not converge has no transient to trust
     if tau is None or transient_bound_pix(holds, record, tau) <= UNSETTLED_PIX:
         return out
     transient = unsettled_transient_pix(result, holds, record)

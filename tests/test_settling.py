@@ -133,6 +133,9 @@ def test_a_joint_results_items_come_from_settled_hold_means(unsettled):
     transient = unsettled_transient_pix(fitted, holds, rec)
     assert transient_note(fitted, holds, transient, tr("en"))  # a result without settling
     assert transient_note(out, holds, transient, tr("en")) == []
+    # a fit that did not converge has no transient to trust: Calibr.exe's items stay
+    lost = {**fitted, "diagnostics": {**fitted["diagnostics"], "converged": False}}
+    assert settled_items(lost, holds, rec) == certified_instability(lost)
     # the instability is the certified b's (the truth here), not the classical one's
     assert out["instability_percent"]["b1"] == pytest.approx(
         (truth.b_mgal_per_pix[0] - 7.0) / 7.0 * 100.0, rel=1e-12
