@@ -109,13 +109,13 @@ def format_summary(res: dict) -> str:
     ht = res.get("hold_transient")
     if ht:  # chekan.settling.settled_items
         raw = ht.get("calibr_exe") or {}
-        rb = "".join(f"{k} = {raw[k]['mean']:.6f} mGal/pix, " for k in ("b1", "b2") if k in raw)
-        rerr = raw.get("reduced_error_percent")
+        parts = [f"{k} = {raw[k]['mean']:.6f} mGal/pix" for k in ("b1", "b2") if k in raw]
+        if raw.get("reduced_error_percent") is not None:
+            parts.append(f"reduced error {raw['reduced_error_percent']:.3f} %")
         lines.append(
             f"the classical items above are from the hold means less the lag's transient "
             f"(up to {ht['max_pix']:.2g} pix: settling {ht['settle_s']:g} s against "
-            f"τ = {ht['tau_s']:.1f} s); from the raw hold means, as Calibr.exe: {rb}"
-            + (f"reduced error {rerr:.3f} %" if rerr is not None else "")
+            f"τ = {ht['tau_s']:.1f} s); from the raw hold means, as Calibr.exe: " + ", ".join(parts)
         )
     if "range_margin_gal" in res:
         rm = res["range_margin_gal"]

@@ -130,6 +130,9 @@ def test_a_joint_results_items_come_from_settled_hold_means(unsettled):
     assert f"up to {ht['max_pix']:.2f} pix" in note.text and "τ = 45.0 s" in note.text
     assert f"b₁ = {raw['b1']['mean']:.6f}" in note.text
     assert f"reduced error {raw['reduced_error_percent']:.3f} %" in note.text
+    from chekan.summary import format_summary
+
+    assert f"as Calibr.exe: b1 = {raw['b1']['mean']:.6f} mGal/pix" in format_summary(out)
     transient = unsettled_transient_pix(fitted, holds, rec)
     assert transient_note(fitted, holds, transient, tr("en"))  # a result without settling
     assert transient_note(out, holds, transient, tr("en")) == []
