@@ -19,7 +19,7 @@ from chekan.protocol import Protocol
 from chekan.records import Record
 from chekan.records.framing import count_rows
 from chekan.result import base_result, classical_result, tilt_program_entry
-from chekan.settling import unsettled_problem
+from chekan.settling import unsettled_hold_means
 
 #: ``result["record"]`` of a calibration of data that came from no file.
 IN_MEMORY = "<memory>"
@@ -193,14 +193,17 @@ def classical_of(
         header["date"] = data.meta["date"]
     from chekan import classical
 
+    unsettled = None
     if isinstance(data, Record):
         cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
-        unsettled = unsettled_problem(holds, data, cres, a_fixed=opts.a_fixed)
+        unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
         if unsettled is not None:
-            cres = dataclasses.replace(cres, problems=[*cres.problems, unsettled])
+            cres = dataclasses.replace(cres, problems=[*cres.problems, unsettled.problem])
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
+    if unsettled is not None:
+        result["unsettled_hold_means"] = unsettled.entry()
     name = data.meta.get("program") or None
     if isinstance(data, Record):
         result["tilt_program"] = tilt_program_entry(holds=holds, name=name)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -176,6 +177,7 @@ def settled_items(
     tau = result_tau_s(result)
     if not (result.get("diagnostics") or {}).get("converged"):
         return out  # a fit that did not converge has no transient to trust
+    out.pop("unsettled_hold_means", None)  # the classical fit's flag: settled here, or moot
     if tau is None or transient_bound_pix(holds, record, tau) <= UNSETTLED_PIX:
         return out
     transient = unsettled_transient_pix(result, holds, record)
@@ -300,17 +302,56 @@ def raw_transient_pix(holds: Any, record: Any, tau_s: float) -> np.ndarray:
     return out
 
 
-def unsettled_problem(
+@dataclass(frozen=True)
+class Unsettled:
+    """Hold means that a classical fit takes as settled and are not
+    (:func:`unsettled_hold_means`): the largest transient left in one (pix), the lag τ read
+    off the record and the settling time (s); where the fit without the transient
+    succeeded, its b₁, b₂ (``b_without``), the shift of the fit's b from them (% and sd;
+    NaN where the fit has no sd yet)."""
+
+    max_pix: float
+    tau_s: float
+    settle_s: float
+    b_without: tuple[float, float] | None = None
+    shift_percent: tuple[float, float] | None = None
+    shift_sd: tuple[float, float] | None = None
+
+    @property
+    def problem(self) -> str:
+        """The classical result's problem, one line."""
+        head = (
+            f"the hold means still carry up to {self.max_pix:.2g} pix of the slews' transients "
+            f"(settling time {self.settle_s:g} s against the lag τ ≈ {self.tau_s:.0f} s read "
+            "off the record), which the classical items take as settled"
+        )
+        tail = "--method map or bayes fits the lag and computes the items from settled hold means"
+        if self.b_without is None or self.shift_percent is None or self.shift_sd is None:
+            return f"{head}; {tail}"
+        would = ", ".join(
+            f"b{j + 1} {self.shift_percent[j]:+.3f} % ("
+            + (f"{self.shift_sd[j]:.1f} sd; " if math.isfinite(self.shift_sd[j]) else "")
+            + f"{self.b_without[j]:.6f} without)"
+            for j in range(2)
+        )
+        return f"{head}: {would}; {tail}"
+
+    def entry(self) -> dict:
+        """The result's ``unsettled_hold_means``."""
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+
+def unsettled_hold_means(
     holds: Any, record: Any, fit: Any, *, a_fixed: float | None = None, preview: bool = False
-) -> str | None:
-    """A problem for the classical ``fit`` (:class:`chekan.classical.ClassicalResult` of
-    ``holds``) where its hold means are unsettled enough to matter. None otherwise.
+) -> Unsettled | None:
+    """Whether the classical ``fit`` (:class:`chekan.classical.ClassicalResult` of ``holds``)
+    takes unsettled hold means as settled enough to matter; None otherwise.
 
     The lag τ is read off the record (:func:`tau_from_transients`) and the transient left in
     each hold mean from the readings (:func:`raw_transient_pix`); where it exceeds
-    :data:`UNSETTLED_PIX`, the classical method runs again on the hold means less it. The
-    problem is stated when b₁ or b₂ moves by more than a third of its sd (an uncorrected
-    bias of sd/3 enlarges the uncertainty by 5 %), with the b it would be."""
+    :data:`UNSETTLED_PIX`, the classical method runs again on the hold means less it. It
+    matters when b₁ or b₂ moves by more than a third of its sd (an uncorrected bias of sd/3
+    enlarges the uncertainty by 5 %), or when that fit fails."""
     tau = tau_from_transients(record, holds)
     transient = raw_transient_pix(holds, record, tau)
     worst = float(np.nanmax(np.abs(transient), initial=0.0))
@@ -319,29 +360,24 @@ def unsettled_problem(
     from chekan.classical import fit_by_axis, increments_from_holds
     from chekan.errors import ChekanError
 
-    head = (
-        f"the hold means still carry up to {worst:.2g} pix of the slews' transients "
-        f"(settling time {holds.settle_s:g} s against the lag τ ≈ {tau:.0f} s read off the "
-        "record), which the classical items take as settled"
-    )
-    tail = "--method map or bayes fits the lag and computes the items from settled hold means"
+    found = Unsettled(max_pix=worst, tau_s=float(tau), settle_s=float(holds.settle_s))
     settled_means = np.asarray(holds.m_mean_pix) - np.nan_to_num(transient)
     settled = dataclasses.replace(holds, m_mean_pix=settled_means)
     try:
         table = increments_from_holds(settled, record.g_local_mgal)
         again = fit_by_axis(table, a_fixed=a_fixed, preview=preview)
     except (ChekanError, ValueError, np.linalg.LinAlgError):  # the raw fit of these holds passed
-        return f"{head}; {tail}"
-    shift = np.asarray(fit.b_mean, dtype=float) - np.asarray(again.b_mean, dtype=float)
+        return found
+    b = np.asarray(again.b_mean, dtype=float)
+    shift = np.asarray(fit.b_mean, dtype=float) - b
     sd = np.asarray(fit.b_mean_sd, dtype=float)
     known = np.isfinite(sd) & (sd > 0)  # a preview of one pair has no sd yet
-    in_sd = np.abs(shift[known]) / sd[known]
-    if known.any() and not np.nanmax(in_sd, initial=0.0) > 1.0 / 3.0:
+    in_sd = np.where(known, np.abs(shift) / np.where(known, sd, 1.0), np.nan)
+    if known.any() and not np.nanmax(in_sd) > 1.0 / 3.0:
         return None
-    would = ", ".join(
-        f"b{j + 1} {100 * shift[j] / again.b_mean[j]:+.3f} % ("
-        + (f"{abs(shift[j]) / sd[j]:.1f} sd; " if known[j] else "")
-        + f"{again.b_mean[j]:.6f} without)"
-        for j in range(2)
+    return dataclasses.replace(
+        found,
+        b_without=(float(b[0]), float(b[1])),
+        shift_percent=(float(100 * shift[0] / b[0]), float(100 * shift[1] / b[1])),
+        shift_sd=(float(in_sd[0]), float(in_sd[1])),
     )
-    return f"{head}: {would}; {tail}"

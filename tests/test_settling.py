@@ -83,9 +83,18 @@ def test_the_classical_method_flags_unsettled_hold_means_and_not_settled_ones(un
     # the problem states the b without the transient (read off the record): near the truth
     without = float(re.search(r"b1 [+-][\d.]+ % \([\d.]+ sd; ([\d.]+) without\)", problem)[1])
     assert abs(without / truth.b_mgal_per_pix[0] - 1.0) < 3e-4 < abs(b_raw / without - 1.0)
+    un = classical["unsettled_hold_means"]  # the same, as numbers
+    assert un["b_without"][0] == pytest.approx(without, abs=5e-7) and un["shift_sd"][0] > 1.0
+    # the method's precondition fails: the certificate's verdict says so
+    from chekan.report.content import verdict_of
+
+    passed, line = verdict_of(classical)
+    assert passed is False and "the hold means are NOT settled (up to" in line
     fast, _ = simulate_session(PROGRAM, dataclasses.replace(TRUTH, tau_s=8.0), seed=7)
     settled = calibrate(fast, CalibrationOptions(method="classical", progress=False))
     assert not any("transients" in p for p in settled["diagnostics"].get("problems", []))
+    assert "unsettled_hold_means" not in settled
+    assert "NOT settled" not in verdict_of(settled)[1]
 
 
 def test_the_live_pages_classical_preview_notes_unsettled_hold_means(unsettled):
@@ -107,6 +116,7 @@ def test_a_joint_results_items_come_from_settled_hold_means(unsettled):
     before = copy.deepcopy(fitted)
     out = settled_items(fitted, holds, rec)
     assert fitted == before  # what it is handed is not changed
+    assert "unsettled_hold_means" in fitted and "unsettled_hold_means" not in out
     ht = out["hold_transient"]
     assert ht["max_pix"] > 1.0 and ht["tau_s"] == truth.tau_s and ht["settle_s"] == 120.0
     raw = ht["calibr_exe"]

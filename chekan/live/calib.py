@@ -71,7 +71,7 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
     from chekan import classical
     from chekan.errors import ChekanError
     from chekan.holds import segment_record
-    from chekan.settling import unsettled_problem
+    from chekan.settling import unsettled_hold_means
 
     if settle_s is None:
         settle_s = float(record.meta.get("program_settle_s", 300.0))
@@ -87,14 +87,14 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
             # rounds about X are fitted apart; the preview shows what the certificate uses
             res = classical.fit_by_axis(table, a_fixed=a_fixed, preview=True)
             # the preview takes the hold means as settled, as Calibr.exe does
-            unsettled = unsettled_problem(holds, record, res, a_fixed=a_fixed, preview=True)
+            unsettled = unsettled_hold_means(holds, record, res, a_fixed=a_fixed, preview=True)
     except (ChekanError, ValueError, IndexError, np.linalg.LinAlgError):
         return None
     rounds_done = sum(1 for r in holds.rounds if r.level_before is not None and r.level_after)
     return {
         "hold_axis": {int(k): str(a) for k, a in zip(holds.step, holds.hold_axis, strict=True)},
         "notes": [f"{record.path}: {w}" for w in holds.warnings],
-        "unsettled": unsettled,
+        "unsettled": unsettled.problem if unsettled is not None else None,
         "pairs": int(paired.sum()),
         "rounds_complete": int(rounds_done),
         "rounds": [int(r) for r in res.table.rounds],

@@ -297,6 +297,12 @@ def _verdict(
                     tol=tol_s,
                 )
             )
+    un = result.get("unsettled_hold_means")  # the classical method's precondition fails
+    if isinstance(un, Mapping):
+        ok = False
+        shift = un.get("shift_percent") or []
+        b1 = fixed(shift[0], 3, sign=True) + " %" if shift and is_num(shift[0]) else DASH
+        crit.append(t("crit_unsettled", pix=fixed(un["max_pix"], 2), b1=b1))
     is_bayes = result["method"] == "bayes"
     conv = (result.get("diagnostics") or {}).get("converged")
     if is_bayes or conv is False:

@@ -319,6 +319,12 @@ LABELS: dict[str, dict[str, str]] = {
         "en": "|instability of {name}| {v} % {op} {tol} %",
         "ru": "|нестабильность {name}| {v} % {op} {tol} %",
     },
+    "crit_unsettled": {
+        "en": "the hold means are NOT settled (up to {pix} pix of the slews' transients; "
+        "b₁ {b1} beside the b without them): the classical items are biased",
+        "ru": "средние удержаний НЕ успокоились (до {pix} пикс переходного процесса; "
+        "b₁ {b1} относительно b без него): классические пункты смещены",
+    },
     "crit_conv": {"en": "the sampler converged", "ru": "выборка сошлась"},
     "crit_noconv": {"en": "the sampler did NOT converge", "ru": "выборка НЕ сошлась"},
     "verdict_pass": {
