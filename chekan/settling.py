@@ -7,7 +7,10 @@ designer's 120 s holds against τ ≈ 30–90 s) still carries part of the slew'
 and the items а)–в), the classical b and the verdict's reduced error carry it too. A joint
 result fits τ; from it the transient in every hold mean is known and removed
 (:func:`settled_items`), so that the certificate's items describe the instrument, not the
-program.
+program. The classical method keeps Calibr.exe's items and says how far they are moved
+(:func:`unsettled_hold_means`, with τ read off the record, :func:`tau_from_transients`);
+the designer states it for a program before it runs
+(:func:`chekan.design.information.settled_transient_pix`).
 """
 
 from __future__ import annotations
@@ -177,20 +180,25 @@ def settled_items(
     tau = result_tau_s(result)
     if not (result.get("diagnostics") or {}).get("converged"):
         return out  # a fit that did not converge has no transient to trust
-    out.pop("unsettled_hold_means", None)  # the classical fit's flag: settled here, or moot
-    if tau is None or transient_bound_pix(holds, record, tau) <= UNSETTLED_PIX:
-        return out
-    transient = unsettled_transient_pix(result, holds, record)
+    transient = None
+    if tau is not None and transient_bound_pix(holds, record, tau) > UNSETTLED_PIX:
+        transient = unsettled_transient_pix(result, holds, record)
     if transient is None or not np.nanmax(np.abs(transient)) > UNSETTLED_PIX:
-        return out
+        out.pop("unsettled_hold_means", None)  # the classical fit's flag: the model finds
+        return out  # the hold means settled
     from chekan.classical import fit_by_axis, increments_from_holds
+    from chekan.errors import ChekanError
     from chekan.result import classical_result
 
     settled = dataclasses.replace(holds, m_mean_pix=np.asarray(holds.m_mean_pix) - transient)
-    cres = fit_by_axis(increments_from_holds(settled, record.g_local_mgal), a_fixed)
+    try:
+        cres = fit_by_axis(increments_from_holds(settled, record.g_local_mgal), a_fixed)
+    except (ChekanError, np.linalg.LinAlgError):  # the raw fit of these holds passed
+        return out  # Calibr.exe's items stand, with their flag
     items = classical_result(
         cres, header=dict(result), b_prior=record.b_prior, ccd_range_pix=record.ccd_range_pix
     )
+    out.pop("unsettled_hold_means", None)  # the items are settled now
     kept = ("reduced_error_percent", "discrepancy_between_rounds_percent", "mean_b_mgal_per_pix")
     before = {k: result[k] for k in kept if k in result}
     before.update({k: dict(v) for k, v in (result.get("classical") or {}).items()})

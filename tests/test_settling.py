@@ -108,7 +108,7 @@ def test_the_live_pages_classical_preview_notes_unsettled_hold_means(unsettled):
     assert classical_snapshot(fast, settle_s=120.0)["unsettled"] is None
 
 
-def test_a_joint_results_items_come_from_settled_hold_means(unsettled):
+def test_a_joint_results_items_come_from_settled_hold_means(unsettled, monkeypatch):
     """The items (b, reduced error) from the hold means less the model's transient lie at
     the truth where the raw ones are biased; Calibr.exe's raw figures are kept beside them."""
     rec, truth, holds, classical = unsettled
@@ -149,6 +149,16 @@ def test_a_joint_results_items_come_from_settled_hold_means(unsettled):
     # a fit that did not converge has no transient to trust: Calibr.exe's items stay
     lost = {**fitted, "diagnostics": {**fitted["diagnostics"], "converged": False}}
     assert settled_items(lost, holds, rec) == certified_instability(lost)
+    # nor is a calibration lost where the settled refit fails: the raw items and their flag
+    import chekan.classical
+    from chekan.errors import ChekanError
+
+    def refuse(*args, **kwargs):
+        raise ChekanError("no fit")
+
+    monkeypatch.setattr(chekan.classical, "fit_by_axis", refuse)
+    assert settled_items(fitted, holds, rec) == certified_instability(fitted)
+    monkeypatch.undo()
     # the instability is the certified b's (the truth here), not the classical one's
     assert out["instability_percent"]["b1"] == pytest.approx(
         (truth.b_mgal_per_pix[0] - 7.0) / 7.0 * 100.0, rel=1e-12
