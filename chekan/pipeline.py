@@ -196,7 +196,8 @@ def classical_of(
     unsettled = None
     if isinstance(data, Record):
         cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
-        unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
+        if opts.method == "classical":  # a joint result settles its items (settled_items)
+            unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
         if unsettled is not None:
             cres = dataclasses.replace(cres, problems=[*cres.problems, unsettled.problem])
     else:

@@ -164,7 +164,12 @@ def transient_bound_pix(holds: Any, record: Any, tau_s: float) -> float:
 
 
 def settled_items(
-    result: Mapping[str, Any], holds: Any, record: Any, *, a_fixed: float | None = None
+    result: Mapping[str, Any],
+    holds: Any,
+    record: Any,
+    *,
+    classical: Any = None,
+    a_fixed: float | None = None,
 ) -> dict:
     """The joint ``result`` (not changed) with its classical items from settled hold means.
 
@@ -173,27 +178,28 @@ def settled_items(
     again on the hold means less that transient; its items (:data:`ITEM_KEYS`) and the
     classical b replace those computed from the raw hold means, which are kept under
     ``hold_transient.calibr_exe`` with the transient's size. Elsewhere, and where the fit
-    did not converge, the items stay Calibr.exe's. Either way the instability (item д),
-    the verdict) is that of the result's own b₁, b₂, the certified values
-    (:func:`certified_instability`)."""
+    did not converge, the items stay Calibr.exe's; in the latter case with the
+    ``classical`` fit's :func:`unsettled_hold_means` where it applies. Either way the
+    instability (item д), the verdict) is that of the result's own b₁, b₂, the certified
+    values (:func:`certified_instability`)."""
     out = certified_instability(result)
     tau = result_tau_s(result)
-    if not (result.get("diagnostics") or {}).get("converged"):
-        return out  # a fit that did not converge has no transient to trust
+    if not (result.get("diagnostics") or {}).get("converged"):  # no transient to trust:
+        if classical is not None and "unsettled_hold_means" not in out:  # Calibr.exe's items
+            unsettled = unsettled_hold_means(holds, record, classical, a_fixed=a_fixed)
+            if unsettled is not None:
+                out["unsettled_hold_means"] = unsettled.entry()
+        return out
     transient = None
     if tau is not None and transient_bound_pix(holds, record, tau) > UNSETTLED_PIX:
         transient = unsettled_transient_pix(result, holds, record)
     if transient is None or not np.nanmax(np.abs(transient)) > UNSETTLED_PIX:
         out.pop("unsettled_hold_means", None)  # the classical fit's flag: the model finds
         return out  # the hold means settled
-    from chekan.classical import fit_by_axis, increments_from_holds
-    from chekan.errors import ChekanError
     from chekan.result import classical_result
 
-    settled = dataclasses.replace(holds, m_mean_pix=np.asarray(holds.m_mean_pix) - transient)
-    try:
-        cres = fit_by_axis(increments_from_holds(settled, record.g_local_mgal), a_fixed)
-    except (ChekanError, np.linalg.LinAlgError):  # the raw fit of these holds passed
+    cres = _refit(holds, record, np.asarray(holds.m_mean_pix) - transient, a_fixed=a_fixed)
+    if cres is None:
         return out  # Calibr.exe's items stand, with their flag
     items = classical_result(
         cres, header=dict(result), b_prior=record.b_prior, ccd_range_pix=record.ccd_range_pix
@@ -214,6 +220,21 @@ def settled_items(
             out[key] = items[key]
     out["classical"] = {k: items["parameters"][k] for k in ("b1", "b2")}
     return out
+
+
+def _refit(holds: Any, record: Any, means: np.ndarray, *, a_fixed: float | None, preview=False):
+    """The classical fit (eqs. 21–25, :func:`chekan.classical.fit_by_axis`) of ``holds`` with
+    their hold means replaced by ``means``; None where it fails (the fit of the raw means of
+    the same holds passed, so a failure is not expected: it must not lose a calibration)."""
+    from chekan.classical import fit_by_axis, increments_from_holds
+    from chekan.errors import ChekanError
+
+    settled = dataclasses.replace(holds, m_mean_pix=means)
+    try:
+        table = increments_from_holds(settled, record.g_local_mgal)
+        return fit_by_axis(table, a_fixed=a_fixed, preview=preview)
+    except (ChekanError, ValueError, np.linalg.LinAlgError):
+        return None
 
 
 def certified_instability(result: Mapping[str, Any]) -> dict:
@@ -365,16 +386,10 @@ def unsettled_hold_means(
     worst = float(np.nanmax(np.abs(transient), initial=0.0))
     if not worst > UNSETTLED_PIX:
         return None
-    from chekan.classical import fit_by_axis, increments_from_holds
-    from chekan.errors import ChekanError
-
     found = Unsettled(max_pix=worst, tau_s=float(tau), settle_s=float(holds.settle_s))
     settled_means = np.asarray(holds.m_mean_pix) - np.nan_to_num(transient)
-    settled = dataclasses.replace(holds, m_mean_pix=settled_means)
-    try:
-        table = increments_from_holds(settled, record.g_local_mgal)
-        again = fit_by_axis(table, a_fixed=a_fixed, preview=preview)
-    except (ChekanError, ValueError, np.linalg.LinAlgError):  # the raw fit of these holds passed
+    again = _refit(holds, record, settled_means, a_fixed=a_fixed, preview=preview)
+    if again is None:
         return found
     b = np.asarray(again.b_mean, dtype=float)
     shift = np.asarray(fit.b_mean, dtype=float) - b

@@ -149,6 +149,13 @@ def test_a_joint_results_items_come_from_settled_hold_means(unsettled, monkeypat
     # a fit that did not converge has no transient to trust: Calibr.exe's items stay
     lost = {**fitted, "diagnostics": {**fitted["diagnostics"], "converged": False}}
     assert settled_items(lost, holds, rec) == certified_instability(lost)
+    # … and where its input lacks the classical fit's flag, the classical fit gives it
+    from chekan.classical import calibrate_record
+
+    bare = {k: v for k, v in lost.items() if k != "unsettled_hold_means"}
+    cres, _ = calibrate_record(rec, settle_s=120.0)
+    flagged = settled_items(bare, holds, rec, classical=cres)
+    assert flagged["unsettled_hold_means"] == classical["unsettled_hold_means"]
     # nor is a calibration lost where the settled refit fails: the raw items and their flag
     import chekan.classical
     from chekan.errors import ChekanError

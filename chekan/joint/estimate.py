@@ -89,7 +89,7 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
     else:
         sampler_imports.result()  # done before this thread imports more (deadlock-free)
         out = posterior_result(fit, holds, record, base, options, t_start)
-    return settled_items(out, holds, record, a_fixed=options.a_fixed)
+    return settled_items(out, holds, record, classical=classical, a_fixed=options.a_fixed)
 
 
 def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict, dict]:
