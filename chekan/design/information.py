@@ -70,7 +70,6 @@ about 10 % above them (``tests/test_design.py``).
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -506,34 +505,40 @@ def expected_precision(
     )
 
 
-def settled_transient_pix(program: TiltProgram, values: DesignValues | None = None) -> float:
-    """The largest transient (pix) that the sensor's lag leaves in a hold's settled mean
-    at the design τ: f − E of each hold's last bin (from the settling time on, what
-    Calibr.exe averages; :func:`lagged_means` of the equilibria along holds and slews).
-    Above :data:`chekan.settling.UNSETTLED_PIX` the program's classical items are biased
-    unless the transient is removed (:func:`chekan.settling.settled_items`)."""
+def settled_transient(program: TiltProgram, values: DesignValues | None = None):
+    """τ ↦ the largest transient (pix) that the sensor's lag leaves in a hold's settled
+    mean: f − E of each hold's last bin (from the settling time on, what Calibr.exe
+    averages; :func:`lagged_means` of the equilibria along holds and slews). The program
+    is laid out and its equilibria computed once; only the lag depends on τ."""
     values = values or DesignValues()
     layout = program_layout(program, values)
     _, (E_h, _, _), (E_s, _, _) = _hold_sensitivities(layout, values.truth)
     E_h, E_s = np.asarray(E_h, dtype=float), np.asarray(E_s, dtype=float)
-    lag = lagged_means(layout, float(values.truth.tau_s), E_h[..., None], E_s[..., None])
     last = np.array([np.flatnonzero(layout.bin_hold == k).max() for k in range(E_h.shape[0])])
-    left = lag.f[last, :, 0] - E_h
-    return float(np.max(np.abs(left[1:]), initial=0.0))  # hold 0: settled from the start
+
+    def largest(tau_s: float) -> float:
+        lag = lagged_means(layout, tau_s, E_h[..., None], E_s[..., None])
+        left = lag.f[last, :, 0] - E_h
+        return float(np.max(np.abs(left[1:]), initial=0.0))  # hold 0: settled from the start
+
+    return largest
+
+
+def settled_transient_pix(program: TiltProgram, values: DesignValues | None = None) -> float:
+    """:func:`settled_transient` at the design τ. Above :data:`chekan.settling.UNSETTLED_PIX`
+    the program's classical items are biased unless the transient is removed
+    (:func:`chekan.settling.settled_items`)."""
+    values = values or DesignValues()
+    return settled_transient(program, values)(float(values.truth.tau_s))
 
 
 def settled_tau_limit_s(program: TiltProgram, values: DesignValues | None = None) -> float:
-    """The longest lag τ (s) for which :func:`settled_transient_pix` stays within
+    """The longest lag τ (s) for which :func:`settled_transient` stays within
     :data:`chekan.settling.UNSETTLED_PIX` (bisection in log τ on 1–1000 s; the transient
     grows with τ): the instruments whose classical items this program's settling serves."""
     from chekan.settling import UNSETTLED_PIX
 
-    values = values or DesignValues()
-
-    def left(tau_s: float) -> float:
-        truth = dataclasses.replace(values.truth, tau_s=tau_s)
-        return settled_transient_pix(program, dataclasses.replace(values, truth=truth))
-
+    left = settled_transient(program, values)
     lo, hi = 1.0, 1000.0
     if left(lo) > UNSETTLED_PIX:
         return 0.0
