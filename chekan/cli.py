@@ -152,7 +152,8 @@ def _cmd_design(args) -> int:
     from chekan.design import run_design_command
 
     check_outputs(
-        [args.program], [Output(args.out, writes=PROGRAM) if args.out else None, args.json]
+        [args.program, args.angle_calibration],
+        [Output(args.out, writes=PROGRAM) if args.out else None, args.json],
     )
     return run_design_command(args)
 
@@ -329,6 +330,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--angle-bound-arcsec",
         type=float,  # checked by the design's own values (a bad bound: exit 2, named)
         help="bound U of the platform angle sensors' systematic error (default 3; 0: none)",
+    )
+    p.add_argument(
+        "--angle-calibration",
+        metavar="FILE",
+        help="the platform's own angle calibration (chekan-angle-calibration/1): its U "
+        "replaces the bound for the axes it has",
     )
     p.add_argument("-o", "--out", help="write the best program here (TOML; implies --search)")
     p.add_argument("--json", help="write the expected sds and the ranked table here")

@@ -482,3 +482,90 @@ def test_every_ranked_program_is_a_program_file_with_the_same_steps(tmp_path):
         assert back.steps == prog.steps, prog.describe()
         assert back.round_axes == prog.round_axes and back.axis == prog.axis
     assert main(["program", str(tmp_path / f"p{len(progs) - 1}.toml")]) == 0
+
+
+# ----------------------------------------------------------------------- the platform's own table
+
+
+def _calibration_file(path: Path, U: float = 0.5, axes: str = "yx", span_arcmin: int = 340):
+    """A table every 5′ over ±``span_arcmin`` of each axis in ``axes``, corrections 0."""
+    rows = [
+        f"{axis},{a},0,{U:g}"
+        for axis in axes
+        for a in range(-60 * span_arcmin, 60 * span_arcmin + 1, 300)
+    ]
+    path.write_text(
+        "# format: chekan-angle-calibration/1\n# id: AC-D1\n# date: 2026-10-02\n"
+        "axis,angle_arcsec,correction_arcsec,U_arcsec\n" + "\n".join(rows) + "\n",
+        encoding="utf-8",
+    )
+    return path
+
+
+def test_a_calibration_table_gives_the_design_its_u_in_place_of_the_bound(tmp_path):
+    """A table of U = 0.5″ (k = 2) everywhere is u = 0.25″ per commanded angle and for the
+    scale, both extremes as for a bound, normal: the same prior as the rectangular bound
+    0.25·√3″. The design gives the same sds to round-off, on programs about Y, about X and
+    about both; a table of the Y axis alone leaves the X sensor at the bound."""
+    from chekan.anglecal import read_angle_calibration
+
+    cal = read_angle_calibration(_calibration_file(tmp_path / "cal.csv"))
+    same_bound = d.DesignValues(angle_bound_arcsec=0.25 * math.sqrt(3.0))
+    with_table = d.DesignValues(angle_calibration=cal)
+    xy = build_program(PAPER_DEG[::2], axis="xy", dwell_s=400, settle_s=150, rounds=4)
+    for prog in (_old_programs()["paper"], _old_programs()["x"], xy):
+        a = d.expected_precision(prog, with_table).sd
+        b = d.expected_precision(prog, same_bound).sd
+        for p in ("b1", "b2", "a"):
+            assert a[p] == pytest.approx(b[p], rel=1e-9)
+        bound3 = d.expected_precision(prog, d.DesignValues()).sd["b1"]
+        assert a["b1"] < 0.9 * bound3  # the table is worth something on every program
+    y_only = read_angle_calibration(_calibration_file(tmp_path / "y.csv", axes="y"))
+    assert d.DesignValues(angle_calibration=y_only).angle_spec_of("x").table is None
+    mixed = d.expected_precision(xy, d.DesignValues(angle_calibration=y_only)).sd["b1"]
+    both = d.expected_precision(xy, with_table).sd["b1"]
+    assert both < mixed < d.expected_precision(xy, d.DesignValues()).sd["b1"]
+
+
+def test_cli_design_with_the_platforms_angle_calibration(tmp_path, capsys):
+    """``chekan design --angle-calibration FILE`` names the table and prints the smaller sd;
+    its JSON carries the table's identity; a table that does not reach the angles the
+    design evaluates, an unreadable one, or the bound given beside it: exit 2, named."""
+    import json
+
+    from chekan.anglecal import read_angle_calibration
+    from chekan.cli import main
+
+    cal = _calibration_file(tmp_path / "cal.csv")
+    js = tmp_path / "d.json"
+    assert main(["design", "--angle-calibration", str(cal), "--json", str(js)]) == 0
+    text = capsys.readouterr().out
+    assert "angle calibration AC-D1 of 2026-10-02" in text and "U ≤ 0.5″" in text
+    from chekan.program import default_program
+
+    sd = d.expected_precision(
+        default_program(), d.DesignValues(angle_calibration=read_angle_calibration(cal))
+    ).sd["b1"]
+    assert f"{1e6 * sd / 6.98:.1f} ppm" in text
+    doc = json.loads(js.read_text(encoding="utf-8"))
+    assert doc["assumptions"]["angle_calibration"]["id"] == "AC-D1"
+    assert doc["given"]["sd"]["b1"] == pytest.approx(sd, rel=1e-12)
+
+    short = _calibration_file(tmp_path / "short.csv", span_arcmin=300)  # ±5°00′ < 5°10′
+    assert main(["design", "--angle-calibration", str(short)]) == 2
+    err = capsys.readouterr().err
+    assert str(short) in err and "18600″" in err and "nothing is extrapolated" in err
+    prog = tmp_path / "low.toml"
+    prog.write_text('angles = ["2°30\'", "4°30\'"]\ndwell_s = 400\nrounds = 2\n', "utf-8")
+    assert main(["design", str(prog), "--angle-calibration", str(short)]) == 0
+    capsys.readouterr()
+    assert main(["design", str(prog), "--angle-calibration", str(short), "--search"]) == 2
+    err = capsys.readouterr().err
+    assert "the search's angles about X (up to ±5°10'" in err and "-18600″" in err
+    both = ["design", "--angle-calibration", str(cal), "--angle-bound-arcsec", "3"]
+    assert main(both) == 2
+    assert "not both" in capsys.readouterr().err
+    bad = tmp_path / "bad.csv"
+    bad.write_text(cal.read_text(encoding="utf-8").replace(",0.5\n", ",-0.5\n", 1), "utf-8")
+    assert main(["design", "--angle-calibration", str(bad)]) == 2
+    assert f"{bad}:" in capsys.readouterr().err

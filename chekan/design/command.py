@@ -3,11 +3,12 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import time
 from pathlib import Path
+
+import numpy as np
 
 from chekan.design.information import (
     ExpectedPrecision,
@@ -298,6 +299,9 @@ def design_json(
             "slew_deg_per_s": t.slew_deg_per_s,
             "angle_bound_arcsec": values.angle_bound_arcsec,
             "angle_scale_share": values.angle_scale_share,
+            "angle_calibration": (
+                None if values.angle_calibration is None else values.angle_calibration.entry()
+            ),
         },
         "given": given,
     }
@@ -359,20 +363,88 @@ def _k_text(c: Candidate, objective: str) -> str:
     return "—" if c.reliability is None else f"{c.reliability.k_of(objective):.2f}"
 
 
-def run_design_command(args) -> int:
-    """``chekan design [PROGRAM.toml] [--budget-h H] [--search] [--out best.toml] [--json J]``."""
-    from chekan.program import default_program, load_program
-
-    program = load_program(args.program) if args.program else default_program()
+def design_values(args, program: TiltProgram) -> DesignValues:
+    """The design values that ``--angle-bound-arcsec`` or ``--angle-calibration`` ask for;
+    a bad bound, a table that cannot be read or does not cover the angles the design
+    evaluates (the program's, and with ``--search`` the search's ±1°50′…±5°10′ about each
+    axis the table has), or both options at once: an error before any work."""
     bound = getattr(args, "angle_bound_arcsec", None)
+    cal_path = getattr(args, "angle_calibration", None)
+    if bound is not None and cal_path is not None:
+        raise ChekanError(
+            "give --angle-bound-arcsec or --angle-calibration, not both: a calibration table "
+            "replaces the bound for the axes it has"
+        )
     if bound is not None and not 0.0 <= bound <= MAX_BOUND_ARCSEC:
         raise ChekanError(
             f"--angle-bound-arcsec {bound:g}: the bound of an angle sensor's error must lie in "
             f"[0, {MAX_BOUND_ARCSEC:g}] arcsec"
         )
-    values = DesignValues() if bound is None else DesignValues(angle_bound_arcsec=float(bound))
+    if cal_path is not None:
+        from chekan.anglecal import read_angle_calibration
+
+        cal = read_angle_calibration(cal_path)
+        _check_covered(cal, program, search=bool(args.search or args.out))
+        values = DesignValues(angle_calibration=cal)
+    else:
+        values = DesignValues() if bound is None else DesignValues(angle_bound_arcsec=float(bound))
     _ = values.angle_spec  # a bad bound is an error before any work
-    no_sys = dataclasses.replace(values, angle_bound_arcsec=0.0)
+    return values
+
+
+def _check_covered(cal, program: TiltProgram, search: bool) -> None:
+    """Refuse a table that does not cover the angles the design evaluates about its axes
+    (nothing is extrapolated, as in :func:`chekan.anglecal.corrected`)."""
+    from chekan.design.search import HIGHEST_ANGLE_ARCMIN
+    from chekan.units import ARCSEC_PER_RAD
+
+    for axis, table in sorted(cal.tables.items()):
+        theta = [s.theta_rad * ARCSEC_PER_RAD for s in program.steps if s.axis == axis]
+        what = f"the program's angles about {axis.upper()}"
+        if search:
+            theta += [-60.0 * HIGHEST_ANGLE_ARCMIN, 60.0 * HIGHEST_ANGLE_ARCMIN]
+            top = format_dms(HIGHEST_ANGLE_ARCMIN / 60.0, sign="pm")
+            what = f"the search's angles about {axis.upper()} (up to {top})"
+        if not theta:
+            continue
+        out = ~table.covers(np.asarray(theta, dtype=float))
+        if out.any():
+            lo, hi = table.span_arcsec
+            worst = max(np.asarray(theta)[out], key=abs)
+            raise ChekanError(
+                f"{cal.path}: axis {axis} covers {lo:g}…{hi:g}″, but {what} reach {worst:g}″: "
+                "nothing is extrapolated"
+            )
+
+
+def angle_sensors_text(values: DesignValues) -> str:
+    """What the design assumes of the angle sensors, in words."""
+    cal = values.angle_calibration
+    bound = (
+        f"systematic error bound {values.angle_bound_arcsec:g}″ per axis, per commanded "
+        "angle and scale; --angle-bound-arcsec 0 leaves it out"
+    )
+    if cal is None:
+        return bound
+    parts = []
+    for axis in ("y", "x"):
+        table = cal.table(axis)
+        if table is None:
+            parts.append(f"{axis.upper()}: no table, the bound {values.angle_bound_arcsec:g}″")
+        else:
+            parts.append(
+                f"{axis.upper()}: its table, U ≤ {float(np.max(table.U_arcsec)):g}″ (k = 2)"
+            )
+    return f"the platform's angle calibration {cal.id} of {cal.date} ({'; '.join(parts)})"
+
+
+def run_design_command(args) -> int:
+    """``chekan design [PROGRAM.toml] [--budget-h H] [--search] [--out best.toml] [--json J]``."""
+    from chekan.program import default_program, load_program
+
+    program = load_program(args.program) if args.program else default_program()
+    values = design_values(args, program)
+    no_sys = values.without_systematic()
     t0 = time.perf_counter()
     prec = expected_precision(program, values)
     print(f"given program ({args.program or 'the paper’s default'}):")
@@ -381,12 +453,9 @@ def run_design_command(args) -> int:
         "calibrates all rounds, with the X rounds' response beyond eq. (6) as a nuisance; "
         "the classical method certifies the rounds about Y and reports those about X beside them)"
     )
-    if values.angle_bound_arcsec:
-        print(
-            f"(angle sensors: systematic error bound {values.angle_bound_arcsec:g}″ per axis, "
-            "per commanded angle and scale; --angle-bound-arcsec 0 leaves it out)"
-        )
-    rnd = expected_precision(program, no_sys) if values.angle_bound_arcsec else None
+    if values.systematic:
+        print(f"(angle sensors: {angle_sensors_text(values)})")
+    rnd = expected_precision(program, no_sys) if values.systematic else None
     rel = expected_reliability(program, values)
     print(format_precision(prec, rnd, rel))
     settling = classical_settling(program, values)
@@ -419,7 +488,7 @@ def run_design_command(args) -> int:
         else:
             gain = result.given.objective / best.objective
             print(f"\nbest: {best.spec.label()}, dwell {best.program.dwell_s:g} s")
-            rnd = expected_precision(best.program, no_sys) if values.angle_bound_arcsec else None
+            rnd = expected_precision(best.program, no_sys) if values.systematic else None
             print(format_precision(best.precision, rnd, best.reliability))
             print(settling_text(classical_settling(best.program, values)))
             print(f"objective {result.objective}: {gain:.2f}× smaller sd than the given program")

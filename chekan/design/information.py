@@ -277,11 +277,12 @@ def systematic_basis(
     program uses, the estimator's terms (:func:`chekan.joint.angles.sensor_terms`: one per
     distinct commanded signed angle, level included, the scale error, and one per slew
     type along the slews; a tilt about X is read by the other sensor, with its own terms,
-    and the scale error the two may share). Empty when ``angle_bound_arcsec`` is 0."""
+    and the scale error the two may share), each sensor with its table where
+    ``values.angle_calibration`` has one, else the bound. Empty when neither is modelled
+    (``angle_bound_arcsec`` 0, no table)."""
     H = layout.theta_hold_rad.size
-    if values.angle_bound_arcsec == 0.0:
+    if not values.systematic:
         return np.zeros((H, 0)), np.zeros((*layout.slew_theta_rad.shape, 0)), np.zeros(0)
-    spec = values.angle_spec
     types = slew_types(
         layout.theta_hold_rad, layout.hold_axis, np.asarray(layout.slew_mask.any(axis=1))
     )
@@ -292,6 +293,7 @@ def systematic_basis(
             continue
         kinds, T = types_about(types, layout.hold_axis, axis)
         path_on = (layout.hold_axis == axis)[:, None] & layout.slew_mask
+        spec = values.angle_spec_of(axis)
         sensors[axis] = SensorReads(on, layout.slew_theta_rad, path_on, kinds, T, spec)
     hold, path, var, _, _ = all_sensor_terms(
         layout.theta_hold_rad, sensors, layout.slew_theta_rad.shape

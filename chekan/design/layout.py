@@ -12,11 +12,15 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, AngleSensorSpec
+from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, AngleSensorSpec, spec_for
+
+if TYPE_CHECKING:  # pragma: no cover
+    from chekan.anglecal import AngleCalibration
 from chekan.joint.binning import BIN_EDGES_S
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
@@ -37,7 +41,10 @@ class DesignValues:
     per commanded angle and the scale error of each axis's sensor
     (:class:`chekan.joint.angles.AngleSensorSpec`: each with the full u² = U²/3 by default,
     or ``angle_scale_share`` of it to the scale and the rest to the per-angle part);
-    0: no systematic error (the random δ only, as before).
+    0: no systematic error (the random δ only, as before). ``angle_calibration``: the
+    platform's own angle calibration (:mod:`chekan.anglecal`); where it has a table of an
+    axis, that sensor's terms take the table's u(θ) = U(θ)/2 instead of the bound, as the
+    estimator does (:func:`chekan.joint.angles.spec_for`).
     """
 
     truth: Truth = field(default_factory=Truth)
@@ -51,11 +58,30 @@ class DesignValues:
     priors: bool = True
     angle_bound_arcsec: float = DEFAULT_BOUND_ARCSEC
     angle_scale_share: float | None = None
+    angle_calibration: AngleCalibration | None = field(default=None, compare=False)
 
     @property
     def angle_spec(self) -> AngleSensorSpec:
-        """The angle sensors' specification these values assume (both axes alike)."""
+        """The angle sensors' specification bound these values assume (both axes alike)."""
         return AngleSensorSpec(self.angle_bound_arcsec, self.angle_scale_share)
+
+    def angle_spec_of(self, axis: str) -> AngleSensorSpec:
+        """What is known of the ``axis`` sensor: its table in :attr:`angle_calibration`,
+        else the bound (:attr:`angle_spec`)."""
+        cal = self.angle_calibration
+        if cal is not None and cal.table(axis) is not None:
+            return spec_for({}, None, axis=axis, calibration=cal)
+        return AngleSensorSpec(self.angle_bound_arcsec, self.angle_scale_share, axis=axis)
+
+    @property
+    def systematic(self) -> bool:
+        """Whether the angle sensors' systematic terms are modelled (a bound above 0 or a
+        calibration table)."""
+        return self.angle_bound_arcsec > 0.0 or self.angle_calibration is not None
+
+    def without_systematic(self) -> DesignValues:
+        """These values with the random angle error only (the comparison the design prints)."""
+        return replace(self, angle_bound_arcsec=0.0, angle_calibration=None)
 
 
 # ----------------------------------------------------------------------------- layout
