@@ -230,7 +230,8 @@ def session_plan(n: int, cases: Sequence[str], seed: int) -> list[tuple[int, str
 
 
 # ---------------------------------------------------------------------------- rows on disk
-def _parse_row(raw: dict[str, str]) -> dict[str, Any]:
+def parse_row(raw: dict[str, str]) -> dict[str, Any]:
+    """A ``validation.csv`` row with its numbers as int or float64 (NaN where empty)."""
     row: dict[str, Any] = {}
     for k, v in raw.items():
         if k in _INT_COLS:
@@ -247,7 +248,7 @@ def _parse_row(raw: dict[str, str]) -> dict[str, Any]:
 def read_rows(path: str | os.PathLike) -> list[dict[str, Any]]:
     """Rows of a ``validation.csv`` with numbers as float64 (NaN for failures)."""
     with open(path, newline="", encoding="utf-8") as f:
-        return [_parse_row(r) for r in csv.DictReader(f)]
+        return [parse_row(r) for r in csv.DictReader(f)]
 
 
 def _resumable(path: Path, cols: list[str], plan, program_name: str) -> dict[int, dict]:

@@ -66,6 +66,14 @@ MOTION_SUBSTEPS = 10
 DEFAULT_SCENARIO = Scenario()
 
 
+def edge_platform(i: int) -> tuple[str, float]:
+    """Session i's platform in the ``edge`` case: the shape of its systematic angle error
+    (one of :data:`EDGE_SHAPES`) and the sd of its random part in arcsec, drawn from a
+    stream of its own (the rest of the session's draws stay as in the other cases)."""
+    edge = np.random.default_rng([i, 0xED6E])
+    return str(edge.choice(EDGE_SHAPES)), float(edge.uniform(*EDGE_RANDOM_ARCSEC))
+
+
 def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenario):
     from chekan.simulate import random_truth
 
@@ -82,13 +90,13 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
         kw.update(drift_pix_per_h=tuple(rng.choice([-1, 1], 2) * 0.3))
     elif case == "slow":
         kw.update(tau_s=90.0)
-    elif case == "edge":  # its own stream: the rest of the session stays
-        edge = np.random.default_rng([i, 0xED6E])
+    elif case == "edge":
+        shape, random_sd = edge_platform(i)
         kw.update(
             angle_systematic_arcsec=EDGE_BOUND_ARCSEC,
             angle_systematic_peak=EDGE_PEAK,
-            angle_systematic_shape=str(edge.choice(EDGE_SHAPES)),
-            angle_error_sd_arcsec=float(edge.uniform(*EDGE_RANDOM_ARCSEC)),
+            angle_systematic_shape=shape,
+            angle_error_sd_arcsec=random_sd,
         )
     elif case == "late_angles":  # the protocol's slowest angle stream: a row's angles are
         # the platform's latest report, sent once a second at its own phase (up to 1 s old),
