@@ -45,6 +45,16 @@ and stops elsewhere inside its tolerance: means by at most 4e-6 of their sd (a d
 near zero, sim509's, by 1.5e-6 of itself), the budget's hyperparameter line by 1.2e-5
 relative. Every Gauss–Newton (default) figure of the eleven
 inputs within 1.1e-9 relative of the code before.
+
+The machine moves the simulated records' LM figures too (2026-11-28): on a machine other
+than the one the snapshot was re-taken on (an AVX-512 processor; the versions the pins
+resolve to that day), the landed code that reproduced it there gives other last bits, and
+LM's path through the flat valleys carries them to 7e-6 relative in a drift slope near
+zero (1.8e-7 of its sd), 2.8e-6 in the budget's hyperparameter line and 3e-6 of the sd in
+a mean (a, sim502); every classical figure and the paper's protocol bit for bit. So the
+simulated records' MAP figures are held to ``LM_PATH_TOL`` (1e-4 of the figure's sd for a
+mean, 1e-4 relative otherwise: 30× what the machine moved, 100× tighter than the
+Gauss–Newton test's 0.01 sd); the rest to 1e-6 relative as before.
 """
 
 from __future__ import annotations
@@ -56,6 +66,16 @@ from pathlib import Path
 import pytest
 
 HERE = Path(__file__).resolve().parent / "data" / "regression"
+LM_PATH_TOL = 1e-4  # the simulated records' LM figures: of the sd (means), else relative
+
+
+def _tolerance(run: str, key: str, ref: float, got: float, figures: dict) -> float:
+    """How far a figure may lie from the snapshot (module docstring)."""
+    exact = 1e-6 * max(abs(ref), abs(got)) + 1e-15
+    if not (run.startswith("sim") and run.endswith(".map")):
+        return exact
+    sd = figures.get(key[: -len(".mean")] + ".sd") if key.endswith(".mean") else None
+    return max(exact, LM_PATH_TOL * (sd if sd else max(abs(ref), abs(got))))
 
 
 def _maker():
@@ -76,7 +96,7 @@ def test_classical_and_map_reproduce_the_snapshot(paper_protocol):
         assert set(figures) <= set(now[run]), (run, set(figures) - set(now[run]))
         for key, ref in figures.items():
             got = now[run][key]
-            if abs(got - ref) > 1e-6 * max(abs(ref), abs(got)) + 1e-15:
+            if abs(got - ref) > _tolerance(run, key, ref, got, figures):
                 bad.append(f"{run} {key}: {got!r} != {ref!r}")
     assert not bad, "\n".join(bad[:20])
 
