@@ -18,12 +18,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, AngleSensorSpec, spec_for
-
-if TYPE_CHECKING:  # pragma: no cover
-    from chekan.anglecal import AngleCalibration
 from chekan.joint.binning import BIN_EDGES_S
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
+
+if TYPE_CHECKING:  # pragma: no cover
+    from chekan.anglecal import AngleCalibration
 
 
 @dataclass(frozen=True)
