@@ -246,9 +246,30 @@ def parse_row(raw: dict[str, str]) -> dict[str, Any]:
 
 
 def read_rows(path: str | os.PathLike) -> list[dict[str, Any]]:
-    """Rows of a ``validation.csv`` with numbers as float64 (NaN for failures)."""
+    """Rows of a ``validation.csv`` with numbers as float64 (NaN for failures). A row that
+    is not one is an error naming the file and its line; an incomplete last line (a study
+    stopped mid-write) is left out with a warning."""
+    import warnings
+
+    from chekan.errors import ChekanError
+
     with open(path, newline="", encoding="utf-8") as f:
-        return [parse_row(r) for r in csv.DictReader(f)]
+        reader = csv.DictReader(f)
+        lines = [(reader.line_num, raw) for raw in reader]
+        width = len(reader.fieldnames or ())
+    rows = []
+    for k, (line, raw) in enumerate(lines):
+        short = None in raw.values()
+        if short and k == len(lines) - 1:
+            warnings.warn(f"{path}: line {line}: incomplete last line left out", stacklevel=2)
+            continue
+        if short or None in raw:
+            raise ChekanError(f"{path}: line {line}: not the header's {width} fields")
+        try:
+            rows.append(parse_row(raw))
+        except ValueError as e:
+            raise ChekanError(f"{path}: line {line}: {e}") from None
+    return rows
 
 
 def _resumable(path: Path, cols: list[str], plan, program_name: str) -> dict[int, dict]:

@@ -155,8 +155,7 @@ def compare(
 
 
 def markdown_table(rows: Sequence[RatioRow], name_a: str, name_b: str, target: float) -> str:
-    """The rows as a markdown table, RMS errors in ppm of the true value's scale where
-    given in mGal/pix (b₁, b₂) and in the parameter's own unit otherwise."""
+    """The rows as a markdown table, RMS errors in each parameter's own unit."""
     lines = [
         f"A = {name_a}; B = {name_b}. Ratio r = RMS error A / RMS error B on the same "
         f"sessions, 95 % paired bootstrap interval ({BOOTSTRAP} resamples), and the share "
@@ -207,30 +206,21 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
 
 
 def _rows(path: str) -> list[dict]:
-    """The rows of a ``validation.csv``; a line that is not one is an error naming it."""
+    """The rows of a ``validation.csv`` (:func:`chekan.validate.read_rows`: a bad line is an
+    error naming it), which must have the columns that pair them."""
     import csv
 
-    from chekan.validate import parse_row
+    from chekan.validate import read_rows
 
-    need = {"session", "case", "seed", "true_b1"}
     with open(path, newline="", encoding="utf-8") as f:
-        reader = csv.DictReader(f)
-        missing = need - set(reader.fieldnames or ())
-        if missing:
-            raise ChekanError(
-                f"{path}: line 1: not a validation.csv of python -m chekan.validate "
-                f"(no column {', '.join(sorted(missing))})"
-            )
-        rows = []
-        for raw in reader:
-            if None in raw or None in raw.values():
-                n = len(reader.fieldnames or ())
-                raise ChekanError(f"{path}: line {reader.line_num}: not {n} fields as the header")
-            try:
-                rows.append(parse_row(raw))
-            except ValueError as e:
-                raise ChekanError(f"{path}: line {reader.line_num}: {e}") from None
-    return rows
+        header = next(csv.reader(f), [])
+    missing = {"session", "case", "seed", "true_b1"} - set(header)
+    if missing:
+        raise ChekanError(
+            f"{path}: line 1: not a validation.csv of python -m chekan.validate "
+            f"(no column {', '.join(sorted(missing))})"
+        )
+    return read_rows(path)
 
 
 if __name__ == "__main__":

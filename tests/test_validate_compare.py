@@ -134,3 +134,23 @@ def test_the_command_prints_and_writes_the_table_and_names_a_bad_line(tmp_path, 
     (tmp_path / "c.csv").write_text("session,case\n0,typical\n", encoding="utf-8")
     assert main([str(a), str(tmp_path / "c.csv")]) == 2
     assert "not a validation.csv" in capsys.readouterr().err
+
+
+def test_a_study_stopped_mid_write_loses_only_its_torn_last_line(tmp_path):
+    """``read_rows`` (``--resume`` and this command read through it): an incomplete last
+    line is left out with a warning; a short line elsewhere is an error naming it."""
+    from chekan.validate import read_rows
+
+    path = tmp_path / "v.csv"
+    _write(path, _study(_errors(5), 1e-3))
+    text = path.read_text(encoding="utf-8")
+    torn = tmp_path / "torn.csv"
+    torn.write_text(text + "5,typical,5", encoding="utf-8")
+    with pytest.warns(UserWarning, match=r"line 7: incomplete last line"):
+        assert len(read_rows(torn)) == 5
+    lines = text.splitlines()
+    lines[2] = lines[2].rsplit(",", 3)[0]
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(ChekanError, match=r"short.csv: line 3: not the header's 13 fields"):
+        read_rows(short)
