@@ -522,6 +522,11 @@ def test_a_calibration_table_gives_the_design_its_u_in_place_of_the_bound(tmp_pa
         assert a["b1"] < 0.9 * bound3  # the table is worth something on every program
     y_only = read_angle_calibration(_calibration_file(tmp_path / "y.csv", axes="y"))
     assert d.DesignValues(angle_calibration=y_only).angle_spec_of("x").table is None
+    from chekan.design.command import angle_sensors_text
+
+    text = angle_sensors_text(d.DesignValues(angle_calibration=y_only))
+    assert "Y: its table, U ≤ 0.5″" in text and "X: no table, the bound 3″" in text
+    assert "refuses a record tilted about X" in text
     mixed = d.expected_precision(xy, d.DesignValues(angle_calibration=y_only)).sd["b1"]
     both = d.expected_precision(xy, with_table).sd["b1"]
     assert both < mixed < d.expected_precision(xy, d.DesignValues()).sd["b1"]

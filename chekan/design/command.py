@@ -430,7 +430,10 @@ def angle_sensors_text(values: DesignValues) -> str:
     for axis in ("y", "x"):
         table = cal.table(axis)
         if table is None:
-            parts.append(f"{axis.upper()}: no table, the bound {values.angle_bound_arcsec:g}″")
+            parts.append(
+                f"{axis.upper()}: no table, the bound {values.angle_bound_arcsec:g}″ here, but "
+                f"chekan calibrate refuses a record tilted about {axis.upper()} with this table"
+            )
         else:
             parts.append(
                 f"{axis.upper()}: its table, U ≤ {float(np.max(table.U_arcsec)):g}″ (k = 2)"
