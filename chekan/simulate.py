@@ -65,6 +65,9 @@ class Truth:
     x_unmodelled_odd_pix: tuple[float, float] = (0.0, 0.0)
     x_unmodelled_even_pix: tuple[float, float] = (0.0, 0.0)
     x_unmodelled_cubic: float = 0.3
+    # the reading of each system's horizontal pendulum minus the CCD centre ``m0_pix``,
+    # which the record states as m0 (the paper's convention: 0); eq. (6) turns about it
+    horizontal_offset_pix: tuple[float, float] = (0.0, 0.0)
     tilt_jitter_arcsec: float = 0.3
     # the platform's angle stream (serial protocol: at least once per second) is not the
     # sensor's clock: a row carries the latest report, up to one period old; 0: on time
@@ -84,6 +87,9 @@ class Truth:
     hold_offset_pix: list[list[float]] = field(default_factory=list)  # per step × system
 
     def params(self) -> fm.SensorParams:
+        """The forward model's parameters; m₀ is each pendulum's horizontal (the CCD centre
+        plus ``horizontal_offset_pix``, a scalar where that is zero)."""
+        off = np.asarray(self.horizontal_offset_pix, dtype=float)
         return fm.make_params(
             g_mgal=self.g_local_mgal,
             K_pix_per_rad=self.K_pix_per_rad,
@@ -91,7 +97,7 @@ class Truth:
             m_level_pix=self.m_level_pix,
             eps_rad=np.asarray(self.eps_arcmin) / ARCMIN_PER_RAD,
             gamma_rad=self.dgamma_arcmin / ARCMIN_PER_RAD,
-            m0_pix=self.m0_pix,
+            m0_pix=self.m0_pix + off if off.any() else self.m0_pix,
         )
 
     def drift_coeffs(self) -> np.ndarray:
@@ -104,10 +110,13 @@ class Truth:
         )
 
     def derived(self) -> dict:
-        """a, b₀ and the misalignment angles as the result JSON names them."""
+        """a, b₀ (at the CCD centre, eq. 24) and the misalignment angles as the result JSON
+        names them."""
         p = self.params()
         a = np.asarray(fm.quadratic_coefficient(p, p.m_level_pix))
-        b0 = np.asarray(fm.scale_factor_at_centre(p))
+        b0 = np.asarray(self.b_mgal_per_pix) + 2.0 * a * (
+            self.m0_pix - np.asarray(self.m_level_pix)
+        )
         return {
             "b1": self.b_mgal_per_pix[0],
             "b2": self.b_mgal_per_pix[1],

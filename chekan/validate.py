@@ -87,7 +87,9 @@ CASES = (
     "late_angles",
     "continuous",
     "x_response",
+    "horizontal",
 )
+X_CASES = ("x_response", "horizontal")  # cases that only programs with rounds about X run
 
 DEFAULT_METHODS = ("classical", "map")
 _INT_COLS = ("session", "seed")
@@ -459,7 +461,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--cases",
         nargs="+",
         choices=CASES,
-        help="cases to run (default: all; x_response only for programs with rounds about X)",
+        help="cases to run (default: all; x_response and horizontal only for programs with "
+        "rounds about X)",
     )
     ap.add_argument(
         "--methods",
@@ -544,7 +547,7 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
 
         program = load_program(args.program)
     about_x = program is not None and "x" in program.tilt_axes
-    cases = args.cases or [c for c in CASES if about_x or c != "x_response"]
+    cases = args.cases or [c for c in CASES if about_x or c not in X_CASES]
     s = run_study(
         args.sessions,
         Path(args.out),

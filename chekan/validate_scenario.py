@@ -120,6 +120,12 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
             x_unmodelled_even_pix=tuple(xr.uniform(-even, even, 2)),
             x_unmodelled_cubic=scenario.x_cubic,
         )
+    elif case == "horizontal":  # each pendulum's horizontal off the CCD centre that the
+        # record states, up to the mounting tolerance that the model assumes
+        from chekan.joint.xresponse import M0_TOLERANCE_PIX
+
+        off = np.random.default_rng([i, 0x40B]).uniform(-M0_TOLERANCE_PIX, M0_TOLERANCE_PIX, 2)
+        kw.update(horizontal_offset_pix=tuple(float(v) for v in off))
     truth = random_truth(rng, serial=f"V{i}", **kw)
     if scenario.random_arcsec is not None and case != "edge":
         lo, hi = scenario.random_arcsec

@@ -110,7 +110,7 @@ def test_budget_has_a_line_per_angle_sensor_and_the_x_response(dual_fit):
 
 
 @pytest.mark.slow
-def test_a_tighter_x_bound_shrinks_the_x_sensors_line_and_b_leans_on_the_x_rounds(dual_fit):
+def test_a_tighter_x_bound_shrinks_the_x_sensors_line_and_leaves_b_on_the_y_rounds(dual_fit):
     rec, _truth, res = dual_fit
     meta = {**rec.meta, "platform_angle_bound_x_arcsec": "0.5"}
     tight = calibrate(
@@ -119,10 +119,13 @@ def test_a_tighter_x_bound_shrinks_the_x_sensors_line_and_b_leans_on_the_x_round
     before, after = res["uncertainty_budget"]["b1"], tight["uncertainty_budget"]["b1"]
     x_ratio = after["angle_systematic_x"] / before["angle_systematic_x"]
     y_ratio = after["angle_systematic_y"] / before["angle_systematic_y"]
-    # b is measured on both axes: with the X sensor known better, b leans on the X rounds,
-    # so the X line shrinks (less than its u, its weight grows) and the Y line with it
-    assert x_ratio < 0.7 and y_ratio < 0.9, (x_ratio, y_ratio)
-    assert after["total"] < 0.9 * before["total"]
+    # the X rounds' even response measures b only together with the pendulums' horizontal
+    # (its sin²θ column, chekan.joint.xresponse.level_angle_column, is b's own shape), so b
+    # rests on the Y rounds and the X rounds reach it through a (K): with the X sensor known
+    # 6× better its line shrinks about as much, and the Y line stays (before the horizontal
+    # was carried, b leaned on the X rounds: x_ratio < 0.7, y_ratio < 0.9)
+    assert x_ratio < 0.3 and 0.95 < y_ratio < 1.05, (x_ratio, y_ratio)
+    assert after["total"] < before["total"]
     assert tight["angle_sensors"]["x"]["bound_arcsec"] == 0.5
 
 

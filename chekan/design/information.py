@@ -317,6 +317,8 @@ def x_response_columns(layout: Layout, truth: Truth) -> tuple[np.ndarray, np.nda
         path_on,
         kinds,
         T,
+        m_level_pix=float(np.mean(truth.m_level_pix)),
+        m0_pix=float(truth.m0_pix),
     )
 
 

@@ -239,6 +239,8 @@ def prepare_record(
         (slew_axis == "x")[:, None] & mv_mask,
         x_kinds,
         x_types,
+        m_level_pix=float(np.mean(m_level_ref)),
+        m0_pix=float(record.ccd_center_pix),
     )
     # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
     arrays = {

@@ -24,6 +24,20 @@ largest one:
   read as a bound (rectangular, u = U/√3, GUM 4.3.7) in mGal and converted with the
   nominal b. The X rounds then inform b through their even part up to that uncertainty;
   the Y rounds carry b on their own when it is larger (validation: ``docs/figures/``).
+
+The same tolerance reaches the **even** part too: eq. (6) turns the pendulum in its own
+plane by the odd part, and the stiffness g·sin θ·δ it meets there adds to the even part
+≈ −(g/bK)²·sin²θ·Δm₀ pixels (0.05 pix per pix of Δm₀ at 5°10′, three times the even
+term's prior sd of 0.017 pix): the X rounds' even part is exact only if the pendulum's
+horizontal is known to a fraction of a pixel. So every system also carries its **level
+angle** term, one coefficient Δm₀ⱼ (pix, prior sd ``M0_TOLERANCE_PIX``) on the column
+∂E_even/∂m₀ of eq. (6) (:func:`level_angle_column`) at the X holds and along the slews
+about X (its odd part is the odd terms'). The same term
+holds the level reading that φ_h belongs to: a drift whose course the model holds moves
+the record's mean level reading away from the reading of the pendulum's own level by its
+run over the record (a read-out drift leaves φ_h, a creeping fibre moves it). The Y
+response changes by 1.6·10⁻⁵ of itself per 100 pix (b by 16 ppm): left out, so that
+records about Y alone keep their results.
 """
 
 from __future__ import annotations
@@ -42,6 +56,7 @@ M0_TOLERANCE_PIX = 100.0  # the CCD centre vs the pendulum's horizontal (5 % of 
 EVEN_BOUND_MGAL = 0.2  # eq. (20): what eq. (21) may leave out at the largest angle
 GROUP_ARCSEC = 30.0  # X angles closer than this are one angle (as the angle sensors')
 LEVEL_RAD = float(np.deg2rad(0.1))  # below this a hold is level (:mod:`chekan.holds`)
+NEWTON_STEPS = 8  # eq. (6) by Newton from the linear root: converged to rounding at 5°10′
 
 
 class _XAngles(NamedTuple):
@@ -97,21 +112,68 @@ def x_response_terms(
     path_on: np.ndarray,
     kinds: np.ndarray,
     n_types: int,
+    *,
+    m_level_pix: float,
+    m0_pix: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All X-response terms of a record: at the holds (H, C), along the slews (H, M, C) and
     their prior variances (C,) — the holds' 2A terms (:func:`x_response_basis`), then the
-    slews' 2T (:func:`x_response_path`), each zero where the other acts."""
+    slews' 2T (:func:`x_response_path`), each zero where the other acts, then the level
+    angle's one column at both (:func:`level_angle_column`, at the level reading
+    ``m_level_pix`` and the CCD centre ``m0_pix``)."""
     hold, var = x_response_basis(theta_rad, hold_axis, g_mgal)
     path = x_response_path(theta_rad, hold_axis, path_rad, path_on, kinds, n_types)
     n_hold, n_path = hold.shape[1], path.shape[-1]
     if n_hold == 0:
         return hold, np.zeros((*np.shape(path_rad), 0)), var
     per_type = var[:2]  # a slew's odd and even terms: the priors of the holds' terms
-    return (
-        np.concatenate([hold, np.zeros((hold.shape[0], n_path))], axis=1),
-        np.concatenate([np.zeros((*path.shape[:-1], n_hold)), path], axis=-1),
-        np.concatenate([var, np.tile(per_type, n_path // 2)]),
+    theta = np.asarray(theta_rad, dtype=float)
+    on = (np.asarray(hold_axis) == "x") & (np.abs(theta) > LEVEL_RAD)
+    level = level_angle_column(np.where(on, theta, 0.0), g_mgal, m_level_pix, m0_pix)
+    level_path = level_angle_column(
+        np.where(path_on, np.asarray(path_rad, dtype=float), 0.0), g_mgal, m_level_pix, m0_pix
     )
+    return (
+        np.concatenate([hold, np.zeros((hold.shape[0], n_path)), level[:, None]], axis=1),
+        np.concatenate(
+            [np.zeros((*path.shape[:-1], n_hold)), path, level_path[..., None]], axis=-1
+        ),
+        np.concatenate([var, np.tile(per_type, n_path // 2), [M0_TOLERANCE_PIX**2]]),
+    )
+
+
+def level_angle_column(
+    theta_rad: np.ndarray, g_mgal: float, m_level_pix: float, m0_pix: float
+) -> np.ndarray:
+    """∂/∂m₀ of the even part of eq. (6)'s reading at tilts θ about X, pix per pix, at the
+    nominal b and K (it changes by 0.5 % over the tolerance of Δm₀, and
+    by 2·δb/b + 2·δK/K, a few per cent at most, with the parameters):
+
+        λδ = g[−(1 − cos θ) cos φ + (cos φ − cos φ_h) + sin θ sin φ],  φ = φ_h + δ,
+        φ_h = (m_h − m₀)/K,  λ = bK cos φ_h − g sin φ_h,  E_even = K(δ(θ) + δ(−θ))/2;
+
+    a central difference of ±1 pix (exact for a function this close to linear)."""
+    theta = np.asarray(theta_rad, dtype=float)
+    K, b = K_NOMINAL_PIX_PER_RAD, B_NOMINAL_MGAL_PER_PIX
+
+    def even(m0: float) -> np.ndarray:
+        phi_h = (m_level_pix - m0) / K
+        lam = b * K * math.cos(phi_h) - g_mgal * math.sin(phi_h)
+        out = np.zeros_like(theta)
+        for t in (theta, -theta):
+            hav, s = 2.0 * np.sin(0.5 * t) ** 2, np.sin(t)
+            delta = -g_mgal * hav / lam
+            for _ in range(NEWTON_STEPS):
+                phi = phi_h + delta
+                F = lam * delta - g_mgal * (
+                    -hav * np.cos(phi) + (np.cos(phi) - math.cos(phi_h)) + s * np.sin(phi)
+                )
+                dF = lam + g_mgal * ((1.0 - hav) * np.sin(phi) - s * np.cos(phi))
+                delta = delta - F / dF
+            out = out + 0.5 * K * delta
+        return out
+
+    return 0.5 * (even(m0_pix + 1.0) - even(m0_pix - 1.0))
 
 
 def x_response_basis(

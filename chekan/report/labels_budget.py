@@ -48,8 +48,10 @@ BUDGET_LABELS: dict[str, dict[str, str]] = {
         "ru": " (тип В, калибровка углов {id})",
     },
     "src_x_response": {
-        "en": "response to tilts about X beyond eq. (6) (Type B, eq. 20: 0.2 mGal)",
-        "ru": "отклик на наклоны вокруг X сверх ур. (6) (тип В, ур. 20: 0,2 мГал)",
+        "en": "response to tilts about X beyond eq. (6) (Type B, eq. 20: 0.2 mGal) and the "
+        "pendulums' horizontal (Type B, CCD centre, sd 100 pix)",
+        "ru": "отклик на наклоны вокруг X сверх ур. (6) (тип В, ур. 20: 0,2 мГал) и "
+        "горизонтальное положение маятников (тип В, центр ПЗС, ско 100 пикс)",
     },
     "src_angle_systematic_cal": {
         "en": "angle sensor, systematic (Type B, angle calibration {id})",
