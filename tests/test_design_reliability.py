@@ -22,8 +22,11 @@ def six_holds():
 
 def test_a_program_that_cannot_estimate_its_noise_gets_a_large_k():
     rel = expected_reliability(six_holds())
-    assert rel.nu_eff["b1"] < 3 and rel.nu_eff["b2"] < 3
-    assert rel.k["b1"] > 4.0 and rel.k_of("b_mean") > 4.0
+    # a's sd is the noise's, which six holds cannot estimate; b's is now mostly the Type B
+    # of the pendulums' horizontal, which a program about X alone cannot tell from b
+    # (chekan.joint.xresponse.level_angle_column), so its ν_eff is larger (≈ 6, was < 3)
+    assert rel.nu_eff["a"] < 3 and rel.k["a"] > 4.0
+    assert 3 < rel.nu_eff["b1"] < 20 and rel.k_of("b_mean") > 2.2
     assert set(rel.components) == {
         "noise_scale_1", "noise_scale_2", "slew_error", "sigma_theta", "sigma_hold",
     }  # fmt: skip
