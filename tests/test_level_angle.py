@@ -141,3 +141,23 @@ def test_the_horizontal_case_moves_the_pendulums_not_the_stated_centre():
     # the pendulums turn about their own horizontal: the X response differs from a centred one
     centred, _ = simulate_session(prog, Truth(), seed=1)
     assert np.max(np.abs(rec.m1_pix - centred.m1_pix)) > 1.0
+
+
+def test_a_is_taken_at_the_pendulums_horizontal():
+    """a(m_h) = G''(φ_h)/(2K²) depends on where the horizontal is (≈ 14 ppm per pixel):
+    the estimate takes it at m₀ + Δm₀ⱼ, the truth of a simulated horizontal offset is the
+    same number, and b₀ stays at the CCD centre."""
+    from chekan.joint.derived import at_horizontal, at_level
+
+    centred = Truth()
+    off = dataclasses.replace(centred, horizontal_offset_pix=(40.0, -20.0))
+    sp = centred.params()
+    a0, b00 = at_level(sp)
+    a_same, b0_same = at_horizontal(sp, np.zeros(2))
+    assert float(a_same) == pytest.approx(float(a0), rel=1e-14)
+    np.testing.assert_allclose(np.asarray(b0_same), np.asarray(b00), rtol=1e-14)
+    a_off, b0_off = at_horizontal(sp, np.array([40.0, -20.0]))
+    t = off.derived()
+    assert float(a_off) == pytest.approx(t["a"], rel=1e-12)
+    assert float(a_off) != pytest.approx(float(a0), rel=1e-4)  # it moves (here −144 ppm)
+    np.testing.assert_allclose(np.asarray(b0_off), [t["b1_0"], t["b2_0"]], rtol=1e-12)

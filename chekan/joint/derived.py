@@ -41,14 +41,28 @@ def at_level(sp: fm.SensorParams):
     return jnp.mean(fm.quadratic_coefficient(sp, sp.m_level_pix)), fm.scale_factor_at_centre(sp)
 
 
+def at_horizontal(sp: fm.SensorParams, dm0_pix):
+    """:func:`at_level` with each pendulum's horizontal at m₀ + Δm₀ⱼ (the level angle term of
+    :mod:`chekan.joint.xresponse`): a(m_h) of eq. (10) is G''(φ_h)/(2K²), so it depends on
+    where the horizontal is (≈ 14 ppm per pixel); b₀ stays at the CCD centre (eq. 24)."""
+    at = fm.quadratic_coefficient(sp._replace(m0_pix=sp.m0_pix + dm0_pix), sp.m_level_pix)
+    return jnp.mean(at), sp.b_mgal_per_pix + 2.0 * at * (sp.m0_pix - sp.m_level_pix)
+
+
 def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordData, dur_h):
     """``PHYSICAL`` as named scalars at parameter values ``v`` and linear block ``beta``
-    (also the level readings m_ref + c and the drift coefficients)."""
+    (also the level readings m_ref + c and the drift coefficients). A record about X
+    carries each pendulum's horizontal Δm₀ⱼ in β (the X-response block's last column), and
+    a is taken there (:func:`at_horizontal`)."""
     blocks = structure.beta_blocks
     D = structure.drift_degree
     ends = jnp.asarray([1.0 - (-1.0) ** ell for ell in range(1, D + 1)])  # P_l(1) − P_l(−1)
     sp = sensor_params(v, data, beta[blocks["c"]])
-    a, b0 = at_level(sp)
+    if structure.n_x_response:
+        dm0 = beta[blocks["x_response"]].reshape(2, structure.n_x_response)[:, -1]
+        a, b0 = at_horizontal(sp, dm0)
+    else:
+        a, b0 = at_level(sp)
     dr = beta[blocks["drift"]].reshape(2, D)
     slope = dr @ ends / dur_h
     out = {
