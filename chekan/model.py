@@ -184,9 +184,16 @@ def solve_deflection(du_z, u_y, u_zh, phi_h, lam, g, newton_steps: int = NEWTON_
 
 @partial(jax.custom_jvp, nondiff_argnums=(6,))
 def _deflection_root(du_z, u_y, u_zh, phi_h, lam, g, newton_steps: int):
+    return newton_deflection(du_z, u_y, u_zh, phi_h, lam, g, newton_steps + 1)
+
+
+def newton_deflection(du_z, u_y, u_zh, phi_h, lam, g, steps: int):
+    """δ of F(δ) = 0 by ``steps`` Newton steps from δ₀ = gΔu_z/λ, no derivative rule: plain
+    arithmetic, so numpy arrays stay numpy (a column built once per record, no JAX
+    dispatch); :func:`solve_deflection` is the differentiable one."""
     args = (du_z, u_y, u_zh, phi_h, lam, g)
     delta = g * du_z / lam + 0.0 * u_y
-    for _ in range(newton_steps + 1):
+    for _ in range(steps):
         delta = delta - _residual(delta, *args) / _residual_derivative(delta, *args)
     return delta
 
@@ -273,6 +280,16 @@ def scale_factor_at_centre(params: SensorParams):
     """b₀ = b + 2a(m₀ − m_h) (eq. 24), with a taken at the level reading."""
     a = quadratic_coefficient(params, params.m_level_pix)
     return params.b_mgal_per_pix + 2.0 * a * (params.m0_pix - params.m_level_pix)
+
+
+@jax.jit
+def coefficients_at_horizontal(params: SensorParams, horizontal_offset_pix):
+    """a(m_h) of each system (eq. 10, G''(φ_h)/(2K²)) with its pendulum's horizontal at
+    m₀ + Δm₀ⱼ, and b₀ = b + 2a(m₀ − m_h) at the CCD centre m₀ (eq. 24): the centre is the
+    paper's reference reading, the horizontal is where eq. (6) turns the pendulum."""
+    at = params._replace(m0_pix=params.m0_pix + horizontal_offset_pix)
+    a = quadratic_coefficient(at, params.m_level_pix)
+    return a, params.b_mgal_per_pix + 2.0 * a * (params.m0_pix - params.m_level_pix)
 
 
 @jax.jit

@@ -112,11 +112,10 @@ class Truth:
     def derived(self) -> dict:
         """a, b₀ (at the CCD centre, eq. 24) and the misalignment angles as the result JSON
         names them."""
-        p = self.params()
-        a = np.asarray(fm.quadratic_coefficient(p, p.m_level_pix))
-        b0 = np.asarray(self.b_mgal_per_pix) + 2.0 * a * (
-            self.m0_pix - np.asarray(self.m_level_pix)
-        )
+        off = np.asarray(self.horizontal_offset_pix, dtype=float)
+        centre = replace(self, horizontal_offset_pix=(0.0, 0.0)).params()
+        at = fm.coefficients_at_horizontal(centre, off if off.any() else 0.0)
+        a, b0 = (np.asarray(x) for x in at)
         return {
             "b1": self.b_mgal_per_pix[0],
             "b2": self.b_mgal_per_pix[1],

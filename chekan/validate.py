@@ -56,7 +56,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -247,16 +247,23 @@ def parse_row(raw: dict[str, str]) -> dict[str, Any]:
     return row
 
 
-def read_rows(path: str | os.PathLike) -> list[dict[str, Any]]:
-    """Rows of a ``validation.csv`` with numbers as float64 (NaN for failures). A row that
-    is not one is an error naming the file and its line; an incomplete last line (a study
-    stopped mid-write) is left out with a warning."""
+def read_rows(path: str | os.PathLike, need: Collection[str] = ()) -> list[dict[str, Any]]:
+    """Rows of a ``validation.csv`` with numbers as float64 (NaN for failures). A header
+    without the columns ``need`` or a row that is not one is an error naming the file and
+    its line; an incomplete last line (a study stopped mid-write) is left out with a
+    warning."""
     import warnings
 
     from chekan.errors import ChekanError
 
     with open(path, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
+        missing = set(need) - set(reader.fieldnames or ())
+        if missing:
+            raise ChekanError(
+                f"{path}: line 1: not a validation.csv of python -m chekan.validate "
+                f"(no column {', '.join(sorted(missing))})"
+            )
         lines = [(reader.line_num, raw) for raw in reader]
         width = len(reader.fieldnames or ())
     rows = []

@@ -45,8 +45,8 @@ def at_horizontal(sp: fm.SensorParams, dm0_pix):
     """:func:`at_level` with each pendulum's horizontal at m₀ + Δm₀ⱼ (the level angle term of
     :mod:`chekan.joint.xresponse`): a(m_h) of eq. (10) is G''(φ_h)/(2K²), so it depends on
     where the horizontal is (≈ 14 ppm per pixel); b₀ stays at the CCD centre (eq. 24)."""
-    at = fm.quadratic_coefficient(sp._replace(m0_pix=sp.m0_pix + dm0_pix), sp.m_level_pix)
-    return jnp.mean(at), sp.b_mgal_per_pix + 2.0 * at * (sp.m0_pix - sp.m_level_pix)
+    a, b0 = fm.coefficients_at_horizontal(sp, dm0_pix)
+    return jnp.mean(a), b0
 
 
 def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordData, dur_h):

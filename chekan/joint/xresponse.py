@@ -48,6 +48,7 @@ from typing import NamedTuple
 import numpy as np
 
 from chekan.joint.slews import type_indicator
+from chekan.model import NEWTON_STEPS, newton_deflection
 from chekan.units import ARCSEC_PER_RAD
 
 K_NOMINAL_PIX_PER_RAD = 60428.0  # eq. (4): the design K
@@ -56,7 +57,6 @@ M0_TOLERANCE_PIX = 100.0  # the CCD centre vs the pendulum's horizontal (5 % of 
 EVEN_BOUND_MGAL = 0.2  # eq. (20): what eq. (21) may leave out at the largest angle
 GROUP_ARCSEC = 30.0  # X angles closer than this are one angle (as the angle sensors')
 LEVEL_RAD = float(np.deg2rad(0.1))  # below this a hold is level (:mod:`chekan.holds`)
-NEWTON_STEPS = 8  # eq. (6) by Newton from the linear root: converged to rounding at 5°10′
 
 
 class _XAngles(NamedTuple):
@@ -121,15 +121,15 @@ def x_response_terms(
     slews' 2T (:func:`x_response_path`), each zero where the other acts, then the level
     angle's one column at both (:func:`level_angle_column`, at the level reading
     ``m_level_pix`` and the CCD centre ``m0_pix``)."""
-    hold, var = x_response_basis(theta_rad, hold_axis, g_mgal)
-    path = x_response_path(theta_rad, hold_axis, path_rad, path_on, kinds, n_types)
-    n_hold, n_path = hold.shape[1], path.shape[-1]
-    if n_hold == 0:
-        return hold, np.zeros((*np.shape(path_rad), 0)), var
-    per_type = var[:2]  # a slew's odd and even terms: the priors of the holds' terms
     theta = np.asarray(theta_rad, dtype=float)
-    on = (np.asarray(hold_axis) == "x") & (np.abs(theta) > LEVEL_RAD)
-    level = level_angle_column(np.where(on, theta, 0.0), g_mgal, m_level_pix, m0_pix)
+    hold, var = x_response_basis(theta, hold_axis, g_mgal)
+    x = _x_angles(theta, hold_axis)
+    if x is None:
+        return hold, np.zeros((*np.shape(path_rad), 0)), var
+    path = x_response_path(theta, hold_axis, path_rad, path_on, kinds, n_types)
+    n_hold, n_path = hold.shape[1], path.shape[-1]
+    per_type = var[:2]  # a slew's odd and even terms: the priors of the holds' terms
+    level = level_angle_column(np.where(x.on, theta, 0.0), g_mgal, m_level_pix, m0_pix)
     level_path = level_angle_column(
         np.where(path_on, np.asarray(path_rad, dtype=float), 0.0), g_mgal, m_level_pix, m0_pix
     )
@@ -152,7 +152,8 @@ def level_angle_column(
         λδ = g[−(1 − cos θ) cos φ + (cos φ − cos φ_h) + sin θ sin φ],  φ = φ_h + δ,
         φ_h = (m_h − m₀)/K,  λ = bK cos φ_h − g sin φ_h,  E_even = K(δ(θ) + δ(−θ))/2;
 
-    a central difference of ±1 pix (exact for a function this close to linear)."""
+    δ by the forward model's own Newton steps (:func:`chekan.model.newton_deflection`), a
+    central difference of ±1 pix (exact for a function this close to linear)."""
     theta = np.asarray(theta_rad, dtype=float)
     K, b = K_NOMINAL_PIX_PER_RAD, B_NOMINAL_MGAL_PER_PIX
 
@@ -160,16 +161,9 @@ def level_angle_column(
         phi_h = (m_level_pix - m0) / K
         lam = b * K * math.cos(phi_h) - g_mgal * math.sin(phi_h)
         out = np.zeros_like(theta)
-        for t in (theta, -theta):
-            hav, s = 2.0 * np.sin(0.5 * t) ** 2, np.sin(t)
-            delta = -g_mgal * hav / lam
-            for _ in range(NEWTON_STEPS):
-                phi = phi_h + delta
-                F = lam * delta - g_mgal * (
-                    -hav * np.cos(phi) + (np.cos(phi) - math.cos(phi_h)) + s * np.sin(phi)
-                )
-                dF = lam + g_mgal * ((1.0 - hav) * np.sin(phi) - s * np.cos(phi))
-                delta = delta - F / dF
+        for t in (theta, -theta):  # about X: Δu_z = −(1 − cos θ), u_y = sin θ, u_zh = 1
+            du_z = -2.0 * np.sin(0.5 * t) ** 2
+            delta = newton_deflection(du_z, np.sin(t), 1.0, phi_h, lam, g_mgal, NEWTON_STEPS + 1)
             out = out + 0.5 * K * delta
         return out
 
