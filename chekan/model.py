@@ -335,6 +335,36 @@ def lag_filter(x, dt_s, tau_s, y0=None):
     return jnp.concatenate([y0[None], ys], axis=0)
 
 
+LAG_BLOCK = 256  # samples per block of :func:`lag_uniform` (ρ^256 ≥ e^{−256}: no underflow)
+
+
+def lag_uniform(x: np.ndarray, rho: float, y0: np.ndarray | float = 0.0) -> np.ndarray:
+    """yᵢ = ρ·yᵢ₋₁ + (1 − ρ)·xᵢ (i = 0 … n − 1, y₋₁ = ``y0``) along axis 0 of ``x`` (n, …):
+    the first-order lag at uniform sampling, ρ = e^{−Δt/τ}, as SciPy's
+    ``lfilter([1 − ρ], [1, −ρ], x, axis=0)`` computes it (``y0`` = 0), without importing
+    ``scipy.signal`` (1.7 s in a new process). In blocks of ``LAG_BLOCK`` samples: within a
+    block the product with the lower-triangular Toeplitz matrix (1 − ρ)ρ^{k−j}, then the
+    state carried from block to block, y_{b,k} += ρ^{k+1}·y_{b−1,end}."""
+    x = np.asarray(x, dtype=float)
+    n, L = x.shape[0], LAG_BLOCK
+    if n == 0:
+        return x.copy()
+    nb = -(-n // L)
+    xb = np.zeros((nb * L, *x.shape[1:]))
+    xb[:n] = x
+    xb = xb.reshape(nb, L, -1)
+    k = np.arange(L)
+    lag = k[:, None] - k[None, :]
+    T = np.where(lag >= 0, (1.0 - rho) * rho ** np.maximum(lag, 0), 0.0)
+    inner = np.einsum("kj,bjd->bkd", T, xb)
+    decay = rho ** (k + 1.0)
+    state = np.broadcast_to(np.asarray(y0, dtype=float), x.shape[1:]).reshape(-1).copy()
+    for b in range(nb):
+        inner[b] += decay[:, None] * state[None, :]
+        state = inner[b, -1].copy()
+    return inner.reshape(nb * L, *x.shape[1:])[:n]
+
+
 def lag_filter_np(x: np.ndarray, dt_s: np.ndarray, tau_s: float) -> np.ndarray:
     """NumPy twin of :func:`lag_filter` for long simulations (vectorised with lfilter when
     the sampling is uniform, an explicit loop over gaps otherwise)."""

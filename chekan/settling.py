@@ -95,8 +95,6 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     ρ = e^{−Δt/τ}, Eᵢ the equilibrium at the attitude recorded with sample i (each held
     over the sample before it, as the joint model holds it). A hold whose settling time is
     short beside τ still carries part of the slew's transient; E at the hold alone misses it."""
-    from scipy.signal import lfilter
-
     from chekan import model
 
     tx = np.asarray(record.tilt_x_arcsec, dtype=float) / ARCSEC_PER_RAD
@@ -106,7 +104,7 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     idx = np.maximum.accumulate(np.where(ok, np.arange(tx.size), first))
     E = np.asarray(model.equilibrium_readings(params, tx[idx], ty[idx]), dtype=float)
     rho = math.exp(-1.0 / (float(record.sample_rate_hz) * tau_s))
-    y = lfilter([1.0 - rho], [1.0, -rho], E - E[0], axis=0) + E[0]
+    y = model.lag_uniform(E - E[0], rho) + E[0]
     t = np.asarray(record.t_s, dtype=float)
     out = np.full((holds.n, 2), np.nan)
     for k in range(holds.n):

@@ -137,6 +137,27 @@ def test_lag_filter_is_the_exponential():
     np.testing.assert_allclose(y2, np.asarray(fm.lag_filter(jnp.asarray(x), dt, tau)), rtol=1e-12)
 
 
+@pytest.mark.parametrize("n", [1, 255, 256, 257, 1000])
+def test_lag_uniform_is_the_exponential_across_its_blocks(n):
+    """A step from a settled start at y₋₁ = 3 to x = 10: yₖ = 10 − 7ρ^{k+1}, exactly; two
+    columns at once, and lengths around the block of 256 samples."""
+    rho = float(np.exp(-1.0 / 17.0))
+    x = np.full((n, 2), 10.0)
+    y = fm.lag_uniform(x, rho, np.array([3.0, 3.0]))
+    k = np.arange(n)
+    np.testing.assert_allclose(y, (10.0 - 7.0 * rho ** (k + 1.0))[:, None] * [1, 1], rtol=1e-13)
+    assert fm.lag_uniform(np.zeros((0, 2)), rho).shape == (0, 2)
+
+
+def test_lag_uniform_equals_scipys_lfilter():
+    from scipy.signal import lfilter
+
+    x = np.random.default_rng(3).normal(1000.0, 50.0, size=(1500, 2))
+    for rho in (float(np.exp(-1.0 / 30.0)), 0.5, 0.9999):
+        want = lfilter([1.0 - rho], [1.0, -rho], x, axis=0)
+        np.testing.assert_allclose(fm.lag_uniform(x, rho), want, rtol=1e-13)
+
+
 def test_drift_polynomial():
     c = jnp.array([[0.1, 0.01], [-0.2, 0.0]])
     d = np.asarray(fm.drift_pix(c, np.array([0.0, 3600.0, 7200.0])))
