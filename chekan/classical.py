@@ -414,13 +414,18 @@ def calibrate_record(record, settle_s: float | None = None, a_fixed: float | Non
 
 
 def fit_by_axis(
-    table: IncrementTable, a_fixed: float | None = None, *, preview: bool = False
+    table: IncrementTable,
+    a_fixed: float | None = None,
+    *,
+    preview: bool = False,
+    x_apart: bool = True,
 ) -> ClassicalResult:
     """:func:`fit_classical` of a table whose rounds may be about both axes: the rounds
     about Y give the result (``a_fixed`` applies to them); the rounds about X are fitted
-    apart with their own ``a`` (``by_axis["x"]``; one that cannot be fitted is a note); X
-    rounds alone give their fit, flagged in ``problems``. A table about Y alone: exactly
-    :func:`fit_classical`."""
+    apart with their own ``a`` (``by_axis["x"]``; one that cannot be fitted is a note;
+    not fitted with ``x_apart=False``, for a caller that reads the result's own table
+    only); X rounds alone give their fit, flagged in ``problems``. A table about Y alone:
+    exactly :func:`fit_classical`."""
     if all(a == "y" for a in table.axes):
         return fit_classical(table, a_fixed=a_fixed, preview=preview)
     y_table, x_table = table.for_axis("y"), table.for_axis("x")
@@ -430,6 +435,8 @@ def fit_by_axis(
         res.problems.append(X_ONLY_PROBLEM)
         return res
     res = fit_classical(y_table, a_fixed=a_fixed, preview=preview)
+    if not x_apart:
+        return res
     x_rounds = ", ".join(map(str, x_table.rounds))
     try:
         res.by_axis = {"y": res, "x": fit_classical(x_table, preview=preview)}

@@ -215,6 +215,11 @@ def test_rounds_about_x_are_processed_per_axis_with_analytic_truth():
     whole = increments_from_holds(holds, G_MGAL)
     assert whole.axes == ("y", "x", "y", "x")
     np.testing.assert_array_equal(fit_by_axis(whole, preview=True).b, res.b)
+    # without the X rounds' own fit (the posterior predictive's δg table): the same table
+    alone = fit_by_axis(whole, x_apart=False)
+    assert "x" not in alone.by_axis
+    np.testing.assert_array_equal(alone.delta_g_mgal, res.delta_g_mgal)
+    assert alone.a == res.a
     np.testing.assert_allclose(res.b_mean, B_TRUE, rtol=1e-4)  # truncation: ≈ 2e-5
     a_true = float(np.mean(fm.quadratic_coefficient(params, params.m_level_pix)))
     assert res.a == pytest.approx(a_true, rel=0.02)

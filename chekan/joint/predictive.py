@@ -45,10 +45,12 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
         noise = rng.normal(0, 1, E.shape) * np.array([flat["sigma1_pix"][i], flat["sigma2_pix"][i]])
         root_n = np.sqrt(np.maximum(holds.n_used, 1))[:, None]
         ys.append(E + drift + o - S * d[:, None] + noise / root_n)
-    # as the classical method reports it: the rounds about Y (X rounds fitted apart)
+    # as the classical method reports it: the rounds about Y (the X rounds' own fit is not
+    # in the table)
     tables = increments_of_readings(holds, g, np.stack(ys))
     # (draws, R, 2, n)
-    return np.stack([fit_by_axis(t, a_fixed=a_fixed).delta_g_mgal for t in tables])
+    fits = (fit_by_axis(t, a_fixed=a_fixed, x_apart=False) for t in tables)
+    return np.stack([f.delta_g_mgal for f in fits])
 
 
 def _equilibria(g: float, m0: float, flat: dict, take, holds, compiled: Callable | None = None):
