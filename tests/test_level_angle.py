@@ -161,3 +161,44 @@ def test_a_is_taken_at_the_pendulums_horizontal():
     assert float(a_off) == pytest.approx(t["a"], rel=1e-12)
     assert float(a_off) != pytest.approx(float(a0), rel=1e-4)  # it moves (here −144 ppm)
     np.testing.assert_allclose(np.asarray(b0_off), [t["b1_0"], t["b2_0"]], rtol=1e-12)
+
+
+def test_the_designer_takes_a_at_the_horizontal_as_the_estimate_does():
+    """The designer's a carries the horizontal's uncertainty as the estimate's does: its
+    gradient in Δm₀ⱼ is that of a(m_h) at the shifted horizontal (a central difference of
+    :func:`chekan.joint.derived.at_horizontal`); on a program about X a's expected sd is
+    the delta method over (θ, c, Δm₀), a fraction of a per cent above the one over (θ, c)
+    (the rounds measure Δm₀ well), and a program about Y alone has no Δm₀."""
+    import scipy.linalg
+
+    from chekan.design.information import (
+        DesignValues,
+        expected_precision,
+        information_blocks,
+        sensitivities,
+    )
+    from chekan.joint.derived import at_horizontal
+
+    truth = Truth()
+    grad = sensitivities(truth, "y").derived_grad
+    sp = truth.params()
+    for j in range(2):
+        step = np.zeros(2)
+        step[j] = 1.0
+        up, down = at_horizontal(sp, step), at_horizontal(sp, -step)
+        want = (float(up[0]) - float(down[0])) / 2.0
+        assert grad[0, 8 + j] == pytest.approx(want, rel=1e-5)
+    kw = {"dwell_s": 200.0, "settle_s": 120.0, "rounds": 2}
+    xy = build_program([3.0, 4.0, 5 + 10 / 60], axis="xy", order="alternate", **kw)
+    Mgg, Mgb, ab, _, _, level = information_blocks(xy, DesignValues())
+    assert level.size == 2
+    cov = np.linalg.inv(Mgg - Mgb @ scipy.linalg.solveh_banded(ab, Mgb.T))
+    J = np.zeros(cov.shape[0])
+    J[:6], J[7:9] = grad[0, :6], grad[0, 6:8]
+    at_level_sd = float(np.sqrt(J @ cov @ J))
+    J[level] = grad[0, 8:10]
+    at_horizontal_sd = float(np.sqrt(J @ cov @ J))
+    assert expected_precision(xy).sd["a"] == pytest.approx(at_horizontal_sd, rel=1e-8)
+    assert 1.0 < at_horizontal_sd / at_level_sd < 1.05
+    y = build_program([3.0, 4.0, 5 + 10 / 60], **kw)
+    assert information_blocks(y, DesignValues())[-1].size == 0

@@ -84,7 +84,7 @@ import chekan.jaxconfig  # noqa: F401  (float64 before any array)
 from chekan import model as fm
 from chekan.design.layout import DesignValues, Lagged, Layout, lagged_means, program_layout
 from chekan.joint.angles import SensorReads, all_sensor_terms
-from chekan.joint.derived import at_level
+from chekan.joint.derived import at_horizontal
 from chekan.joint.problem import nonlinear_params
 from chekan.joint.slews import slew_types, types_about
 from chekan.joint.xresponse import x_response_terms
@@ -133,27 +133,29 @@ def _grid_sensitivities(u, fixed, theta_rad, direction):
 
 @jax.jit
 def _derived(u, fixed):
-    """(a, b₁,₀, b₂,₀) at the design values and their gradient in (u, c), (3,), (3, 8).
+    """(a, b₁,₀, b₂,₀) at the design values and their gradient in (u, c, Δm₀), (3,), (3, 10).
 
-    a = mean_j a_j(m_h + c) (eq. 10), b_{j,0} = b_j + 2a_j(m₀ − m_h − c) (eq. 24), as
-    :func:`chekan.joint.derived.physical_quantities` reports them.
+    a = mean_j a_j(m_h + c) with each pendulum's horizontal at m₀ + Δm₀ⱼ (eq. 10),
+    b_{j,0} = b_j + 2a_j(m₀ − m_h − c) (eq. 24), as
+    :func:`chekan.joint.derived.physical_quantities` reports them (Δm₀ enters where the
+    program tilts about X: :mod:`chekan.joint.xresponse`).
     """
 
-    def q(uc):
-        a, b0 = at_level(_sensor_params(uc[:6], fixed, uc[6:]))
+    def q(ucd):
+        a, b0 = at_horizontal(_sensor_params(ucd[:6], fixed, ucd[6:8]), ucd[8:10])
         return jnp.stack([a, b0[0], b0[1]])
 
-    uc = jnp.concatenate([u, jnp.zeros(2)])
-    return q(uc), jax.jacfwd(q)(uc)
+    ucd = jnp.concatenate([u, jnp.zeros(4)])
+    return q(ucd), jax.jacfwd(q)(ucd)
 
 
 @dataclass(frozen=True)
 class Sensitivities:
     """Splines of E, ∂E/∂u and ∂E/∂θ over the signed tilt about one axis, plus the
-    gradients of the derived quantities (a, b₁,₀, b₂,₀) in (u, c)."""
+    gradients of the derived quantities (a, b₁,₀, b₂,₀) in (u, c, Δm₀)."""
 
     spline: CubicSpline  # θ → 16 columns: E (2), ∂E/∂u (2 × 6, system-major), S (2)
-    derived_grad: np.ndarray  # (3, 8)
+    derived_grad: np.ndarray  # (3, 10) over (u, c, Δm₀)
     derived_value: np.ndarray  # (3,) a, b1_0, b2_0
 
     def at(self, theta_rad: np.ndarray):
@@ -347,7 +349,9 @@ class DesignRows:
     system j's bins have the global columns ``X[j]`` (N, n_g) and the hold-local ones
     (``local_idx[j]``, ``local_val[j]``) (N, 4) among the n_b = 3H unknowns (o₁, o₂, δ per
     hold), and the variance ``var`` (N, 2) = ``base`` (σⱼ²/n) + ``trans2`` ((κ trans)²);
-    ``prec_g`` (n_g,) and ``prec_b`` (n_b,) are the priors' precisions (Λ⁻¹)."""
+    ``prec_g`` (n_g,) and ``prec_b`` (n_b,) are the priors' precisions (Λ⁻¹);
+    ``level_cols`` the global columns of the pendulums' horizontals Δm₀₁, Δm₀₂ (the last
+    X-response column of each system, :mod:`chekan.joint.xresponse`), empty without X rounds."""
 
     layout: Layout
     sens: Sensitivities
@@ -358,6 +362,7 @@ class DesignRows:
     trans2: np.ndarray
     prec_g: np.ndarray
     prec_b: np.ndarray
+    level_cols: np.ndarray
 
     @property
     def var(self) -> np.ndarray:
@@ -434,7 +439,7 @@ def design_rows(program: TiltProgram, values: DesignValues | None = None) -> Des
     prec_b = np.tile([1.0 / so2, 1.0 / so2, 1.0 / st2], H)
     return DesignRows(
         layout, sens, (Xs[0], Xs[1]), (idxs[0], idxs[1]), (vals[0], vals[1]), base, trans2,
-        prec_g, prec_b,
+        prec_g, prec_b, np.array([ng - nx - 1, ng - 1]) if nx else np.zeros(0, dtype=int),
     )  # fmt: skip
 
 
@@ -469,7 +474,7 @@ def information_blocks(program: TiltProgram, values: DesignValues | None = None)
     ).reshape(_BAND + 1, nb)
     Mgg += np.diag(rows.prec_g)
     ab[_BAND] += rows.prec_b
-    return Mgg, Mgb, ab, rows.layout, rows.sens
+    return Mgg, Mgb, ab, rows.layout, rows.sens, rows.level_cols
 
 
 def expected_precision(
@@ -479,15 +484,16 @@ def expected_precision(
     Σ_gg = (M_gg − M_gb M_bb⁻¹ M_bg)⁻¹, derived quantities by the delta method."""
     values = values or DesignValues()
     truth = values.truth
-    Mgg, Mgb, ab, layout, sens = information_blocks(program, values)
+    Mgg, Mgb, ab, layout, sens, level_cols = information_blocks(program, values)
     Y = scipy.linalg.solveh_banded(ab, Mgb.T, lower=False, check_finite=False)
     cov = scipy.linalg.inv(Mgg - Mgb @ Y, check_finite=False)
     cov_tc = cov[:9, :9]  # (θ, c)
     sd = {name: math.sqrt(max(cov_tc[i, i], 0.0)) for i, name in enumerate(THETA_NAMES)}
-    Jd = np.zeros((3, 9))  # ∇(a, b₁,₀, b₂,₀) over (θ, c); τ does not enter
+    Jd = np.zeros((3, cov.shape[0]))  # ∇(a, b₁,₀, b₂,₀) over (θ, c, Δm₀); τ does not enter
     Jd[:, :6] = sens.derived_grad[:, :6]
     Jd[:, 7:9] = sens.derived_grad[:, 6:8]
-    dvar = np.einsum("ij,jk,ik->i", Jd, cov_tc, Jd)
+    Jd[:, level_cols] = sens.derived_grad[:, 8 : 8 + level_cols.size]
+    dvar = np.einsum("ij,jk,ik->i", Jd, cov, Jd)
     for i, name in enumerate(("a", "b1_0", "b2_0")):
         sd[name] = math.sqrt(max(dvar[i], 0.0))
     sd["K"] *= truth.K_pix_per_rad  # sd of the value from the sd of its log

@@ -102,7 +102,7 @@ def _stacked(rows: DesignRows) -> tuple[np.ndarray, np.ndarray]:
 
 def _gradients(rows: DesignRows) -> dict[str, np.ndarray]:
     """∇q over (g, b) of each quantity: b₁, b₂ are θ's first two; a, b₁,₀, b₂,₀ from the
-    design values' derivatives over (θ, c), as ``expected_precision`` takes them."""
+    design values' derivatives over (θ, c, Δm₀), as ``expected_precision`` takes them."""
     n_par = rows.prec_g.size + rows.prec_b.size
     out = {}
     for i, name in enumerate(THETA_NAMES[:2]):
@@ -114,6 +114,7 @@ def _gradients(rows: DesignRows) -> dict[str, np.ndarray]:
         g = np.zeros(n_par)
         g[:6] = dg[i, :6]
         g[7:9] = dg[i, 6:8]
+        g[rows.level_cols] = dg[i, 8 : 8 + rows.level_cols.size]
         out[name] = g
     return out
 
