@@ -102,6 +102,7 @@ def _cmd_calibrate(args) -> int:
         angle_errors=args.angle_errors,
         angle_bound_arcsec=args.angle_bound_arcsec,
         angle_calibration=args.angle_calibration,
+        horizontal_u_pix=args.horizontal_u_pix,
         quick=args.quick,
     )
     json_path = Path(args.json) if args.json else None
@@ -288,6 +289,13 @@ def build_parser() -> argparse.ArgumentParser:
         "angle → correction and U at k = 2): the corrections are applied to the measured "
         "angles and its U replaces the bound; default: the record's angle_calibration header",
     )
+    p.add_argument(
+        "--horizontal-u-pix",
+        type=argtypes.real(0.0, 2048.0, open_low=True),
+        help="map/bayes, records with rounds about X: standard uncertainty of each pendulum's "
+        "horizontal about the CCD centre (Type B), from the instrument's own figure; "
+        "default 100 (the model's assumption, 5 %% of the CCD)",
+    )
     p.add_argument("--seed", type=argtypes.seed, default=0, help="sampler seed")
     p.add_argument(
         "--quick", action="store_true", help="bayes: cap the sampler at 3000 steps (10 000 without)"
@@ -336,6 +344,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="the platform's own angle calibration (chekan-angle-calibration/1): its U "
         "replaces the bound for the axes it has",
+    )
+    p.add_argument(
+        "--horizontal-u-pix",
+        type=argtypes.real(0.0, 2048.0, open_low=True),
+        help="programs with rounds about X: standard uncertainty of each pendulum's horizontal "
+        "about the CCD centre (default 100, the model's assumption)",
     )
     p.add_argument("-o", "--out", help="write the best program here (TOML; implies --search)")
     p.add_argument("--json", help="write the expected sds and the ranked table here")

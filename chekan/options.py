@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
+
+from chekan.errors import ChekanError
 
 METHODS = ("classical", "map", "bayes")
 ANGLE_ERRORS = ("systematic", "independent")
@@ -34,11 +37,24 @@ class CalibrationOptions:
     # the platform's own angle calibration (chekan.anglecal): a file, or the table read from
     # one; None: the record header's angle_calibration, if any
     angle_calibration: str | Path | Any = None
+    # map/bayes on records about X: the standard uncertainty (pix) of each pendulum's
+    # horizontal about the CCD centre (chekan.joint.xresponse); None: 100 pix, the model's
+    # own assumption (5 % of the CCD), for want of the instrument's figure
+    horizontal_u_pix: float | None = None
     # map/bayes on records: the MAP's numerics. "gn": Gauss–Newton passes, with
     # Levenberg–Marquardt where one fails, and the EM between passes compiled (0.3.1,
     # fast); "lm": LM passes and the host EM with SciPy's M-step (0.2; the MAP moves by
     # < 0.01 sd between the two: the regression snapshot keeps "lm")
     map_solver: Literal["gn", "lm"] = "gn"
+
+    def __post_init__(self) -> None:
+        u = self.horizontal_u_pix
+        if u is not None and not (math.isfinite(u) and u > 0):
+            raise ChekanError(
+                f"--horizontal-u-pix {u:g}: the pendulums' horizontal must have a standard "
+                "uncertainty > 0 pix (a horizontal known exactly is not a prior the model "
+                "can carry; give a small number, such as 0.1)"
+            )
 
     def angle_spec(self, meta: dict, source: str = "record", calibration=None, axis: str = "y"):
         """What is known of the ``axis`` angle sensor of a record with header ``meta`` and

@@ -519,6 +519,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="C",
         help="x_response case: the odd unmodelled X response (1 − C)·sin θ + C·sin³ θ (0.3)",
     )
+    ap.add_argument(
+        "--horizontal-u-pix",
+        type=float,
+        metavar="U",
+        help="the model's standard uncertainty of the pendulums' horizontal (default 100 pix); "
+        "the horizontal case's offsets stay within ±U",
+    )
     ap.add_argument("--program", help="a tilt program file (TOML) instead of the paper's")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("-j", "--jobs", type=int, default=1, help="worker processes (default 1)")
@@ -576,6 +583,7 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
             calibration_u_arcsec=args.calibration_u_arcsec,
             angle_bound_reading=args.angle_bound_reading,
             x_cubic=args.x_cubic,
+            horizontal_u_pix=args.horizontal_u_pix,
         ),
     )
     for key in summary_groups(s):

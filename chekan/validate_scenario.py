@@ -24,7 +24,9 @@ class Scenario:
     its own angle calibration whose residual error has expanded uncertainty U (k = 2)
     (:func:`session_calibration`; None: only the bound is known); ``x_cubic``: the share of
     sin³ θ in the odd part of the ``x_response`` case's unmodelled X response
-    (:attr:`chekan.simulate.Truth.x_unmodelled_cubic`; 1: a pure sin³ θ).
+    (:attr:`chekan.simulate.Truth.x_unmodelled_cubic`; 1: a pure sin³ θ);
+    ``horizontal_u_pix``: the model's standard uncertainty of the pendulums' horizontal
+    (None: its default), which the ``horizontal`` case's offsets then stay within.
     """
 
     systematic_arcsec: float = 1.5
@@ -35,6 +37,7 @@ class Scenario:
     calibration_u_arcsec: float | None = None
     angle_bound_reading: str = "rectangular"
     x_cubic: float = 0.3
+    horizontal_u_pix: float | None = None
 
     def options(self, **kw):
         from chekan.options import CalibrationOptions
@@ -43,6 +46,7 @@ class Scenario:
             angle_errors=self.angle_errors,
             angle_bound_arcsec=self.angle_bound_arcsec,
             angle_bound_reading=self.angle_bound_reading,
+            horizontal_u_pix=self.horizontal_u_pix,
             **kw,
         )
 
@@ -124,7 +128,8 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
         # record states, up to the mounting tolerance that the model assumes
         from chekan.joint.xresponse import M0_TOLERANCE_PIX
 
-        off = np.random.default_rng([i, 0x40B]).uniform(-M0_TOLERANCE_PIX, M0_TOLERANCE_PIX, 2)
+        u = M0_TOLERANCE_PIX if scenario.horizontal_u_pix is None else scenario.horizontal_u_pix
+        off = np.random.default_rng([i, 0x40B]).uniform(-u, u, 2)
         kw.update(horizontal_offset_pix=tuple(float(v) for v in off))
     truth = random_truth(rng, serial=f"V{i}", **kw)
     if scenario.random_arcsec is not None and case != "edge":

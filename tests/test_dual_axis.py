@@ -5,10 +5,12 @@ record with one systematic line per angle sensor and the X response's nuisance."
 from __future__ import annotations
 
 import dataclasses
+import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
 
+from chekan.errors import ChekanError
 from chekan.holds import segment_record
 from chekan.options import CalibrationOptions
 from chekan.pipeline import calibrate
@@ -127,6 +129,56 @@ def test_a_tighter_x_bound_shrinks_the_x_sensors_line_and_leaves_b_on_the_y_roun
     assert x_ratio < 0.3 and 0.95 < y_ratio < 1.05, (x_ratio, y_ratio)
     assert after["total"] < before["total"]
     assert tight["angle_sensors"]["x"]["bound_arcsec"] == 0.5
+
+
+@pytest.mark.slow
+def test_a_known_horizontal_is_an_input_and_pins_a(dual_fit, tmp_path):
+    """The pendulums' horizontal about the CCD centre is a stated Type B input: by default
+    the model's own 100 pix (its source says so), or the instrument's figure given as
+    ``horizontal_u_pix``. Known to 0.5 pix, the X rounds' even response tells a's share from
+    the horizontal's sin²θ (the designer: a's sd on such a program about halves; on this
+    4-round record it shrinks by at least 20 %), and b is not worse."""
+    from chekan.joint.xresponse import M0_SOURCE
+
+    rec, truth, res = dual_fit
+    assert res["pendulum_horizontal"] == {
+        "about": "ccd_center_pix",
+        "u_pix": 100.0,
+        "source": M0_SOURCE,
+    }
+    known = calibrate(rec, CalibrationOptions(method="map", progress=False, horizontal_u_pix=0.5))
+    assert known["pendulum_horizontal"]["u_pix"] == 0.5
+    assert known["pendulum_horizontal"]["source"] == "--horizontal-u-pix"
+    p0, p1 = res["parameters"], known["parameters"]
+    assert p1["a"]["sd"] < 0.8 * p0["a"]["sd"], (p0["a"]["sd"], p1["a"]["sd"])
+    assert p1["b1"]["sd"] <= 1.001 * p0["b1"]["sd"]
+    t = truth.derived()
+    for name in ("b1", "b2", "a"):  # the simulated horizontal is the centre: still covered
+        assert abs(p1[name]["mean"] - t[name]) < 3 * p1[name]["sd"], name
+    with pytest.raises(ChekanError, match="horizontal"):
+        CalibrationOptions(method="map", horizontal_u_pix=0.0)
+    # the certificate states it: the budget's label, and the DCC's influence conditions
+    from chekan.report.tables import horizontal_u_text
+
+    assert horizontal_u_text(res) == "100" and horizontal_u_text(known, "ru") == "0,5"
+    pytest.importorskip("xmlschema")
+    from chekan.report.dcc import DCC_NS, build_dcc, dcc_bytes, load_lab, validate_dcc
+
+    lab = tmp_path / "lab.toml"
+    lab.write_text(
+        '[lab]\nname = "L"\ncode = "L1"\nemail = "l@example.org"\nstreet = "S 1"\n'
+        'city = "C"\npost_code = "1"\ncountry_code = "RU"\naccreditation = "A"\n'
+        '[responsible]\nname = "N"\n',
+        encoding="utf-8",
+    )
+    xml = dcc_bytes(build_dcc(known, load_lab(lab)))
+    validate_dcc(xml)
+    conditions = {
+        ic.get("refType"): "".join(ic.itertext())
+        for ic in ET.fromstring(xml).iter(f"{{{DCC_NS}}}influenceCondition")
+    }
+    assert '"u_pix": 0.5' in conditions["chekan_pendulumHorizontal"]
+    assert '"x"' in conditions["chekan_angleSensors"] and '"y"' in conditions["chekan_angleSensors"]
 
 
 def test_budget_survives_an_svd_that_does_not_converge(monkeypatch):

@@ -62,6 +62,13 @@ def test_level_angle_term_is_on_x_holds_and_x_slews_only_with_the_tolerance_as_p
     )
     col, col_path = hold[:, -1], along[..., -1]
     assert var[-1] == M0_TOLERANCE_PIX**2
+    # an instrument's own horizontal: the level column's prior, and nothing else, follows it
+    *_, var_known = x_response_terms(
+        theta, axis, G_MGAL, path, path_on, kinds, 1, m_level_pix=1030.0, m0_pix=1024.0,
+        m0_u_pix=0.5,
+    )  # fmt: skip
+    assert var_known[-1] == 0.25
+    np.testing.assert_array_equal(var_known[:-1], var[:-1])
     np.testing.assert_array_equal(col[:4], 0.0)  # level and Y holds: left out (16 ppm)
     np.testing.assert_allclose(col[4:], level_angle_column(theta[4:], G_MGAL, 1030.0, 1024.0))
     np.testing.assert_array_equal(col_path[:4], 0.0)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -302,6 +303,7 @@ def design_json(
             "angle_calibration": (
                 None if values.angle_calibration is None else values.angle_calibration.entry()
             ),
+            "horizontal_u_pix": values.horizontal_u_pix,
         },
         "given": given,
     }
@@ -389,7 +391,8 @@ def design_values(args, program: TiltProgram) -> DesignValues:
     else:
         values = DesignValues() if bound is None else DesignValues(angle_bound_arcsec=float(bound))
     _ = values.angle_spec  # a bad bound is an error before any work
-    return values
+    u = getattr(args, "horizontal_u_pix", None)
+    return values if u is None else replace(values, horizontal_u_pix=float(u))
 
 
 def _check_covered(cal, program: TiltProgram, search: bool) -> None:
@@ -441,6 +444,15 @@ def angle_sensors_text(values: DesignValues) -> str:
     return f"the platform's angle calibration {cal.id} of {cal.date} ({'; '.join(parts)})"
 
 
+def horizontal_text(values: DesignValues) -> str:
+    """What the design assumes of the pendulums' horizontal, in words."""
+    from chekan.joint.xresponse import M0_SOURCE, M0_TOLERANCE_PIX
+
+    u = values.horizontal_u_pix
+    why = M0_SOURCE if u == M0_TOLERANCE_PIX else "--horizontal-u-pix"
+    return f"the CCD centre, standard uncertainty {u:g} pix ({why})"
+
+
 def run_design_command(args) -> int:
     """``chekan design [PROGRAM.toml] [--budget-h H] [--search] [--out best.toml] [--json J]``."""
     from chekan.program import default_program, load_program
@@ -458,6 +470,8 @@ def run_design_command(args) -> int:
     )
     if values.systematic:
         print(f"(angle sensors: {angle_sensors_text(values)})")
+    if any(s.axis == "x" for s in program.steps):
+        print(f"(the pendulums' horizontal: {horizontal_text(values)})")
     rnd = expected_precision(program, no_sys) if values.systematic else None
     rel = expected_reliability(program, values)
     print(format_precision(prec, rnd, rel))

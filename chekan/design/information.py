@@ -87,7 +87,7 @@ from chekan.joint.angles import SensorReads, all_sensor_terms
 from chekan.joint.derived import at_horizontal
 from chekan.joint.problem import nonlinear_params
 from chekan.joint.slews import slew_types, types_about
-from chekan.joint.xresponse import x_response_terms
+from chekan.joint.xresponse import M0_TOLERANCE_PIX, x_response_terms
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
@@ -303,7 +303,9 @@ def systematic_basis(
     return hold, path, var
 
 
-def x_response_columns(layout: Layout, truth: Truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def x_response_columns(
+    layout: Layout, truth: Truth, horizontal_u_pix: float = M0_TOLERANCE_PIX
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The estimator's X-response terms (:func:`chekan.joint.xresponse.x_response_terms`)
     at the holds (H, C), along the slews (H, M, C) and their prior variances (C,)."""
     types = slew_types(
@@ -321,6 +323,7 @@ def x_response_columns(layout: Layout, truth: Truth) -> tuple[np.ndarray, np.nda
         T,
         m_level_pix=float(np.mean(truth.m_level_pix)),
         m0_pix=float(truth.m0_pix),
+        m0_u_pix=horizontal_u_pix,
     )
 
 
@@ -391,7 +394,7 @@ def design_rows(program: TiltProgram, values: DesignValues | None = None) -> Des
     s_ang = -S_h / ARCSEC_PER_RAD  # (H, 2) pix per arcsec of readout error
 
     B, B_path, B_var = systematic_basis(layout, values)
-    Phi, Phi_path, Phi_var = x_response_columns(layout, truth)
+    Phi, Phi_path, Phi_var = x_response_columns(layout, truth, values.horizontal_u_pix)
     # the shared terms move the bins exactly as the equilibria they shift (f: the lag state
     # after each slew and the unsettled carry across holds), per system
     if B.shape[1]:

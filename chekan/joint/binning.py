@@ -20,7 +20,7 @@ from chekan.jaxconfig import device_arrays
 from chekan.joint.angles import AngleSensorSpec, SensorReads, all_sensor_terms
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.slews import slew_types, types_about
-from chekan.joint.xresponse import x_response_terms
+from chekan.joint.xresponse import M0_TOLERANCE_PIX, x_response_terms
 from chekan.units import ARCSEC_PER_RAD
 
 BIN_EDGES_S = (0.0, 15.0, 40.0, 90.0, 180.0)
@@ -33,6 +33,7 @@ def prepare(
     encoder: bool = False,
     angle_spec: AngleSensorSpec | None = None,
     angle_spec_x: AngleSensorSpec | None = None,
+    horizontal_u_pix: float = M0_TOLERANCE_PIX,
 ):
     """Segment the record into holds and lay it out: ``(holds, RecordModel)``.
 
@@ -40,6 +41,8 @@ def prepare(
     starts at the classical m_h (mean of the level holds). ``angle_spec`` None: angle
     errors independent per hold (the model before systematic errors); otherwise the
     systematic part shared by all rounds is modelled with that prior (:mod:`.angles`).
+    ``horizontal_u_pix``: the pendulums' horizontal about the CCD centre, standard
+    uncertainty (:mod:`.xresponse`; records about X).
     """
     settle = settle_s
     if settle is None:
@@ -47,7 +50,13 @@ def prepare(
     holds = segment_record(record, settle_s=settle)
     m_ref = np.nanmean(holds.m_mean_pix[holds.is_level], axis=0)
     return holds, prepare_record(
-        record, holds, m_ref, encoder=encoder, angle_spec=angle_spec, angle_spec_x=angle_spec_x
+        record,
+        holds,
+        m_ref,
+        encoder=encoder,
+        angle_spec=angle_spec,
+        angle_spec_x=angle_spec_x,
+        horizontal_u_pix=horizontal_u_pix,
     )
 
 
@@ -197,9 +206,11 @@ def prepare_record(
     angle_spec: AngleSensorSpec | None = None,
     angle_spec_x: AngleSensorSpec | None = None,
     bin_edges_s=BIN_EDGES_S,
+    horizontal_u_pix: float = M0_TOLERANCE_PIX,
 ) -> RecordModel:
     """Bin the samples of every hold and build the model's data pytree (``angle_spec``:
-    the Y sensor's, ``angle_spec_x`` the X sensor's, used where the record tilts about X)."""
+    the Y sensor's, ``angle_spec_x`` the X sensor's, used where the record tilts about X;
+    ``horizontal_u_pix``: the pendulums' horizontal about the CCD centre, :mod:`.xresponse`)."""
     t = np.asarray(record.t_s, dtype=float)
     m = np.stack([record.m1_pix, record.m2_pix], axis=1).astype(float)
     H = holds.n
@@ -241,6 +252,7 @@ def prepare_record(
         x_types,
         m_level_pix=float(np.mean(m_level_ref)),
         m0_pix=float(record.ccd_center_pix),
+        m0_u_pix=horizontal_u_pix,
     )
     # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
     arrays = {
@@ -287,4 +299,5 @@ def prepare_record(
         angle_spec if S > S_x + S_c else None,
         angle_spec_x if S_x else None,
         S_x,
+        horizontal_u_pix,
     )

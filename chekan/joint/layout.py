@@ -22,6 +22,7 @@ import numpy as np
 
 from chekan.jaxconfig import device_array, device_arrays
 from chekan.joint.angles import AngleSensorSpec
+from chekan.joint.xresponse import M0_TOLERANCE_PIX
 
 
 @dataclass(frozen=True)
@@ -194,6 +195,7 @@ class RecordModel:
     angle_spec: AngleSensorSpec | None = None  # the Y sensor's systematic error prior, if modelled
     angle_spec_x: AngleSensorSpec | None = None  # the X sensor's, where the record tilts about X
     n_systematic_x: int = 0  # the X sensor's systematic terms (after the common one)
+    horizontal_u_pix: float = M0_TOLERANCE_PIX  # the pendulums' horizontal about the centre
 
     @property
     def n_systematic_common(self) -> int:

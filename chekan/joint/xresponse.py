@@ -54,6 +54,7 @@ from chekan.units import ARCSEC_PER_RAD
 K_NOMINAL_PIX_PER_RAD = 60428.0  # eq. (4): the design K
 B_NOMINAL_MGAL_PER_PIX = 6.9  # the paper's single-system b (eq. 9), for unit conversion only
 M0_TOLERANCE_PIX = 100.0  # the CCD centre vs the pendulum's horizontal (5 % of the CCD)
+M0_SOURCE = "the model's assumption: 5 % of the CCD, no vendor figure known"
 EVEN_BOUND_MGAL = 0.2  # eq. (20): what eq. (21) may leave out at the largest angle
 GROUP_ARCSEC = 30.0  # X angles closer than this are one angle (as the angle sensors')
 LEVEL_RAD = float(np.deg2rad(0.1))  # below this a hold is level (:mod:`chekan.holds`)
@@ -115,12 +116,16 @@ def x_response_terms(
     *,
     m_level_pix: float,
     m0_pix: float,
+    m0_u_pix: float = M0_TOLERANCE_PIX,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """All X-response terms of a record: at the holds (H, C), along the slews (H, M, C) and
     their prior variances (C,) — the holds' 2A terms (:func:`x_response_basis`), then the
     slews' 2T (:func:`x_response_path`), each zero where the other acts, then the level
     angle's one column at both (:func:`level_angle_column`, at the level reading
-    ``m_level_pix`` and the CCD centre ``m0_pix``)."""
+    ``m_level_pix`` and the CCD centre ``m0_pix``; prior sd ``m0_u_pix``, the horizontal's
+    standard uncertainty about the centre). The odd terms keep the default tolerance's
+    width whatever ``m0_u_pix`` is: a known horizontal does not make the odd part of what
+    eq. (6) lacks known."""
     theta = np.asarray(theta_rad, dtype=float)
     hold, var = x_response_basis(theta, hold_axis, g_mgal)
     x = _x_angles(theta, hold_axis)
@@ -138,7 +143,7 @@ def x_response_terms(
         np.concatenate(
             [np.zeros((*path.shape[:-1], n_hold)), path, level_path[..., None]], axis=-1
         ),
-        np.concatenate([var, np.tile(per_type, n_path // 2), [M0_TOLERANCE_PIX**2]]),
+        np.concatenate([var, np.tile(per_type, n_path // 2), [m0_u_pix**2]]),
     )
 
 

@@ -379,9 +379,15 @@ def _influence(mr: ET.Element, result: Mapping[str, Any]) -> None:
     _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
     ic = _sub(ics, _d("influenceCondition"), refType="chekan_angleSensors")
     _text(ic, "name", "platform angle sensors")
-    a = result.get("angle_sensor")
+    a = result.get("angle_sensors") or result.get("angle_sensor")  # both, where both tilt
     text = json.dumps(a, ensure_ascii=False, sort_keys=True) if a else "not stated in the result"
     _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
+    h = result.get("pendulum_horizontal")  # a record with rounds about X: a Type B input
+    if h:
+        ic = _sub(ics, _d("influenceCondition"), refType="chekan_pendulumHorizontal")
+        _text(ic, "name", "the pendulums' horizontal about the CCD centre")
+        text = json.dumps(h, ensure_ascii=False, sort_keys=True)
+        _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
 
 
 def _results(mr: ET.Element, result: Mapping[str, Any]) -> None:

@@ -49,9 +49,9 @@ BUDGET_LABELS: dict[str, dict[str, str]] = {
     },
     "src_x_response": {
         "en": "response to tilts about X beyond eq. (6) (Type B, eq. 20: 0.2 mGal) and the "
-        "pendulums' horizontal (Type B, CCD centre, sd 100 pix)",
+        "pendulums' horizontal (Type B, CCD centre, sd {u} pix)",
         "ru": "отклик на наклоны вокруг X сверх ур. (6) (тип В, ур. 20: 0,2 мГал) и "
-        "горизонтальное положение маятников (тип В, центр ПЗС, ско 100 пикс)",
+        "горизонтальное положение маятников (тип В, центр ПЗС, ско {u} пикс)",
     },
     "src_angle_systematic_cal": {
         "en": "angle sensor, systematic (Type B, angle calibration {id})",

@@ -152,6 +152,8 @@ def budget_table(rep: Report, result: Mapping[str, Any], t: Translator, lang: st
                 if _calibrated(result, axis)
                 else t("src_angle_spec_of", bound=angle_bound_text(result, axis))
             )
+        elif k == "x_response":
+            label = t("src_x_response", u=horizontal_u_text(result, lang))
         else:
             label = t(f"src_{k}") if f"src_{k}" in _known_sources() else k
         typ = BUDGET_TYPE.get(k)
@@ -198,6 +200,15 @@ def angle_bound_text(result: Mapping[str, Any], axis: str | None = None) -> str:
         a = sensors.get(axis)
     bound = a.get("bound_arcsec") if isinstance(a, Mapping) else None
     return f" ±{plain(bound)}″" if is_num(bound) else ""
+
+
+def horizontal_u_text(result: Mapping[str, Any], lang: str = "en") -> str:
+    """The pendulums' horizontal's standard uncertainty (pix) that the result states
+    (``pendulum_horizontal.u_pix``; a result of an older version: the then fixed 100)."""
+    h = result.get("pendulum_horizontal")
+    u = h.get("u_pix") if isinstance(h, Mapping) else None
+    text = plain(u) if is_num(u) else "100"
+    return text.replace(".", ",") if lang == "ru" else text
 
 
 def _calibrated(result: Mapping[str, Any], axis: str) -> bool:
