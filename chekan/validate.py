@@ -62,6 +62,7 @@ from typing import Any
 
 import numpy as np
 
+from chekan import argtypes
 from chekan.options import METHODS
 from chekan.validate_scenario import (
     DEFAULT_SCENARIO,
@@ -521,7 +522,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument(
         "--horizontal-u-pix",
-        type=float,
+        type=argtypes.real(0.0, 2048.0, open_low=True),
         metavar="U",
         help="the model's standard uncertainty of the pendulums' horizontal (default 100 pix); "
         "the horizontal case's offsets stay within ±U",
