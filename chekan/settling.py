@@ -89,6 +89,16 @@ def model_at_holds(params, holds: Any) -> np.ndarray:
     return np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
 
 
+def _sample_attitudes(record: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(tx, ty) rad of every sample; a sample without angles takes the last finite ones."""
+    tx = np.asarray(record.tilt_x_arcsec, dtype=float) / ARCSEC_PER_RAD
+    ty = np.asarray(record.tilt_y_arcsec, dtype=float) / ARCSEC_PER_RAD
+    ok = np.isfinite(tx) & np.isfinite(ty)
+    first = int(np.argmax(ok))
+    idx = np.maximum.accumulate(np.where(ok, np.arange(tx.size), first))
+    return tx[idx], ty[idx]
+
+
 def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarray:
     """The model's mean reading (n, 2) over the settled samples of each hold with the
     sensor's first-order lag followed through the record: yᵢ = ρyᵢ₋₁ + (1 − ρ)E(θᵢ),
@@ -97,12 +107,14 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     short beside τ still carries part of the slew's transient; E at the hold alone misses it."""
     from chekan import model
 
-    tx = np.asarray(record.tilt_x_arcsec, dtype=float) / ARCSEC_PER_RAD
-    ty = np.asarray(record.tilt_y_arcsec, dtype=float) / ARCSEC_PER_RAD
-    ok = np.isfinite(tx) & np.isfinite(ty)
-    first = int(np.argmax(ok))  # a sample without angles takes the last finite attitude
-    idx = np.maximum.accumulate(np.where(ok, np.arange(tx.size), first))
-    E = np.asarray(model.equilibrium_readings(params, tx[idx], ty[idx]), dtype=float)
+    E = np.asarray(model.equilibrium_readings(params, *_sample_attitudes(record)), dtype=float)
+    return _lagged_means(E, holds, record, tau_s)
+
+
+def _lagged_means(E: np.ndarray, holds: Any, record: Any, tau_s: float) -> np.ndarray:
+    """:func:`lagged_hold_means` from the equilibria ``E`` (samples, 2) at the samples."""
+    from chekan import model
+
     rho = math.exp(-1.0 / (float(record.sample_rate_hz) * tau_s))
     y = model.lag_uniform(E - E[0], rho) + E[0]
     t = np.asarray(record.t_s, dtype=float)
@@ -129,7 +141,15 @@ def unsettled_transient_pix(result: Mapping[str, Any], holds: Any, record: Any):
     tau = result_tau_s(result)
     if params is None or record is None or tau is None:
         return None
-    return lagged_hold_means(params, holds, record, tau) - model_at_holds(params, holds)
+    from chekan import model
+
+    # the samples' and the holds' equilibria in one call (one trace in a new process)
+    tx, ty = _sample_attitudes(record)
+    n = tx.size
+    tx = np.concatenate([tx, np.asarray(holds.tilt_x_rad, dtype=float)])
+    ty = np.concatenate([ty, np.asarray(holds.tilt_y_rad, dtype=float)])
+    E = np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
+    return _lagged_means(E[:n], holds, record, tau) - E[n:]
 
 
 def transient_bound_pix(holds: Any, record: Any, tau_s: float) -> float:
