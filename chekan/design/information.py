@@ -448,8 +448,8 @@ def design_rows(program: TiltProgram, values: DesignValues | None = None) -> Des
 
 def information_blocks(program: TiltProgram, values: DesignValues | None = None):
     """Prior-augmented expected information in blocks: M_gg (g = θ, c, d, ζ, ξ), M_gb and
-    M_bb in upper banded storage (b = o₁, o₂, δ per hold), plus the layout and
-    sensitivities.
+    M_bb in upper banded storage (b = o₁, o₂, δ per hold), plus the layout, the
+    sensitivities and the columns of the pendulums' horizontals (:class:`DesignRows`).
 
     M = Σⱼ Xⱼᵀ Wⱼ Xⱼ + Λ⁻¹ with the columns and weights of the module docstring.
     """
