@@ -126,9 +126,9 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
         )
     elif case == "horizontal":  # each pendulum's horizontal off the CCD centre that the
         # record states, up to the mounting tolerance that the model assumes
-        from chekan.joint.xresponse import M0_TOLERANCE_PIX
+        from chekan.joint.xresponse import horizontal_prior
 
-        u = M0_TOLERANCE_PIX if scenario.horizontal_u_pix is None else scenario.horizontal_u_pix
+        u, _ = horizontal_prior(scenario.horizontal_u_pix)
         off = np.random.default_rng([i, 0x40B]).uniform(-u, u, 2)
         kw.update(horizontal_offset_pix=tuple(float(v) for v in off))
     truth = random_truth(rng, serial=f"V{i}", **kw)

@@ -22,6 +22,7 @@ from chekan.design.reliability import ExpectedReliability, expected_reliability
 from chekan.design.search import Candidate, SearchResult, search_programs
 from chekan.durable import atomic_output
 from chekan.errors import ChekanError
+from chekan.joint.xresponse import horizontal_prior
 from chekan.program import TiltProgram
 from chekan.units import format_dms, parse_angle_deg
 
@@ -303,7 +304,7 @@ def design_json(
             "angle_calibration": (
                 None if values.angle_calibration is None else values.angle_calibration.entry()
             ),
-            "horizontal_u_pix": values.horizontal_u_pix,
+            "horizontal_u_pix": horizontal_prior(values.horizontal_u_pix)[0],
         },
         "given": given,
     }
@@ -446,10 +447,7 @@ def angle_sensors_text(values: DesignValues) -> str:
 
 def horizontal_text(values: DesignValues) -> str:
     """What the design assumes of the pendulums' horizontal, in words."""
-    from chekan.joint.xresponse import M0_SOURCE, M0_TOLERANCE_PIX
-
-    u = values.horizontal_u_pix
-    why = M0_SOURCE if u == M0_TOLERANCE_PIX else "--horizontal-u-pix"
+    u, why = horizontal_prior(values.horizontal_u_pix)
     return f"the CCD centre, standard uncertainty {u:g} pix ({why})"
 
 

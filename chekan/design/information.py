@@ -87,7 +87,7 @@ from chekan.joint.angles import SensorReads, all_sensor_terms
 from chekan.joint.derived import at_horizontal
 from chekan.joint.problem import nonlinear_params
 from chekan.joint.slews import slew_types, types_about
-from chekan.joint.xresponse import M0_TOLERANCE_PIX, x_response_terms
+from chekan.joint.xresponse import M0_TOLERANCE_PIX, horizontal_prior, x_response_terms
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
@@ -394,7 +394,9 @@ def design_rows(program: TiltProgram, values: DesignValues | None = None) -> Des
     s_ang = -S_h / ARCSEC_PER_RAD  # (H, 2) pix per arcsec of readout error
 
     B, B_path, B_var = systematic_basis(layout, values)
-    Phi, Phi_path, Phi_var = x_response_columns(layout, truth, values.horizontal_u_pix)
+    Phi, Phi_path, Phi_var = x_response_columns(
+        layout, truth, horizontal_prior(values.horizontal_u_pix)[0]
+    )
     # the shared terms move the bins exactly as the equilibria they shift (f: the lag state
     # after each slew and the unsettled carry across holds), per system
     if B.shape[1]:

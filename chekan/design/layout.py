@@ -19,7 +19,6 @@ import numpy as np
 
 from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, AngleSensorSpec, spec_for
 from chekan.joint.binning import BIN_EDGES_S
-from chekan.joint.xresponse import M0_TOLERANCE_PIX
 from chekan.program import TiltProgram
 from chekan.simulate import Truth
 
@@ -47,7 +46,8 @@ class DesignValues:
     axis, that sensor's terms take the table's u(θ) = U(θ)/2 instead of the bound, as the
     estimator does (:func:`chekan.joint.angles.spec_for`). ``horizontal_u_pix``: the
     standard uncertainty of each pendulum's horizontal about the CCD centre that the
-    estimator assumes where a program tilts about X (:mod:`chekan.joint.xresponse`).
+    estimator assumes where a program tilts about X (None: the model's own assumption,
+    :func:`chekan.joint.xresponse.horizontal_prior`).
     """
 
     truth: Truth = field(default_factory=Truth)
@@ -62,7 +62,7 @@ class DesignValues:
     angle_bound_arcsec: float = DEFAULT_BOUND_ARCSEC
     angle_scale_share: float | None = None
     angle_calibration: AngleCalibration | None = field(default=None, compare=False)
-    horizontal_u_pix: float = M0_TOLERANCE_PIX
+    horizontal_u_pix: float | None = None  # None: the model's own assumption
 
     @property
     def angle_spec(self) -> AngleSensorSpec:

@@ -26,7 +26,7 @@ from chekan.joint.map import MapFit, fit_map_em
 from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.sampling import sample_posterior
 from chekan.joint.start import initial_values
-from chekan.joint.xresponse import M0_SOURCE, M0_TOLERANCE_PIX
+from chekan.joint.xresponse import horizontal_prior
 from chekan.options import CalibrationOptions
 from chekan.parameters import PARAMETER_UNITS
 from chekan.result import param_entry, posterior_entry
@@ -57,9 +57,7 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         angle_spec_x=options.angle_spec(
             record.meta, str(base.get("record", "record")), record.angle_calibration, axis="x"
         ),
-        horizontal_u_pix=(
-            M0_TOLERANCE_PIX if options.horizontal_u_pix is None else options.horizontal_u_pix
-        ),
+        horizontal_u_pix=horizontal_prior(options.horizontal_u_pix)[0],
     )
     init = initial_values(classical, record.g_local_mgal)
     if options.progress:
@@ -112,7 +110,7 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         out["pendulum_horizontal"] = {
             "about": "ccd_center_pix",
             "u_pix": float(model.horizontal_u_pix),
-            "source": M0_SOURCE if options.horizontal_u_pix is None else "--horizontal-u-pix",
+            "source": horizontal_prior(options.horizontal_u_pix)[1],
         }
     out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2") if k in base["parameters"]}
     diag = {

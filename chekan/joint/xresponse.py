@@ -60,6 +60,15 @@ GROUP_ARCSEC = 30.0  # X angles closer than this are one angle (as the angle sen
 LEVEL_RAD = float(np.deg2rad(0.1))  # below this a hold is level (:mod:`chekan.holds`)
 
 
+def horizontal_prior(u_pix: float | None) -> tuple[float, str]:
+    """The pendulums' horizontal about the CCD centre: its standard uncertainty (pix) and
+    where that comes from — the instrument's figure given as ``--horizontal-u-pix``, or
+    (None) the model's own assumption ``M0_TOLERANCE_PIX``."""
+    if u_pix is None:
+        return M0_TOLERANCE_PIX, M0_SOURCE
+    return float(u_pix), "--horizontal-u-pix"
+
+
 class _XAngles(NamedTuple):
     """The X holds of a record: which they are, each angle's group key, the groups' keys
     (sorted) and the largest X angle θ_r."""
