@@ -227,7 +227,7 @@ def _maps_in_use() -> int | None:
     has no such file."""
     try:
         with open("/proc/self/maps", "rb") as f:
-            return sum(1 for _ in f)
+            return f.read().count(b"\n")
     except OSError:
         return None
 

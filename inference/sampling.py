@@ -478,13 +478,17 @@ def _retained(samplers, tau, n_steps: int, config: SamplerConfig, nw: int):
 
 
 def _retained_diagnostics(samplers, tau, n_steps: int, config: SamplerConfig, nw: int):
-    """Bulk ESS per coordinate and the largest rank R̂ of the draws that would be retained."""
+    """Bulk ESS per coordinate and the largest rank R̂ of the draws that would be retained
+    (R̂ only where every ESS reaches ``target_ess``, else ∞: the stopping rule needs both)."""
     from . import mcmc_stats
 
     _, _, draws = _retained(samplers, tau, n_steps, config, nw)
     ess = np.array([mcmc_stats.ess_bulk(draws[..., i]) for i in range(draws.shape[-1])])
+    ess = np.where(np.isfinite(ess), ess, 0.0)
+    if np.min(ess) < config.target_ess:  # not converged whatever R̂ is: skip its ranks
+        return ess, math.inf
     rhat = max(mcmc_stats.rhat_rank(draws[..., i]) for i in range(draws.shape[-1]))
-    return np.where(np.isfinite(ess), ess, 0.0), float(np.nan_to_num(rhat, nan=np.inf))
+    return ess, float(np.nan_to_num(rhat, nan=np.inf))
 
 
 def _result(

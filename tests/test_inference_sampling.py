@@ -272,3 +272,52 @@ def test_many_points_are_evaluated_in_order_whatever_the_threads() -> None:
     seen.clear()
     np.testing.assert_array_equal(_eval_any(lnp, pts[:5], 7), want[:5])
     assert seen == [threading.current_thread().name]
+
+
+def test_bulk_rule_ranks_for_r_hat_only_where_every_ess_passes(monkeypatch) -> None:
+    """The bulk stopping rule needs ESS ≥ target *and* R̂ ≤ max: R̂'s rank normalisation is
+    computed only at checks where every ESS already passes, and the run stops at the same
+    step with the same draws as when R̂ is computed at every check."""
+    from inference import mcmc_stats, sampling
+
+    cfg = SamplerConfig(
+        n_chains=4,
+        moves="de",
+        stop_rule="bulk",
+        target_ess=300.0,
+        max_steps=600,
+        check_every=10,
+        min_steps=0,
+        tau_factor=10.0,
+        progress=False,
+        seed=3,
+    )
+    passes: list[bool] = []
+    ranked: list[int] = []
+    ess_bulk, rhat_rank = mcmc_stats.ess_bulk, mcmc_stats.rhat_rank
+
+    def counted_rhat(x):
+        ranked.append(len(passes))
+        return rhat_rank(x)
+
+    def watched(samplers, tau, n_steps, config, nw):
+        _, _, draws = sampling._retained(samplers, tau, n_steps, config, nw)
+        passes.append(min(ess_bulk(draws[..., i]) for i in range(draws.shape[-1])) >= 300.0)
+        return retained(samplers, tau, n_steps, config, nw)
+
+    def every_check(samplers, tau, n_steps, config, nw):  # the rule before: R̂ always
+        _, _, draws = sampling._retained(samplers, tau, n_steps, config, nw)
+        ess = np.array([ess_bulk(draws[..., i]) for i in range(draws.shape[-1])])
+        rhat = max(rhat_rank(draws[..., i]) for i in range(draws.shape[-1]))
+        return np.where(np.isfinite(ess), ess, 0.0), float(np.nan_to_num(rhat, nan=np.inf))
+
+    retained = sampling._retained_diagnostics
+    monkeypatch.setattr(mcmc_stats, "rhat_rank", counted_rhat)
+    monkeypatch.setattr(sampling, "_retained_diagnostics", watched)
+    fast = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    assert fast.converged and len(passes) >= 2 and not passes[0]
+    assert sorted(set(ranked)) == [k + 1 for k, ok in enumerate(passes) if ok]
+    monkeypatch.setattr(sampling, "_retained_diagnostics", every_check)
+    full = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    assert full.n_steps == fast.n_steps
+    np.testing.assert_array_equal(full.draws, fast.draws)
