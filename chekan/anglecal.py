@@ -11,9 +11,17 @@ lines, one column header, CSV rows)::
     # date: 2026-10-02                (required: ISO 8601 date of the calibration)
     # platform_serial: 1234           (optional; checked against the record's)
     # laboratory: …                   (optional, free text)
+    # scale_part_y_arcsec: 0.2        (optional: the part of the Y table's U that is a
+                                      scale error, see below; scale_part_x_arcsec likewise)
     axis,angle_arcsec,correction_arcsec,U_arcsec
     y,-18600,0.84,0.50
     …
+
+A lab that knows how its angles' errors correlate may say so: ``scale_part_<axis>_arcsec``
+is the part of U (k = 2, at the table's largest |angle|) that is a scale error,
+proportional to the angle and common to every row; the rest of U is then independent from
+angle to angle. Without it neither is assumed (:mod:`chekan.joint.angles` carries both
+extremes).
 
 Between two angles of a table the correction and U are interpolated linearly. Nothing is
 extrapolated: an angle more than ``END_TOLERANCE_ARCSEC`` beyond a table's ends is an
@@ -40,16 +48,32 @@ COLUMNS = ("axis", "angle_arcsec", "correction_arcsec", "U_arcsec")
 AXES = ("x", "y")
 END_TOLERANCE_ARCSEC = 30.0  # = chekan.joint.angles.GROUP_ARCSEC: one commanded angle
 HEADER_KEY = "angle_calibration"  # record header: the table's file (relative to the record)
+SCALE_KEY = "scale_part_{axis}_arcsec"  # optional: the part of an axis's U that is a scale error
 
 
 @dataclass(frozen=True)
 class AxisTable:
-    """One sensor's table: angles (arcsec, increasing), corrections and U (k = 2)."""
+    """One sensor's table: angles (arcsec, increasing), corrections and U (k = 2), and
+    ``scale_U_arcsec``: where the lab states it, the part of U that is a scale error
+    (k = 2 at the table's largest |angle|, proportional to the angle and common to all
+    rows; the rest of U independent from angle to angle). None: not stated."""
 
     axis: str
     angle_arcsec: np.ndarray
     correction_arcsec: np.ndarray
     U_arcsec: np.ndarray
+    scale_U_arcsec: float | None = None
+
+    @property
+    def max_angle_arcsec(self) -> float:
+        """The table's largest |angle| (where ``scale_U_arcsec`` is given)."""
+        return float(np.max(np.abs(self.angle_arcsec)))
+
+    def scale_u_at(self, theta_arcsec: np.ndarray) -> np.ndarray:
+        """Standard uncertainty of the stated scale part at angles ``theta_arcsec``:
+        (U_s/2)·|θ|/θ_max (zero where no scale part is stated)."""
+        s = 0.0 if self.scale_U_arcsec is None else self.scale_U_arcsec / 2.0
+        return s * np.abs(np.asarray(theta_arcsec, dtype=float)) / self.max_angle_arcsec
 
     @property
     def span_arcsec(self) -> tuple[float, float]:
@@ -94,6 +118,10 @@ class AngleCalibration:
         }
         if self.sha256:
             out["sha256"] = self.sha256
+        scale = {a: t.scale_U_arcsec for a, t in self.tables.items()}
+        scale = {a: v for a, v in scale.items() if v is not None}
+        if scale:  # the lab's statement of how its angles' errors correlate
+            out["scale_U_arcsec"] = dict(sorted(scale.items()))
         for key in ("laboratory", "platform_serial", "method"):
             if self.meta.get(key):
                 out[key] = self.meta[key]
@@ -123,6 +151,7 @@ def read_angle_calibration(path: str | Path) -> AngleCalibration:
     tables = {axis: _table(axis, rows[axis], p) for axis in AXES if rows[axis]}
     if not tables:
         raise FormatError(p, None, "no rows: a table needs at least two angles of an axis")
+    tables = _with_scale_statements(tables, frame, p)
     return AngleCalibration(
         id=frame.meta["id"].strip(),
         date=date,
@@ -179,6 +208,40 @@ def _table(axis: str, rows: list[tuple[int, float, float, float]], p: Path) -> A
             raise FormatError(p, l1, f"axis {axis}: angle {a1:g}″ given twice (line {l0})")
     arr = np.array([r[1:] for r in rows], dtype=float)
     return AxisTable(axis, arr[:, 0], arr[:, 1], arr[:, 2])
+
+
+def _with_scale_statements(tables: dict[str, AxisTable], frame, p: Path) -> dict[str, AxisTable]:
+    """The tables with the optional ``scale_part_<axis>_arcsec`` keys applied: the part of U
+    (k = 2, at the table's largest |angle|) that is a scale error. It is a part of U, so
+    at every row U ≥ U_s·|θ|/θ_max; errors name the file and the line."""
+    out = dict(tables)
+    for axis in AXES:
+        key = SCALE_KEY.format(axis=axis)
+        raw = frame.meta.get(key)
+        if raw is None:
+            continue
+        line = frame.meta_lines.get(key)
+        if axis not in tables:
+            raise FormatError(p, line, f"{key} given, but the file has no {axis} rows")
+        try:
+            value = float(raw)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value >= 0.0):
+            raise FormatError(p, line, f"{key}: expected arcsec ≥ 0, got {raw.strip()!r}")
+        table = replace(tables[axis], scale_U_arcsec=value)
+        need = 2.0 * table.scale_u_at(table.angle_arcsec)
+        over = np.flatnonzero(need > table.U_arcsec * (1.0 + 1e-9) + 1e-12)
+        if over.size:
+            i = int(over[0])
+            raise FormatError(
+                p,
+                line,
+                f"{key} = {value:g}″ is not a part of U: at {table.angle_arcsec[i]:g}″ its "
+                f"share {need[i]:.3g}″ exceeds that row's U {table.U_arcsec[i]:g}″",
+            )
+        out[axis] = table
+    return out
 
 
 def corrected(record, cal: AngleCalibration):

@@ -32,7 +32,8 @@ on a platform that moves continuously; ``Truth.platform_report_period_s``), ``co
 (the pendulums see the platform move within a sample — simulated at 0.1 s, the record
 keeping each second's sample — where the model holds each sample's: ``Truth.motion_substeps``).
 ``--calibration-u-arcsec U``: every platform has its own angle calibration (a table every
-5′ whose residual error has U at k = 2).
+5′ whose residual error has U at k = 2); ``--calibration-scale-u-arcsec S``: that residual
+has a scale part S and the table states it (0: independent, stated as such).
 
 Written into ``--out``: ``validation.csv`` (one row per session, appended as sessions
 finish, so that ``--resume`` continues an interrupted study), ``validation.json`` (the
@@ -152,7 +153,14 @@ def run_session(
         from chekan.anglecal import corrected
 
         rec = corrected(
-            rec, session_calibration(truth, program, seed, scenario.calibration_u_arcsec)
+            rec,
+            session_calibration(
+                truth,
+                program,
+                seed,
+                scenario.calibration_u_arcsec,
+                scenario.calibration_scale_u_arcsec,
+            ),
         )
     t = truth.derived()
     row: dict[str, Any] = {"session": i, "case": case, "seed": seed, "program": program.name}
@@ -514,6 +522,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="the platforms have their own angle calibration, residual U (k = 2) in arcsec",
     )
     ap.add_argument(
+        "--calibration-scale-u-arcsec",
+        type=float,
+        metavar="S",
+        help="with --calibration-u-arcsec: the tables' residual has a scale part S (k = 2, at "
+        "the table's largest angle), the rest independent, and the table states S "
+        "(0: independent residuals, stated as such)",
+    )
+    ap.add_argument(
         "--x-cubic",
         type=float,
         default=Scenario.x_cubic,
@@ -551,6 +567,12 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
     args = ap.parse_args(argv)
     if args.sessions < 1:
         ap.error("--sessions must be at least 1")
+    scale = args.calibration_scale_u_arcsec
+    if scale is not None:
+        if args.calibration_u_arcsec is None:
+            ap.error("--calibration-scale-u-arcsec needs --calibration-u-arcsec (the table's U)")
+        if not 0.0 <= scale <= args.calibration_u_arcsec:
+            ap.error("--calibration-scale-u-arcsec must be in [0, U]: a part of the table's U")
     from chekan.outputs import check_outputs
 
     out = Path(args.out)
@@ -582,6 +604,7 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
             angle_errors=args.angle_errors,
             angle_bound_arcsec=args.angle_bound_arcsec,
             calibration_u_arcsec=args.calibration_u_arcsec,
+            calibration_scale_u_arcsec=args.calibration_scale_u_arcsec,
             angle_bound_reading=args.angle_bound_reading,
             x_cubic=args.x_cubic,
             horizontal_u_pix=args.horizontal_u_pix,

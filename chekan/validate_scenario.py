@@ -26,7 +26,10 @@ class Scenario:
     sin³ θ in the odd part of the ``x_response`` case's unmodelled X response
     (:attr:`chekan.simulate.Truth.x_unmodelled_cubic`; 1: a pure sin³ θ);
     ``horizontal_u_pix``: the model's standard uncertainty of the pendulums' horizontal
-    (None: its default), which the ``horizontal`` case's offsets then stay within.
+    (None: its default), which the ``horizontal`` case's offsets then stay within;
+    ``calibration_scale_u_arcsec``: the calibration's residual has a scale part of this U
+    (k = 2, at the table's largest angle) and the table states it (None: independent
+    residuals, nothing stated; 0: the same residuals, stated as independent).
     """
 
     systematic_arcsec: float = 1.5
@@ -38,6 +41,7 @@ class Scenario:
     angle_bound_reading: str = "rectangular"
     x_cubic: float = 0.3
     horizontal_u_pix: float | None = None
+    calibration_scale_u_arcsec: float | None = None
 
     def options(self, **kw):
         from chekan.options import CalibrationOptions
@@ -138,24 +142,37 @@ def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenari
     return truth
 
 
-def session_calibration(truth, program, seed: int, u_expanded_arcsec: float):
+def session_calibration(
+    truth, program, seed: int, u_expanded_arcsec: float, scale_U_arcsec: float | None = None
+):
     """The platform's own angle calibration as a lab would give it: the correction −δ(θ)
     of the session's systematic error every 5′ over the program's range (and 10′ beyond),
-    each with an independent residual error N(0, (U/2)²), stated as U at k = 2."""
+    each with an independent residual error N(0, (U/2)²), stated as U at k = 2.
+    ``scale_U_arcsec`` U_s: the residual is instead a scale error ξ·θ/θ_t, ξ ~ N(0, (U_s/2)²)
+    (θ_t the table's largest angle), plus an independent part of variance
+    (U² − (U_s θ/θ_t)²)/4, so that each row's total is still U; the table states U_s."""
     from chekan.anglecal import AngleCalibration, AxisTable
     from chekan.simulate import session_systematic
     from chekan.units import ARCSEC_PER_RAD
 
-    tables = {}
+    tables: dict[str, AxisTable] = {}
     for axis in program.tilt_axes:
         fn = session_systematic(truth, program, seed, axis)
         theta = np.array([s.theta_rad for s in program.steps if s.axis == axis])
         t_max = float(np.max(np.abs(theta))) * ARCSEC_PER_RAD
         grid = np.arange(-t_max - 600.0, t_max + 600.0 + 1.0, CALIBRATION_STEP_ARCSEC)
         stream = [seed, 0xCA1] if axis == "y" or len(tables) == 0 else [seed, 0xCA2]
-        residual = np.random.default_rng(stream).normal(0.0, u_expanded_arcsec / 2, grid.size)
+        U = np.full(grid.size, u_expanded_arcsec)
+        if scale_U_arcsec is None:
+            residual = np.random.default_rng(stream).normal(0.0, u_expanded_arcsec / 2, grid.size)
+        else:
+            t = grid / np.max(np.abs(grid))
+            own = np.sqrt(np.maximum(U**2 - (scale_U_arcsec * t) ** 2, 0.0)) / 2
+            residual = np.random.default_rng(stream).normal(0.0, 1.0, grid.size) * own
+            xi = np.random.default_rng([*stream, 0x5CA]).normal(0.0, scale_U_arcsec / 2)
+            residual = residual + xi * t
         corr = -fn(grid / ARCSEC_PER_RAD) + residual
-        tables[axis] = AxisTable(axis, grid, corr, np.full(grid.size, u_expanded_arcsec))
+        tables[axis] = AxisTable(axis, grid, corr, U, scale_U_arcsec)
     return AngleCalibration(f"SIM-AC-{seed}", "2026-01-01", tables)
 
 
@@ -180,6 +197,8 @@ def scenario_line(sc: dict | None) -> str:
     )
     if sc.get("calibration_u_arcsec") is not None:
         model += f", angle calibration U = {sc['calibration_u_arcsec']:g}″ (k = 2)"
+        if sc.get("calibration_scale_u_arcsec") is not None:
+            model += f" of which a scale error {sc['calibration_scale_u_arcsec']:g}″ (stated)"
     cubic = sc.get("x_cubic", 0.3)
     if cubic != 0.3:
         sim += f", x_response case's odd shape {1 - cubic:g}·sin θ + {cubic:g}·sin³ θ"

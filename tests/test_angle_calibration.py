@@ -188,3 +188,113 @@ def test_the_certificate_states_the_reading_its_source_and_the_angle_calibration
     text1 = repr(build_report(table, lang="en", figures=False))
     assert f"{cal.id} of {cal.date}" in text1 and "angle calibration " + cal.id in text1
     assert "GUM 4.3.7" not in text1
+
+
+SCALE_ROWS = "y,-1000,0.1,0.5\ny,0,0.0,0.4\ny,1000,-0.1,0.5\n"
+
+
+def test_a_stated_scale_part_is_read_checked_and_replaces_the_extremes(tmp_path):
+    """``scale_part_y_arcsec``: the part of U that is a scale error. The prior then gives the
+    scale term u_s(θ_max)² and each angle u(θ)² − u_s(θ)², u_s(θ) = (U_s/2)·|θ|/θ_t, where
+    a table alone gets both extremes at the full u²; the result and the reading state it."""
+    from chekan.joint.angles import SystematicBasis, angle_sensor_entry, spec_for
+    from chekan.units import ARCSEC_PER_RAD
+
+    plain = read_angle_calibration(_write(tmp_path, SCALE_ROWS, name="plain.csv"))
+    cal = read_angle_calibration(
+        _write(tmp_path, SCALE_ROWS, HEAD + "# scale_part_y_arcsec: 0.3\n", name="stated.csv")
+    )
+    assert plain.table("y").scale_U_arcsec is None and "scale_U_arcsec" not in plain.entry()
+    assert cal.table("y").scale_U_arcsec == 0.3 and cal.entry()["scale_U_arcsec"] == {"y": 0.3}
+    nodes = np.array([-800.0, 0.0, 800.0]) / ARCSEC_PER_RAD  # commanded angles
+    basis = SystematicBasis(nodes, 800.0 / ARCSEC_PER_RAD)
+    u = np.array([0.24, 0.2, 0.24])  # U/2 interpolated at ∓800″ and 0″
+    np.testing.assert_allclose(
+        basis.prior_var(spec_for({}, None, calibration=plain)), [*u**2, 0.24**2]
+    )
+    us = 0.15 * np.array([0.8, 0.0, 0.8])  # (U_s/2)·|θ|/1000″
+    stated = spec_for({}, None, calibration=cal)
+    np.testing.assert_allclose(basis.prior_var(stated), [*(u**2 - us**2), 0.12**2])
+    entry = angle_sensor_entry(stated)
+    assert "scale error U = 0.3″ at 1000″" in entry["reading"] and "stated" in entry["reading"]
+    assert entry["u_scale_arcsec"] == pytest.approx(0.15)
+    assert entry["u_per_angle_arcsec"] == pytest.approx(0.2)  # the largest per-angle part
+
+
+@pytest.mark.parametrize(
+    ("key", "what"),
+    [
+        ("scale_part_x_arcsec: 0.1", "no x rows"),
+        ("scale_part_y_arcsec: -0.1", "expected arcsec ≥ 0"),
+        ("scale_part_y_arcsec: lots", "expected arcsec ≥ 0"),
+        ("scale_part_y_arcsec: 0.6", "not a part of U: at -1000″ its share 0.6″ exceeds"),
+    ],
+)
+def test_a_bad_scale_statement_names_the_file_and_line(tmp_path, key, what):
+    p = _write(tmp_path, SCALE_ROWS, HEAD + f"# {key}\n")
+    with pytest.raises(FormatError) as e:
+        read_angle_calibration(p)
+    assert str(e.value).startswith(f"{p}:4:") and what in str(e.value)
+
+
+def test_the_simulated_lab_states_its_scale_part(session, short_program):
+    """The validation's tables: stated as independent (0) they are the unstated tables to
+    the bit; with a scale part U_s the residual is ξ·θ/θ_t plus the unstated draw's normals
+    scaled to the rest, √(U² − (U_s·θ/θ_t)²)/2, so that each row's total stays U."""
+    from chekan.simulate import session_systematic
+    from chekan.units import ARCSEC_PER_RAD
+
+    _rec, truth, cal = session
+    plain = cal.table("y")
+    zero = session_calibration(truth, short_program, 11, 0.5, 0.0).table("y")
+    np.testing.assert_array_equal(zero.correction_arcsec, plain.correction_arcsec)
+    assert zero.scale_U_arcsec == 0.0 and plain.scale_U_arcsec is None
+    whole = session_calibration(truth, short_program, 11, 0.5, 0.5).table("y")
+    fn = session_systematic(truth, short_program, 11, "y")
+    truth_at = -fn(whole.angle_arcsec / ARCSEC_PER_RAD)
+    r, r0 = whole.correction_arcsec - truth_at, plain.correction_arcsec - truth_at
+    t = whole.angle_arcsec / whole.max_angle_arcsec
+    end = int(np.argmax(np.abs(t)))  # there the whole of U is the scale part
+    xi = r[end] / t[end]
+    own = np.sqrt(np.maximum(0.5**2 - (0.5 * t) ** 2, 0.0)) / 2
+    np.testing.assert_allclose(r, r0 * own / 0.25 + xi * t, atol=1e-12)
+    assert 0.0 < abs(xi) < 1.0 and whole.scale_U_arcsec == 0.5
+
+
+def test_a_stated_scale_part_narrows_the_systematic_line(session):
+    """Stated as independent (U_s = 0), the table's residual loses its scale extreme: the
+    systematic line of b's budget falls, the rest of the calibration is unchanged, and the
+    platform is still covered."""
+    rec, truth, cal = session
+    stated = dataclasses.replace(
+        cal, tables={"y": dataclasses.replace(cal.table("y"), scale_U_arcsec=0.0)}
+    )
+    both, indep = (
+        calibrate(rec, CalibrationOptions(method="map", progress=False, angle_calibration=c))
+        for c in (cal, stated)
+    )
+    assert "stated" in indep["angle_sensor"]["reading"]
+    assert indep["angle_calibration"]["scale_U_arcsec"] == {"y": 0.0}
+    from chekan.report.content import build_report
+
+    assert "which states its scale part" in repr(build_report(indep, lang="en", figures=False))
+    assert "which states its scale part" not in repr(build_report(both, lang="en", figures=False))
+    for k, b_true in zip(("b1", "b2"), truth.b_mgal_per_pix, strict=True):
+        sys0 = both["uncertainty_budget"][k]["angle_systematic"]
+        sys1 = indep["uncertainty_budget"][k]["angle_systematic"]
+        assert sys1 < 0.9 * sys0
+        assert indep["parameters"][k]["sd"] < both["parameters"][k]["sd"]
+        z = (indep["parameters"][k]["mean"] - b_true) / indep["parameters"][k]["sd"]
+        assert abs(z) < 1.96, (k, z)
+
+
+def test_the_design_says_what_the_table_states(tmp_path):
+    from chekan.design.command import angle_sensors_text
+    from chekan.design.layout import DesignValues
+
+    head = HEAD + "# scale_part_y_arcsec: 0.25\n"
+    cal = read_angle_calibration(_write(tmp_path, SCALE_ROWS, head))
+    text = angle_sensors_text(DesignValues(angle_calibration=cal))
+    assert "Y: its table, U ≤ 0.5″ (k = 2), of it a scale error 0.25″ (stated)" in text
+    plain = read_angle_calibration(_write(tmp_path, SCALE_ROWS, name="p.csv"))
+    assert "stated" not in angle_sensors_text(DesignValues(angle_calibration=plain))

@@ -439,8 +439,13 @@ def angle_sensors_text(values: DesignValues) -> str:
                 f"chekan calibrate refuses a record tilted about {axis.upper()} with this table"
             )
         else:
+            scale = (
+                ""
+                if table.scale_U_arcsec is None
+                else f", of it a scale error {table.scale_U_arcsec:g}″ (stated)"
+            )
             parts.append(
-                f"{axis.upper()}: its table, U ≤ {float(np.max(table.U_arcsec)):g}″ (k = 2)"
+                f"{axis.upper()}: its table, U ≤ {float(np.max(table.U_arcsec)):g}″ (k = 2)" + scale
             )
     return f"the platform's angle calibration {cal.id} of {cal.date} ({'; '.join(parts)})"
 

@@ -29,9 +29,12 @@ to 2.8 on such platforms; ``docs/figures/validation_dual.md``).
 
 **Prior from the platform's own calibration** (:mod:`chekan.anglecal`). The corrections
 are applied to the measured angles; what is left is the calibration's uncertainty,
-u(θ) = U(θ)/2 (k = 2, normal), which replaces the bound. The table does not state how the
-errors of its angles correlate, so both extremes are carried: ζ_a ~ N(0, u(θ_a)²)
-(independent) and ξ ~ N(0, u(θ_max)²) (fully correlated, the scale).
+u(θ) = U(θ)/2 (k = 2, normal), which replaces the bound. A table alone does not state how
+the errors of its angles correlate, so both extremes are carried: ζ_a ~ N(0, u(θ_a)²)
+(independent) and ξ ~ N(0, u(θ_max)²) (fully correlated, the scale). Where the lab states
+the part of U that is a scale error (U_s at the table's largest angle θ_t,
+``scale_part_<axis>_arcsec``), that knowledge replaces the extremes: ξ ~ N(0, u_s(θ_max)²) and
+ζ_a ~ N(0, u(θ_a)² − u_s(θ_a)²), u_s(θ) = (U_s/2)·|θ|/θ_t.
 """
 
 from __future__ import annotations
@@ -99,6 +102,11 @@ class AngleSensorSpec:
     @property
     def reading(self) -> str:
         """How the knowledge is read, in words (the result and the certificate state it)."""
+        if self.stated_scale:
+            return READING["calibration"] + (
+                f"; of it a scale error U = {self.table.scale_U_arcsec:g}″ at "
+                f"{self.table.max_angle_arcsec:g}″, the rest independent per angle (stated)"
+            )
         return READING["calibration" if self.table is not None else self.distribution]
 
     def u_at(self, theta_rad: np.ndarray) -> np.ndarray:
@@ -109,14 +117,42 @@ class AngleSensorSpec:
         return self.table.u_at(theta * ARCSEC_PER_RAD)
 
     @property
+    def stated_scale(self) -> bool:
+        """Whether the calibration table states the part of its U that is a scale error
+        (:class:`chekan.anglecal.AxisTable`): then that part is the scale term's and the
+        rest the per-angle terms', instead of both extremes."""
+        return self.table is not None and self.table.scale_U_arcsec is not None
+
+    @property
     def per_angle_var(self) -> float:
-        """Prior variance of ζ_a, arcsec²."""
+        """Prior variance of ζ_a, arcsec² (the largest over a table's rows)."""
+        if self.stated_scale:
+            return float(np.max(self.angle_var_at(self.table.angle_arcsec / ARCSEC_PER_RAD)))
         return self.u_arcsec**2 * self.shares[0]
 
     @property
     def scale_var(self) -> float:
         """Prior variance of ξ (the scale error expressed at θ_max), arcsec²."""
+        if self.stated_scale:
+            return (self.table.scale_U_arcsec / 2.0) ** 2
         return self.u_arcsec**2 * self.shares[1]
+
+    def angle_var_at(self, theta_rad: np.ndarray) -> np.ndarray:
+        """Prior variance of the per-angle error at ``theta_rad``, arcsec²: the per-angle
+        share of u(θ)², or with a stated scale part u(θ)² − u_s(θ)²."""
+        u = self.u_at(theta_rad)
+        if self.stated_scale:
+            us = self.table.scale_u_at(np.asarray(theta_rad, dtype=float) * ARCSEC_PER_RAD)
+            return np.maximum(u**2 - us**2, 0.0)
+        return u**2 * self.shares[0]
+
+    def scale_var_at(self, theta_max_rad: float) -> float:
+        """Prior variance of the scale error reached at ±``theta_max_rad``, arcsec²: the
+        scale share of u(±θ_max)², or the stated scale part there."""
+        ends = np.array([-theta_max_rad, theta_max_rad])
+        if self.stated_scale:
+            return float(np.max(self.table.scale_u_at(ends * ARCSEC_PER_RAD))) ** 2
+        return float(np.max(self.u_at(ends))) ** 2 * self.shares[1]
 
     @property
     def shares(self) -> tuple[float, float]:
@@ -125,8 +161,8 @@ class AngleSensorSpec:
         extremes are taken, an independent part and a fully correlated scale part, each
         with the full u² (1, 1) (module docstring). A ``scale_share`` s splits it instead,
         (1 − s, s): constructed cases only."""
-        if self.table is not None or self.scale_share is None:
-            return (1.0, 1.0)
+        if self.table is not None or self.scale_share is None:  # a stated part: see
+            return (1.0, 1.0)  # angle_var_at and scale_var_at
         return (1.0 - self.scale_share, self.scale_share)
 
 
@@ -209,13 +245,13 @@ class SystematicBasis:
         return np.concatenate([np.stack(hats, -1), (theta / self.theta_max_rad)[..., None]], -1)
 
     def prior_var(self, spec: AngleSensorSpec) -> np.ndarray:
-        """Prior variances of (ζ, ξ), arcsec²: the per-angle share of u(θ_a)² at every
-        commanded angle, the scale share of u(θ_max)² (:attr:`AngleSensorSpec.shares`; a zero
-        bound: a tiny variance keeps the normal equations regular)."""
-        u_nodes = spec.u_at(self.nodes_rad)
-        u_max = float(np.max(spec.u_at(np.array([-self.theta_max_rad, self.theta_max_rad]))))
-        angle_share, scale_share = spec.shares
-        var = np.concatenate([u_nodes**2 * angle_share, [u_max**2 * scale_share]])
+        """Prior variances of (ζ, ξ), arcsec²: the per-angle part at every commanded angle,
+        the scale part at θ_max (:meth:`AngleSensorSpec.angle_var_at`,
+        :meth:`AngleSensorSpec.scale_var_at`; a zero bound: a tiny variance keeps the normal
+        equations regular)."""
+        var = np.concatenate(
+            [spec.angle_var_at(self.nodes_rad), [spec.scale_var_at(self.theta_max_rad)]]
+        )
         return np.maximum(var, 1e-12)
 
 
@@ -350,8 +386,7 @@ def common_scale_terms(
         hold[:, 0] += np.where(s.on, theta, 0.0) / t_all
         along = np.where(s.path_on, np.asarray(s.path_theta_rad, dtype=float), 0.0) / t_all
         path = along if path is None else path + along
-        u = float(np.max(s.spec.u_at(np.array([-t_max[a], t_max[a]]))))
-        var.append(u**2 * s.spec.shares[1] * (t_all / t_max[a]) ** 2)
+        var.append(s.spec.scale_var_at(t_max[a]) * (t_all / t_max[a]) ** 2)
     return hold, np.asarray(path)[..., None], np.array([max(min(var) / 2.0, 1e-12)])
 
 

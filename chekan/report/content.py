@@ -240,8 +240,9 @@ def _angle_sensor_text(result: Mapping[str, Any], t: Translator) -> str | None:
         return t("angle_sensor_independent")
     source = f"; {t('angle_source', src=a['source'])}" if a.get("source") else ""
     if isinstance(a.get("calibration"), Mapping):
+        stated = a.get("axis") in (a["calibration"].get("scale_U_arcsec") or {})
         return t(
-            "angle_sensor_calibrated",
+            "angle_sensor_calibrated_stated" if stated else "angle_sensor_calibrated",
             ua=fixed(a.get("u_per_angle_arcsec"), 2),
             us=fixed(a.get("u_scale_arcsec"), 2),
         )

@@ -69,6 +69,12 @@ BUDGET_LABELS: dict[str, dict[str, str]] = {
         "en": "from its calibration: u per angle up to {ua}″, scale u = {us}″ at the largest angle",
         "ru": "по калибровке: u по углу до {ua}″, u масштаба = {us}″ на наибольшем угле",
     },
+    "angle_sensor_calibrated_stated": {
+        "en": "from its calibration, which states its scale part: u per angle up to {ua}″, "
+        "scale u = {us}″ at the largest angle",
+        "ru": "по калибровке с указанной в ней долей масштаба: u по углу до {ua}″, "
+        "u масштаба = {us}″ на наибольшем угле",
+    },
     "angle_source": {"en": "source: {src}", "ru": "источник: {src}"},
     "dist_triangular": {"en": "triangular", "ru": "треугольное распределение"},
     "dist_rectangular": {"en": "rectangular", "ru": "равномерное распределение"},
