@@ -165,3 +165,22 @@ def test_small_coverage_study_map(tmp_path):
     assert len(rows) == 3 and all(r["map_error"] == "" for r in rows)
     assert json.loads((tmp_path / "validation.json").read_text())["all"]["n_sessions"] == 3
     assert "| map | b1 (mGal/pix) | 3 |" in (tmp_path / "validation.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("args", "what"),
+    [
+        (["--calibration-scale-u-arcsec", "0"], "needs --calibration-u-arcsec"),
+        (
+            ["--calibration-u-arcsec", "0.5", "--calibration-scale-u-arcsec", "0.6"],
+            "must be in [0, U]",
+        ),
+    ],
+)
+def test_a_scale_statement_needs_a_table_and_is_part_of_its_u(tmp_path, capsys, args, what):
+    from chekan.validate import main
+
+    with pytest.raises(SystemExit) as e:
+        main([*args, "--sessions", "1", "-o", str(tmp_path / "v")])
+    assert e.value.code == 2 and what in capsys.readouterr().err
+    assert not (tmp_path / "v").exists()  # refused before anything is written
