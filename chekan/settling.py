@@ -71,7 +71,7 @@ def fitted_model(result: Mapping[str, Any]):  # -> chekan.model.SensorParams | N
 
     return model.make_params(
         g_mgal=g,
-        K_pix_per_rad=float(model.K_from_a(float(a), g)),
+        K_pix_per_rad=math.sqrt(g / (2.0 * float(a))),  # eq. (10), K_from_a on the host
         b_mgal_per_pix=[mean("b1"), mean("b2")],
         m_level_pix=[float(lv["m1"]), float(lv["m2"])],
         eps_rad=[mean("eps1_arcmin") / ARCMIN_PER_RAD, mean("eps2_arcmin") / ARCMIN_PER_RAD],
@@ -86,7 +86,7 @@ def model_at_holds(params, holds: Any) -> np.ndarray:
 
     tx = np.asarray(holds.tilt_x_rad, dtype=float)
     ty = np.asarray(holds.tilt_y_rad, dtype=float)
-    return np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
+    return model.equilibrium_readings_host(params, tx, ty)
 
 
 def _sample_attitudes(record: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +107,7 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     short beside τ still carries part of the slew's transient; E at the hold alone misses it."""
     from chekan import model
 
-    E = np.asarray(model.equilibrium_readings(params, *_sample_attitudes(record)), dtype=float)
+    E = model.equilibrium_readings_host(params, *_sample_attitudes(record))
     return _lagged_means(E, holds, record, tau_s)
 
 
@@ -141,15 +141,7 @@ def unsettled_transient_pix(result: Mapping[str, Any], holds: Any, record: Any):
     tau = result_tau_s(result)
     if params is None or record is None or tau is None:
         return None
-    from chekan import model
-
-    # the samples' and the holds' equilibria in one call (one trace in a new process)
-    tx, ty = _sample_attitudes(record)
-    n = tx.size
-    tx = np.concatenate([tx, np.asarray(holds.tilt_x_rad, dtype=float)])
-    ty = np.concatenate([ty, np.asarray(holds.tilt_y_rad, dtype=float)])
-    E = np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
-    return _lagged_means(E[:n], holds, record, tau) - E[n:]
+    return lagged_hold_means(params, holds, record, tau) - model_at_holds(params, holds)
 
 
 def transient_bound_pix(holds: Any, record: Any, tau_s: float) -> float:

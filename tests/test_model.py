@@ -205,3 +205,19 @@ def test_second_derivatives_of_the_equilibrium_are_exact(ty_deg):
     h_ref = jax.hessian(lambda v: unrolled(v, ty).sum())(x0)
     hs = np.abs(np.asarray(h_ref)).max()
     np.testing.assert_allclose(np.asarray(h_ours) / hs, np.asarray(h_ref) / hs, atol=1e-9)
+
+
+def test_host_equilibrium_is_the_compiled_one():
+    """The numpy evaluation (settled items, figures) equals the jitted forward model to
+    rounding, about either axis and both, with misalignments, for scalars and arrays."""
+    rng = np.random.default_rng(7)
+    p = params(eps=(3e-3, -2e-3), gamma=4e-3, m_level=(900.0, 1150.0))
+    tx = rng.uniform(-0.095, 0.095, 500) * (rng.uniform(size=500) < 0.6)
+    ty = rng.uniform(-0.095, 0.095, 500) * (rng.uniform(size=500) < 0.6)
+    host = fm.equilibrium_readings_host(p, tx, ty)
+    assert isinstance(host, np.ndarray) and host.shape == (500, 2)
+    np.testing.assert_allclose(host, np.asarray(fm.equilibrium_readings(p, tx, ty)), atol=1e-11)
+    assert np.ptp(host) > 500.0  # the tilts move the readings by hundreds of pixels
+    one = fm.equilibrium_readings_host(p, 0.05, -0.02)
+    np.testing.assert_allclose(one, np.asarray(fm.equilibrium_readings(p, 0.05, -0.02)), atol=1e-11)
+    assert one.shape == (2,)

@@ -111,7 +111,7 @@ def _readings(params, axis, theta_rad: np.ndarray, other_rad: np.ndarray) -> np.
     about_y = np.asarray(axis) == "y"
     tx = np.where(about_y, other_rad, theta_rad)
     ty = np.where(about_y, theta_rad, other_rad)
-    return np.asarray(model.equilibrium_readings(params, tx, ty), dtype=float)
+    return model.equilibrium_readings_host(params, tx, ty)
 
 
 def hold_axes(holds: Any) -> np.ndarray:
