@@ -108,13 +108,6 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     from chekan import model
 
     E = model.equilibrium_readings_host(params, *_sample_attitudes(record))
-    return _lagged_means(E, holds, record, tau_s)
-
-
-def _lagged_means(E: np.ndarray, holds: Any, record: Any, tau_s: float) -> np.ndarray:
-    """:func:`lagged_hold_means` from the equilibria ``E`` (samples, 2) at the samples."""
-    from chekan import model
-
     rho = math.exp(-1.0 / (float(record.sample_rate_hz) * tau_s))
     y = model.lag_uniform(E - E[0], rho) + E[0]
     t = np.asarray(record.t_s, dtype=float)
