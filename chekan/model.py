@@ -96,8 +96,9 @@ def make_params(
 
 
 def K_from_a(a_mgal_per_pix2, g_mgal):
-    """Invert eq. (10), a = g/(2K²): K = sqrt(g/(2a))."""
-    return jnp.sqrt(g_mgal / (2.0 * a_mgal_per_pix2))
+    """Invert eq. (10), a = g/(2K²): K = sqrt(g/(2a)), on the host (numbers or numpy
+    arrays: the callers read K from a result's a, where an eager JAX op costs a dispatch)."""
+    return np.sqrt(g_mgal / (2.0 * np.asarray(a_mgal_per_pix2, dtype=float)))
 
 
 def _hav2(t, xp: Any = jnp):

@@ -71,7 +71,7 @@ def fitted_model(result: Mapping[str, Any]):  # -> chekan.model.SensorParams | N
 
     return model.make_params(
         g_mgal=g,
-        K_pix_per_rad=math.sqrt(g / (2.0 * float(a))),  # eq. (10), K_from_a on the host
+        K_pix_per_rad=float(model.K_from_a(float(a), g)),
         b_mgal_per_pix=[mean("b1"), mean("b2")],
         m_level_pix=[float(lv["m1"]), float(lv["m2"])],
         eps_rad=[mean("eps1_arcmin") / ARCMIN_PER_RAD, mean("eps2_arcmin") / ARCMIN_PER_RAD],

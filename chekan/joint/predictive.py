@@ -60,7 +60,7 @@ def _equilibria(g: float, m0: float, flat: dict, take, holds, compiled: Callable
     ``compiled``: :func:`equilibria_of` as the engine keeps it (a new process then loads it
     instead of tracing the vmapped model, ≈ 1.2 s); else jitted here."""
     a = flat["a"][take]
-    K = np.where(a > 0, np.sqrt(g / 2 / np.where(a > 0, a, 1.0)), K_DESIGN)
+    K = np.where(a > 0, fm.K_from_a(np.where(a > 0, a, 1.0), g), K_DESIGN)
     n = len(take)
     fields = {
         "g_mgal": np.full(n, g),
