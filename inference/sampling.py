@@ -48,6 +48,7 @@ from .moves import IndependenceMove, SnookerMove, moves_for
 from .proposal import fit_proposal
 
 BatchMode = Literal["vmap", "map"]
+Derived = Callable[[np.ndarray], Mapping[str, np.ndarray]]
 
 __all__ = [
     "IndependenceMove",
@@ -163,7 +164,9 @@ class SamplingResult:
     ``draws`` (chain, draw, ndim) after burn-in and thinning; ``log_prob`` (chain, draw);
     ``blobs`` per-draw extras from ``blob_fn`` (chain, draw, ...); ``tau`` (ndim,) integrated
     autocorrelation times in steps; ``ess`` (ndim,) the emcee-based estimate used for stopping
-    (check with :func:`inference.diagnostics.ess_bulk`); ``acceptance`` (chain,).
+    (check with :func:`inference.diagnostics.ess_bulk`); ``acceptance`` (chain,);
+    ``seconds`` the whole call (``derived`` included); ``derived``: the caller's quantities
+    of the retained draws (:func:`sample`).
     """
 
     draws: np.ndarray
@@ -179,6 +182,8 @@ class SamplingResult:
     message: str = ""
     ess: np.ndarray = field(default_factory=lambda: np.zeros(0))
     n_walkers: int = 0
+    derived: Mapping[str, np.ndarray] | None = None
+    """``derived(draws)`` of :func:`sample` for the retained draws (None without it)."""
 
     @property
     def n_chains(self) -> int:
@@ -336,6 +341,7 @@ def sample(
     executables: ExecutableStore | None = None,
     batch_mode: BatchMode = "vmap",
     prior_sd: ArrayLike | None = None,
+    derived: Derived | None = None,
 ) -> SamplingResult:
     """Sample ``log_density(z, data) -> scalar`` with ``config.n_chains`` emcee ensembles.
 
@@ -351,7 +357,13 @@ def sample(
     for the Chekan model of a 9 h record, 26 walkers, one BLAS thread: a whole warm
     ``bayes`` takes 27 s with ``"map"`` against 37 s with ``"vmap"``). ``prior_sd``: the
     prior's sd of each coordinate of z (inf where flat), for the proposal's shoulders
-    (``config.proposal_shoulder_weight``).
+    (``config.proposal_shoulder_weight``). ``derived``: host-side quantities of the retained
+    draws, ``derived(draws (chain, draw, ndim)) → {name: (chain, draw, ...)}`` (what the
+    caller reports from them, e.g. functions of z and of further random draws); with
+    ``stop_rule="bulk"`` the run stops only when every scalar one ((chain, draw) arrays) also
+    has bulk ESS ≥ ``target_ess`` and R̂ ≤ ``rhat_max``, so the rule holds for what is
+    reported, not only for z. It is evaluated where z's rule passes (and once at the end if
+    the run stops otherwise); its last value is ``SamplingResult.derived``.
     """
     config = SamplerConfig() if config is None else config
     config.check()
@@ -371,8 +383,12 @@ def sample(
     psd = None if prior_sd is None else np.asarray(prior_sd, dtype=float).reshape(ndim)
     cov0 = _regularised_cov(init_cov, ndim)
     samplers, states = _ensembles(lnp, z_init, cov0, nw, config, rng, psd)
-    n_steps, tau, ess, converged = _run(samplers, states, config, nw)
-    return _result(samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0)
+    n_steps, tau, ess, converged, extra, why = _run(samplers, states, config, nw, derived)
+    res = _result(samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0, why)
+    if derived is not None:
+        res.derived = extra if converged and extra is not None else derived(res.draws)
+        res.seconds = time.perf_counter() - t0
+    return res
 
 
 def _ensembles(
@@ -426,10 +442,15 @@ def _ensembles(
 
 
 def _run(
-    samplers: list[emcee.EnsembleSampler], states: list[emcee.State], config: SamplerConfig, nw: int
-) -> tuple[int, np.ndarray, np.ndarray, bool]:
+    samplers: list[emcee.EnsembleSampler],
+    states: list[emcee.State],
+    config: SamplerConfig,
+    nw: int,
+    derived: Derived | None = None,
+) -> tuple[int, np.ndarray, np.ndarray, bool, Mapping[str, np.ndarray] | None, str]:
     """Advance the ensembles ``check_every`` steps at a time (in threads) until converged
-    or ``max_steps``: ``(steps, τ, ESS, converged)``."""
+    or ``max_steps``: ``(steps, τ, ESS, converged, the last derived quantities or None,
+    which derived quantity failed the rule at the last check or "")``."""
     from tqdm.auto import tqdm
 
     nc, ndim = len(samplers), samplers[0].ndim
@@ -437,6 +458,8 @@ def _run(
     bar = tqdm(total=config.max_steps, disable=not show, desc="emcee", unit="step")
     n_steps, burn, converged = 0, 0, False
     tau, ess = np.full(ndim, np.nan), np.zeros(ndim)
+    extra: Mapping[str, np.ndarray] | None = None
+    why = ""
     workers = config.threads or min(nc, os.cpu_count() or 1)
     pool = ThreadPoolExecutor(workers, thread_name_prefix="ensemble") if workers > 1 else None
     try:
@@ -456,6 +479,11 @@ def _run(
             if config.stop_rule == "bulk" and long_enough:
                 ess, rhat = _retained_diagnostics(samplers, tau, n_steps, config, nw)
                 converged = float(np.min(ess)) >= config.target_ess and rhat <= config.rhat_max
+                why = ""
+                if converged and derived is not None:
+                    extra = derived(_retained(samplers, tau, n_steps, config, nw)[2])
+                    why = _derived_failure(extra, config)
+                    converged = not why
             else:
                 converged = long_enough and float(np.min(ess)) >= config.target_ess
             bar.set_postfix(tau_max=f"{np.max(tau):.0f}", ess=f"{np.min(ess):.0f}")
@@ -465,7 +493,27 @@ def _run(
         bar.close()
         if pool is not None:
             pool.shutdown()
-    return n_steps, tau, ess, converged
+    return n_steps, tau, ess, converged, extra, why
+
+
+def _derived_failure(extra: Mapping[str, np.ndarray], config: SamplerConfig) -> str:
+    """ "" where every scalar quantity of ``extra`` ((chain, draw) arrays) has bulk ESS ≥
+    ``target_ess`` and rank R̂ ≤ ``rhat_max``, else which one does not and why."""
+    from . import mcmc_stats
+
+    for name, x in extra.items():
+        x = np.asarray(x)
+        if x.ndim != 2 or not np.issubdtype(x.dtype, np.number):
+            continue  # not a scalar per draw
+        if not np.all(np.isfinite(x)) or np.ptp(x) == 0:
+            continue  # a constant has no ESS; non-finite draws are the caller's to report
+        ess = mcmc_stats.ess_bulk(x)
+        if not ess >= config.target_ess:
+            return f"the derived {name} has bulk ESS {ess:.0f} < {config.target_ess:g}"
+        rhat = mcmc_stats.rhat_rank(x)
+        if not rhat <= config.rhat_max:
+            return f"the derived {name} has R̂ {rhat:.3f} > {config.rhat_max:g}"
+    return ""
 
 
 def _retained(samplers, tau, n_steps: int, config: SamplerConfig, nw: int):
@@ -492,7 +540,7 @@ def _retained_diagnostics(samplers, tau, n_steps: int, config: SamplerConfig, nw
 
 
 def _result(
-    samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0
+    samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0, why: str = ""
 ) -> SamplingResult:
     """The retained draws (burn-in cut, thinned), the blobs and the verdict."""
     burn, thin, draws = _retained(samplers, tau, n_steps, config, nw)
@@ -506,8 +554,10 @@ def _result(
         message = (
             f"NOT converged: max_steps={config.max_steps} reached with tau_max={np.max(tau):.1f} "
             f"(need ≥ {config.tau_factor:g}·tau = {config.tau_factor * np.max(tau):.0f} steps) "
-            f"and ESS≈{np.min(ess):.0f} (target {config.target_ess:g}); the draws are "
-            "unreliable: run longer, reparametrise, or marginalise linear parameters"
+            f"and ESS≈{np.min(ess):.0f} (target {config.target_ess:g})"
+            + (f", and {why}" if why else "")
+            + "; the draws are unreliable: run longer, reparametrise, or marginalise linear "
+            "parameters"
         )
         warnings.warn(message, RuntimeWarning, stacklevel=3)
     blobs = None if blob_fn is None else _eval_blobs(blob_fn, draws, data, nw // 2)

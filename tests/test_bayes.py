@@ -132,6 +132,12 @@ def test_posterior_end_to_end(short_session, tmp_path):
     d = res["diagnostics"]
     assert d["converged"], d["problems"]
     assert d["r_hat_max"] <= 1.01 and d["ess_bulk_min"] >= 400
+    # the sampler's rule holds for every reported parameter, a and b₀ included (they carry
+    # fresh draws of β | θ): bulk ESS ≥ its target
+    from chekan.joint.sampling import sampler_config
+
+    target = sampler_config(CalibrationOptions(quick=True)).target_ess
+    assert min(p["ess_bulk"] for p in res["parameters"].values()) >= target
     t = truth.derived()
     for k in ("b1", "b2", "a", "eps1_arcmin", "eps2_arcmin"):
         p = res["parameters"][k]

@@ -321,3 +321,60 @@ def test_bulk_rule_ranks_for_r_hat_only_where_every_ess_passes(monkeypatch) -> N
     full = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
     assert full.n_steps == fast.n_steps
     np.testing.assert_array_equal(full.draws, fast.draws)
+
+
+def test_bulk_rule_holds_for_the_derived_quantities_too() -> None:
+    """``derived``: what the caller reports from the kept draws. Where one of its scalars
+    mixes worse than every coordinate (here a coordinate held over blocks of 16 kept
+    draws), the run goes on until it too has bulk ESS ≥ the target; quantities
+    that pass with the coordinates change nothing (the same steps and draws as without);
+    the last evaluation comes back, at the kept draws; arrays that are not one scalar per
+    draw and constants are not judged."""
+    from inference import mcmc_stats
+
+    cfg = SamplerConfig(
+        n_chains=4,
+        moves="de",
+        stop_rule="bulk",
+        target_ess=300.0,
+        max_steps=2000,
+        check_every=10,
+        min_steps=0,
+        tau_factor=10.0,
+        progress=False,
+        seed=3,
+    )
+    calls: list[tuple[int, ...]] = []
+
+    def same(draws: np.ndarray) -> dict[str, np.ndarray]:
+        calls.append(draws.shape)
+        return {"x0": 2.0 * draws[..., 0], "vec": draws[..., :2], "const": 0 * draws[..., 0]}
+
+    def held(draws: np.ndarray) -> dict[str, np.ndarray]:
+        n = draws.shape[1]
+        return {"slow": np.repeat(draws[:, ::16, 0], 16, axis=1)[:, :n], **same(draws)}
+
+    plain = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    calls.clear()
+    with_same = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, derived=same)
+    assert len(calls) == 1 and calls[0] == plain.draws.shape
+    assert with_same.n_steps == plain.n_steps
+    np.testing.assert_array_equal(with_same.draws, plain.draws)
+    assert with_same.derived is not None
+    np.testing.assert_array_equal(with_same.derived["x0"], 2.0 * plain.draws[..., 0])
+
+    slow = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, derived=held)
+    assert slow.converged and slow.derived is not None
+    assert slow.n_steps > plain.n_steps
+    assert mcmc_stats.ess_bulk(slow.derived["slow"]) >= 300.0
+    assert mcmc_stats.ess_bulk(held(plain.draws)["slow"]) < 300.0  # it would not have passed
+    np.testing.assert_array_equal(slow.derived["x0"], 2.0 * slow.draws[..., 0])
+
+    def never(draws: np.ndarray) -> dict[str, np.ndarray]:  # each chain its own level
+        return {"level": np.arange(draws.shape[0])[:, None] + 0.01 * draws[..., 0]}
+
+    short = SamplerConfig(**{**cfg.__dict__, "max_steps": 300})
+    with pytest.warns(RuntimeWarning, match="the derived level has"):
+        stuck = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, short, derived=never)
+    assert not stuck.converged and stuck.n_steps == 300 and stuck.derived is not None
+    np.testing.assert_array_equal(stuck.derived["level"], never(stuck.draws)["level"])

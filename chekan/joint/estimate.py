@@ -10,7 +10,6 @@ import functools
 import time
 import warnings
 
-import jax
 import numpy as np
 
 from chekan.holds import HoldTable
@@ -19,7 +18,7 @@ from chekan.joint import em
 from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
-from chekan.joint.derived import map_derived, posterior_draws
+from chekan.joint.derived import map_derived
 from chekan.joint.derived import prefetch as prefetch_map_derived
 from chekan.joint.layout import padded_shape
 from chekan.joint.map import MapFit, fit_map_em
@@ -197,9 +196,7 @@ def posterior_result(
     model = fit.model
     samp = sample_posterior(fit, options)
     C, Dn = samp.draws.shape[:2]
-    keys = jax.random.split(jax.random.PRNGKey(options.seed), C * Dn)
-    derived = posterior_draws(fit, samp.draws.reshape(C * Dn, -1), keys)
-    draws = {k: v.reshape(C, Dn, *v.shape[1:]) for k, v in derived.items()}
+    draws = dict(samp.derived)
     scalar = {k: v for k, v in draws.items() if v.ndim == 2}
     summ = summarize_draws(scalar, hdi_prob=options.hdi_prob)
     ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
