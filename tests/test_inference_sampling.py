@@ -274,24 +274,29 @@ def test_many_points_are_evaluated_in_order_whatever_the_threads() -> None:
     assert seen == [threading.current_thread().name]
 
 
-def test_bulk_rule_ranks_for_r_hat_only_where_every_ess_passes(monkeypatch) -> None:
-    """The bulk stopping rule needs ESS ≥ target *and* R̂ ≤ max: R̂'s rank normalisation is
-    computed only at checks where every ESS already passes, and the run stops at the same
-    step with the same draws as when R̂ is computed at every check."""
-    from inference import mcmc_stats, sampling
-
-    cfg = SamplerConfig(
+def _bulk_config(max_steps: int) -> SamplerConfig:
+    """The bulk stopping rule on the banana target: 4 DE ensembles, ESS ≥ 300, seed 3."""
+    return SamplerConfig(
         n_chains=4,
         moves="de",
         stop_rule="bulk",
         target_ess=300.0,
-        max_steps=600,
+        max_steps=max_steps,
         check_every=10,
         min_steps=0,
         tau_factor=10.0,
         progress=False,
         seed=3,
     )
+
+
+def test_bulk_rule_ranks_for_r_hat_only_where_every_ess_passes(monkeypatch) -> None:
+    """The bulk stopping rule needs ESS ≥ target *and* R̂ ≤ max: R̂'s rank normalisation is
+    computed only at checks where every ESS already passes, and the run stops at the same
+    step with the same draws as when R̂ is computed at every check."""
+    from inference import mcmc_stats, sampling
+
+    cfg = _bulk_config(max_steps=600)
     passes: list[bool] = []
     ranked: list[int] = []
     ess_bulk, rhat_rank = mcmc_stats.ess_bulk, mcmc_stats.rhat_rank
@@ -332,18 +337,7 @@ def test_bulk_rule_holds_for_the_derived_quantities_too() -> None:
     draw and constants are not judged."""
     from inference import mcmc_stats
 
-    cfg = SamplerConfig(
-        n_chains=4,
-        moves="de",
-        stop_rule="bulk",
-        target_ess=300.0,
-        max_steps=2000,
-        check_every=10,
-        min_steps=0,
-        tau_factor=10.0,
-        progress=False,
-        seed=3,
-    )
+    cfg = _bulk_config(max_steps=2000)
     calls: list[tuple[int, ...]] = []
 
     def same(draws: np.ndarray) -> dict[str, np.ndarray]:
@@ -373,7 +367,7 @@ def test_bulk_rule_holds_for_the_derived_quantities_too() -> None:
     def never(draws: np.ndarray) -> dict[str, np.ndarray]:  # each chain its own level
         return {"level": np.arange(draws.shape[0])[:, None] + 0.01 * draws[..., 0]}
 
-    short = SamplerConfig(**{**cfg.__dict__, "max_steps": 300})
+    short = _bulk_config(max_steps=300)
     with pytest.warns(RuntimeWarning, match="the derived level has"):
         stuck = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, short, derived=never)
     assert not stuck.converged and stuck.n_steps == 300 and stuck.derived is not None
