@@ -497,8 +497,8 @@ def _run(
 
 
 def _derived_failure(extra: Mapping[str, np.ndarray], config: SamplerConfig) -> str:
-    """ "" where every scalar quantity of ``extra`` ((chain, draw) arrays) has bulk ESS ≥
-    ``target_ess`` and rank R̂ ≤ ``rhat_max``, else which one does not and why."""
+    """Which scalar quantity of ``extra`` ((chain, draw) arrays) fails bulk ESS ≥
+    ``target_ess`` or rank R̂ ≤ ``rhat_max``, and why; the empty string where none does."""
     from . import mcmc_stats
 
     for name, x in extra.items():
