@@ -386,7 +386,7 @@ def sample(
     n_steps, tau, ess, converged, extra, why = _run(samplers, states, config, nw, derived)
     res = _result(samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0, why)
     if derived is not None:
-        res.derived = extra if converged and extra is not None else derived(res.draws)
+        res.derived = extra if extra is not None else derived(res.draws)
         res.seconds = time.perf_counter() - t0
     return res
 
@@ -449,8 +449,9 @@ def _run(
     derived: Derived | None = None,
 ) -> tuple[int, np.ndarray, np.ndarray, bool, Mapping[str, np.ndarray] | None, str]:
     """Advance the ensembles ``check_every`` steps at a time (in threads) until converged
-    or ``max_steps``: ``(steps, τ, ESS, converged, the last derived quantities or None,
-    which derived quantity failed the rule at the last check or "")``."""
+    or ``max_steps``: ``(steps, τ, ESS, converged, the derived quantities of the final
+    draws where the last check evaluated them or None, which derived quantity failed the
+    rule at the last check or "")``."""
     from tqdm.auto import tqdm
 
     nc, ndim = len(samplers), samplers[0].ndim
@@ -459,7 +460,7 @@ def _run(
     n_steps, burn, converged = 0, 0, False
     tau, ess = np.full(ndim, np.nan), np.zeros(ndim)
     extra: Mapping[str, np.ndarray] | None = None
-    why = ""
+    why = ""  # (both set again after every advance)
     workers = config.threads or min(nc, os.cpu_count() or 1)
     pool = ThreadPoolExecutor(workers, thread_name_prefix="ensemble") if workers > 1 else None
     try:
@@ -469,6 +470,7 @@ def _run(
             states = list(pool.map(_advance, work) if pool else map(_advance, work))
             n_steps += k
             bar.update(k)
+            extra, why = None, ""  # what the rule says of these draws, not of earlier ones
             chains = [s.get_chain() for s in samplers]
             tau = mean_tau(chains, discard=min(burn, n_steps // 2))
             burn, _ = burn_thin(tau, n_steps)
@@ -479,7 +481,6 @@ def _run(
             if config.stop_rule == "bulk" and long_enough:
                 ess, rhat = _retained_diagnostics(samplers, tau, n_steps, config, nw)
                 converged = float(np.min(ess)) >= config.target_ess and rhat <= config.rhat_max
-                why = ""
                 if converged and derived is not None:
                     extra = derived(_retained(samplers, tau, n_steps, config, nw)[2])
                     why = _derived_failure(extra, config)

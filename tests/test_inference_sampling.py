@@ -364,11 +364,16 @@ def test_bulk_rule_holds_for_the_derived_quantities_too() -> None:
     assert mcmc_stats.ess_bulk(held(plain.draws)["slow"]) < 300.0  # it would not have passed
     np.testing.assert_array_equal(slow.derived["x0"], 2.0 * slow.draws[..., 0])
 
+    seen: list[np.ndarray] = []
+
     def never(draws: np.ndarray) -> dict[str, np.ndarray]:  # each chain its own level
+        seen.append(draws)
         return {"level": np.arange(draws.shape[0])[:, None] + 0.01 * draws[..., 0]}
 
     short = _bulk_config(max_steps=300)
     with pytest.warns(RuntimeWarning, match="the derived level has"):
         stuck = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, short, derived=never)
     assert not stuck.converged and stuck.n_steps == 300 and stuck.derived is not None
+    # the final draws are evaluated once: the last check's evaluation is the one returned
+    assert sum(d.shape == stuck.draws.shape and np.array_equal(d, stuck.draws) for d in seen) == 1
     np.testing.assert_array_equal(stuck.derived["level"], never(stuck.draws)["level"])
