@@ -95,7 +95,7 @@ def time_log_density(prob, data, n: int, walkers: int = 26) -> tuple[float, floa
 
 def bayes_in_process(model, init, options):
     """MAP + emcee + derived draws, as ``--method bayes`` runs them: ``(seconds, fit,
-    samples, sampling seconds)``."""
+    samples)`` (the samples carry their own seconds and the derived draws)."""
     from chekan.joint import fit_map_em
     from chekan.joint.sampling import sample_posterior
 
