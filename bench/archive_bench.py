@@ -93,7 +93,11 @@ def _pass_row(
 ) -> Row:
     """A row for one re-analysis pass beside the plain loop's seconds per file."""
     note = f"{n_done} sessions in {dt:.1f} s, {jobs} worker(s), {n_failed} failed"
-    values = {"sessions": n_done, "seconds": dt, "sessions_per_s": _rate(n_done, dt)}
+    values: dict[str, object] = {
+        "sessions": n_done,
+        "seconds": dt,
+        "sessions_per_s": _rate(n_done, dt),
+    }
     ok = [t for t in loop if t is not None]
     rdt = sum(ok)
     note += f"; loop: {len(ok)}/{len(loop)} files in {rdt:.1f} s, 1 process, no archive"

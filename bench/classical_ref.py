@@ -49,9 +49,9 @@ def numpy_classical_fit(record, settle_s: float) -> tuple[np.ndarray, float]:
                 ys.append(-record.g_local_mgal * (dh - (h0 + h1) / 2))
                 cols.append(2 * r + s)
         r += 1
-    xs, ys, cols = np.array(xs), np.array(ys), np.array(cols)
-    X = np.zeros((xs.size, 2 * r + 1))
-    X[np.arange(xs.size), cols] = xs
-    X[:, -1] = xs**2
-    coef = np.linalg.lstsq(X, ys, rcond=None)[0]
+    x_pix, dg_mgal, col = np.array(xs), np.array(ys), np.array(cols)
+    X = np.zeros((x_pix.size, 2 * r + 1))
+    X[np.arange(x_pix.size), col] = x_pix
+    X[:, -1] = x_pix**2
+    coef = np.linalg.lstsq(X, dg_mgal, rcond=None)[0]
     return coef[:-1].reshape(r, 2), float(coef[-1])

@@ -123,8 +123,8 @@ def _row(method: str, k: int, r: dict) -> Row:
 def run(seed: int = 0, skip_bayes: bool = False, fresh_cache: bool = False) -> list[Row]:
     """Measure the figures (see the module docstring); returns the rows."""
     rows: list[Row] = []
-    with tempfile.TemporaryDirectory(prefix="chekan-bench-cli-") as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory(prefix="chekan-bench-cli-") as tmp_name:
+        tmp = Path(tmp_name)
         env = _env({"CHEKAN_JAX_CACHE": str(tmp / "jax-cache")} if fresh_cache else None)
         rec = tmp / "rec.csv"
         dt = simulate(rec, seed, env)

@@ -145,7 +145,7 @@ def segment_record(
         order = np.sort(mags)
         groups = np.split(order, np.flatnonzero(np.diff(order) > angle_tol_deg) + 1)
         centres = [float(g.mean()) for g in groups]
-        for i in np.flatnonzero(tilts):
+        for i in np.flatnonzero(tilts).tolist():
             angle_index[i] = int(np.argmin(np.abs(np.asarray(centres) - np.rad2deg(abs(theta[i])))))
     # rounds: maximal runs of tilt holds between level holds
     rounds: list[Round] = []
@@ -177,7 +177,7 @@ def segment_record(
     if not rounds:
         raise ChekanError(f"{src}: no tilt holds found (all {n} holds are level)")
     hold_axis = np.where(about_x, "x", "y")
-    for i in np.flatnonzero(is_level):
+    for i in np.flatnonzero(is_level).tolist():
         after = [r for r in rounds if r.tilt_holds[0] > i]
         hold_axis[i] = after[0].axis if after else rounds[-1].axis
     axes = {r.axis for r in rounds}

@@ -80,7 +80,7 @@ def make_params(
     m_level_pix,
     eps_rad=(0.0, 0.0),
     gamma_rad: float = 0.0,
-    m0_pix: float = 1024.0,
+    m0_pix: float | np.ndarray = 1024.0,
 ) -> SensorParams:
     """Build :class:`SensorParams` from plain numbers (float64 arrays)."""
     f = lambda x: jnp.asarray(x, dtype=jnp.float64)  # noqa: E731
@@ -221,8 +221,8 @@ def equilibrium_by_system(params: SensorParams, tx_rad, ty_rad):
     Newton loop runs scalar, 4× slower (measured on 1728 points). Callers that evaluate
     many attitudes (the slews, every log-density evaluation) keep this layout.
     """
-    first, phi_h, lam, m_level = _deflection_problem(params, tx_rad, ty_rad, jnp)
-    delta = solve_deflection(*first, phi_h, lam, params.g_mgal)
+    (du_z, u_y, u_zh), phi_h, lam, m_level = _deflection_problem(params, tx_rad, ty_rad, jnp)
+    delta = solve_deflection(du_z, u_y, u_zh, phi_h, lam, params.g_mgal)
     return m_level + params.K_pix_per_rad * delta
 
 
@@ -242,11 +242,11 @@ def equilibrium_readings_host(params: SensorParams, tx_rad, ty_rad) -> np.ndarra
     Newton steps, no derivatives. For a caller that evaluates the model once at many
     attitudes (the settled items): a new shape costs :func:`equilibrium_readings` a trace
     and a compile, ≈ 0.5 s in a new process, against milliseconds here."""
-    host = SensorParams(*(np.asarray(x, dtype=float) for x in params))
-    first, phi_h, lam, m_level = _deflection_problem(
+    host = SensorParams._make(np.asarray(x, dtype=float) for x in params)
+    (du_z, u_y, u_zh), phi_h, lam, m_level = _deflection_problem(
         host, np.asarray(tx_rad, dtype=float), np.asarray(ty_rad, dtype=float), np
     )
-    delta = newton_deflection(*first, phi_h, lam, host.g_mgal, NEWTON_STEPS + 1)
+    delta = newton_deflection(du_z, u_y, u_zh, phi_h, lam, host.g_mgal, NEWTON_STEPS + 1)
     return np.moveaxis(m_level + host.K_pix_per_rad * delta, 0, -1)
 
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -250,7 +251,7 @@ def _checked_round_axes(round_axes, rounds: int, source: str) -> tuple[str, ...]
 
 def default_program(**overrides) -> TiltProgram:
     """The paper's program: 8 angles, 2 rounds, 900 s dwell of which 300 s settle (9 h)."""
-    kw = dict(name="paper", dwell_s=900.0, settle_s=300.0, rounds=2)
+    kw: dict[str, Any] = dict(name="paper", dwell_s=900.0, settle_s=300.0, rounds=2)
     kw.update(overrides)
     return build_program([parse_angle_deg(a) for a in PAPER_ANGLES], **kw)
 
@@ -292,7 +293,9 @@ def load_program(path: str | Path) -> TiltProgram:
         raise ProgramError(
             f"{path}: give either axis or round_axes (the axis of each round), not both"
         )
-    kw = {k: data[k] for k in ("axis", "round_axes", "order", "sequence", "rounds") if k in data}
+    kw: dict[str, Any] = {
+        k: data[k] for k in ("axis", "round_axes", "order", "sequence", "rounds") if k in data
+    }
     for k in ("dwell_s", "settle_s"):
         if k in data:
             if not isinstance(data[k], int | float) or isinstance(data[k], bool):

@@ -191,18 +191,18 @@ def read_protocol(path: str | PathLike) -> Protocol:
         if m is None:
             continue
         try:  # int() refuses more than 4300 digits; leading zeros do not count
-            key = (int(m.group(1).lstrip("0") or "0"), int(m.group(2).lstrip("0") or "0"))
+            cell = (int(m.group(1).lstrip("0") or "0"), int(m.group(2).lstrip("0") or "0"))
         except ValueError:
             raise FormatError(
                 path, fr.header_line, f"column {name!r}: round or system number is too large"
             ) from None
-        if key in cells:
+        if cell in cells:
             raise FormatError(
                 path,
                 fr.header_line,
-                f"columns {cells[key][0]!r} and {name!r} are the same round and system",
+                f"columns {cells[cell][0]!r} and {name!r} are the same round and system",
             )
-        cells[key] = (name, j)
+        cells[cell] = (name, j)
     if not cells:
         raise FormatError(
             path, fr.header_line, "no measured-increment columns (dg_rR_sS, e.g. dg_r1_s1)"

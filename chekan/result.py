@@ -77,12 +77,12 @@ def param_entry(
         extra = {**extra, "nu_eff": float(nu_eff)}
     else:
         z = z_for(hdi_prob)
-    bounded = sd_ is not None and np.isfinite(z)  # ν_eff < 1: no finite k, no interval
+    half = z * sd_ if sd_ is not None and np.isfinite(z) else None  # ν_eff < 1: no finite k
     e = {
         "mean": float(mean),
         "sd": sd_,
-        "hdi_low": float(mean - z * sd_) if bounded else None,
-        "hdi_high": float(mean + z * sd_) if bounded else None,
+        "hdi_low": float(mean - half) if half is not None else None,
+        "hdi_high": float(mean + half) if half is not None else None,
         "unit": unit,
     }
     e.update(extra)

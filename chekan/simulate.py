@@ -18,6 +18,7 @@ import dataclasses
 import json
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -186,10 +187,9 @@ def systematic_angle_error(
             out = out + w * comp
         return out
 
-    peak_range = peak
     grid = np.linspace(-tmax, tmax, 2001)
-    peak = max(float(np.max(np.abs(raw(grid)))), 1e-12)
-    gain = bound_arcsec * rng.uniform(*peak_range) / peak
+    largest = max(float(np.max(np.abs(raw(grid)))), 1e-12)
+    gain = bound_arcsec * rng.uniform(*peak) / largest
     return lambda theta: gain * raw(theta)
 
 
@@ -216,7 +216,7 @@ def session_systematic(truth: Truth, program: TiltProgram, seed: int, axis: str 
 
 def random_truth(rng: np.random.Generator, serial: str = "SIM-1", **overrides) -> Truth:
     """Draw a plausible instrument: b ≈ 6.8–7.1 mGal/pix, |ε| ≲ 10′, |Δγ| ≲ 20′, τ 15–60 s."""
-    kw = dict(
+    kw: dict[str, Any] = dict(
         serial=serial,
         b_mgal_per_pix=tuple(rng.uniform(6.80, 7.10, 2)),
         m_level_pix=tuple(1024.0 + rng.normal(0, 25, 2)),
@@ -287,7 +287,7 @@ def _timeline(
     if err.size != n_steps:
         raise ValueError(f"angle_error_arcsec has {err.size} values, program has {n_steps} steps")
     cross = np.zeros(n_steps) if cross_arcsec is None else np.asarray(cross_arcsec, float)
-    seg_t, seg_step, seg_tx, seg_ty, seg_rx, seg_ry = [], [], [], [], [], []
+    seg_step, seg_tx, seg_ty, seg_rx, seg_ry = [], [], [], [], []
     prev = (0.0, 0.0)
     prev_axis = program.steps[0].axis if program.steps else "y"
     for k, s in enumerate(program.steps):
@@ -534,7 +534,7 @@ class Instrument:
         self, t_s: float, tx_true_rad: float, ty_true_rad: float
     ) -> tuple[float, float, float]:
         x = self.equilibrium(tx_true_rad, ty_true_rad) + self._offset
-        if self._y is None:
+        if self._y is None or self._t is None:
             self._y = x.copy()
         else:
             a = np.exp(-(t_s - self._t) / self.truth.tau_s)

@@ -129,7 +129,7 @@ def summary_groups(summary: dict) -> list[str]:
     return [k for k, v in summary.items() if isinstance(v, dict) and "n_sessions" in v]
 
 
-def markdown_report(summary: dict, settings: dict, figures: Sequence[str] = ()) -> str:
+def markdown_report(summary: dict, settings: dict, figures: Sequence[str | Path] = ()) -> str:
     """``validation.md``: settings, the honest-interval bands, one table per case and overall."""
     st = settings
     cases = ", ".join(st["cases"]) + (" in turn" if len(st["cases"]) > 1 else "")

@@ -19,6 +19,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 import serial
 
@@ -154,7 +155,7 @@ class Link:
         self.raw_log = raw_log
         self._opener = opener
         self._clock = clock
-        self._ser = None
+        self._ser: Any = None  # the open serial port (pyserial or an emulator)
         self._wlock = threading.Lock()
         self.opened_at: float | None = None
         self.opens = 0

@@ -19,6 +19,8 @@ from hw.endpoints import MemoryEndpoint, lookup
 class Serial(SerialBase):
     """A serial port whose other end is a :class:`~hw.endpoints.MemoryEndpoint`."""
 
+    is_open: bool  # set by SerialBase (pyserial has no type hints)
+
     def __init__(self, *args, **kwargs):
         self._ep: MemoryEndpoint | None = None
         self._token = -1

@@ -155,6 +155,12 @@ def _explain(e: sqlite3.DatabaseError) -> str:
     return f"archive database error: {msg}"
 
 
+def _inserted_id(cur: sqlite3.Cursor) -> int:
+    """The rowid of the row that the INSERT just run on ``cur`` wrote."""
+    assert cur.lastrowid is not None, "an INSERT always sets lastrowid"
+    return cur.lastrowid
+
+
 def _now() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
@@ -370,7 +376,7 @@ class Archive:
                         f" VALUES ({', '.join('?' * len(_SESSION_COLUMNS))})",
                         values,
                     )
-                    sid = int(cur.lastrowid)
+                    sid = _inserted_id(cur)
                 else:
                     sid = existing
                     old_nc = self.con.execute(
@@ -421,7 +427,7 @@ class Archive:
                 " VALUES (?, ?, ?, ?)",
                 (serial, *fields.values()),
             )
-            return int(cur.lastrowid)
+            return _inserted_id(cur)
         iid = int(row[0])
         newest = self.con.execute(
             "SELECT MAX(calibrated_on) FROM sessions WHERE instrument_id = ?", (iid,)

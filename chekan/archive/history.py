@@ -247,10 +247,11 @@ def fit_history(
     if np.unique(tau).size < 2:
         raise ChekanError("a trend needs sessions on at least two dates")
     d = _padded(tau, y, s**2)
-    fixed = q is not None and sigma_x is not None
+    if q is not None and sigma_x is not None:
+        fixed, v, q = True, float(sigma_x) ** 2, float(q)
+    else:
+        fixed, v, q = False, 0.0, 0.0
     estimated = tau.size >= 4 and not fixed
-    v = float(sigma_x) ** 2 if fixed else 0.0
-    q = float(q) if fixed else 0.0
     if estimated:
         med = float(np.median(s**2))
         lo, hi = math.log(_BOUNDS[0] * med), math.log(_BOUNDS[1] * med)
@@ -321,22 +322,22 @@ def select_points(
             continue
         named = {r["parameter"]: r for r in rs}
         for p in params:
-            r = named.get(p)
-            if r is None:
+            row = named.get(p)
+            if row is None:
                 continue
-            if r["sd"] is None or not r["sd"] > 0:
+            if row["sd"] is None or not row["sd"] > 0:
                 notes.append(f"session {sid}: {p} has no uncertainty (fixed): left out")
                 continue
             out[p].append(
                 Point(
                     sid,
-                    r["calibrated_on"],
-                    r["method"],
-                    r["mean"],
-                    r["sd"],
-                    r["hdi_low"],
-                    r["hdi_high"],
-                    r["input_path"],
+                    row["calibrated_on"],
+                    row["method"],
+                    row["mean"],
+                    row["sd"],
+                    row["hdi_low"],
+                    row["hdi_high"],
+                    row["input_path"],
                 )
             )
     for p in params:
@@ -384,11 +385,11 @@ def param_history(
     ref = float(np.sum(w * y) / np.sum(w))
     scale = abs(ref) if ref != 0 else 1.0
     h.reference = ref
-    alarming = tolerance_ppm is not None and unit == SCALE_UNIT
+    tol_ppm = tolerance_ppm if unit == SCALE_UNIT else None  # alarms for scale factors only
     for a, b in itertools.pairwise(points):
         d = b.mean - a.mean
         sd = math.hypot(a.sd, b.sd)
-        ch = {
+        ch: dict[str, Any] = {
             "from": a.date,
             "to": b.date,
             "delta": d,
@@ -397,14 +398,14 @@ def param_history(
             "delta_ppm": d / abs(a.mean) * 1e6 if a.mean else None,
         }
         h.changes.append(ch)
-        if alarming and ch["delta_ppm"] is not None:
+        if tol_ppm is not None and ch["delta_ppm"] is not None:
             u_ppm = z * sd / abs(a.mean) * 1e6
-            level = decide(abs(ch["delta_ppm"]), u_ppm, tolerance_ppm, interval=False)
+            level = decide(abs(ch["delta_ppm"]), u_ppm, tol_ppm, interval=False)
             what = (
                 f"change {a.date} → {b.date} of {ch['delta_ppm']:+.0f} ± {u_ppm:.0f} ppm "
                 f"(U, {hdi_prob:.0%})"
             )
-            h.alarms += _alarm(level, "change", name, what, tolerance_ppm, u_ppm=u_ppm, **ch)
+            h.alarms += _alarm(level, "change", name, what, tol_ppm, u_ppm=u_ppm, **ch)
     d0 = _dt.date.fromisoformat(points[0].date)
     tau = np.array([_years(d0, _dt.date.fromisoformat(p.date)) for p in points])
     yp = (y - ref) / scale * 1e6
@@ -455,17 +456,17 @@ def param_history(
         "from_last_ppm": (mean - last.mean) / abs(last.mean) * 1e6 if last.mean else None,
         "last_date": last.date,
     }
-    if alarming and last.mean:
+    if tol_ppm is not None and last.mean:
         pr = h.prediction
         u_ppm = z * sd_n / abs(last.mean) * 1e6
-        level = decide(abs(pr["from_last_ppm"]), u_ppm, tolerance_ppm, interval=True)
+        level = decide(abs(pr["from_last_ppm"]), u_ppm, tol_ppm, interval=True)
         what = (
             f"predicted at {at.isoformat()} {pr['from_last_ppm']:+.0f} ± {u_ppm:.0f} ppm "
             f"(U, {hdi_prob:.0%}; {pr['low']:.6g} … {pr['high']:.6g}) from the last "
             f"verification ({last.date})"
         )
         h.alarms += _alarm(
-            level, "prediction", name, what, tolerance_ppm, date=at.isoformat(), u_ppm=u_ppm
+            level, "prediction", name, what, tol_ppm, date=at.isoformat(), u_ppm=u_ppm
         )
     return h, fit
 

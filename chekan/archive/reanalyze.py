@@ -177,7 +177,7 @@ def _options(opts: dict[str, Any]):
     return CalibrationOptions(**opts)
 
 
-def solve_many_map(paths: Sequence[str | os.PathLike], options=None) -> list[dict | Exception]:
+def solve_many_map(paths: Sequence[str | Path], options=None) -> list[dict | Exception]:
     """MAP calibration of many inputs → one result dict (or the exception raised) per path,
     one at a time (records of one padded shape share the compiled solver). A bad input fails
     on its own.
@@ -413,6 +413,7 @@ def reanalyze(
         ) as bar:
             if in_process is None:
                 in_process = run_in_process(method, executor, len(todo), jobs)
+            pool: contextlib.AbstractContextManager[cf.Executor]
             if in_process:
                 pool = contextlib.nullcontext(InlineExecutor())
             else:
@@ -427,16 +428,17 @@ def reanalyze(
             # a dead worker breaks every task in flight: retry those one by one, on one
             # worker, so that only the culprit fails (and the pool is rebuilt after it)
             with contextlib.ExitStack() as stack:
-                ex = None
-                for p in crashed:
-                    if ex is None:
-                        ex = stack.enter_context(make_executor(executor, 1, scheduler))
+                alone: cf.Executor | None = None
+                for path in crashed:
+                    if alone is None:
+                        alone = stack.enter_context(make_executor(executor, 1, scheduler))
                     try:
-                        collect(submit(ex, [p]).result())
+                        collect(submit(alone, [path]).result())
                     except Exception as e:
-                        finish({"path": p, "ok": False, "reason": f"{p}: worker crashed: {e!r}"})
+                        reason = f"{path}: worker crashed: {e!r}"
+                        finish({"path": path, "ok": False, "reason": reason})
                         bar.update(1)
                         stack.close()
-                        ex = None
+                        alone = None
         report.notes = sorted(set(report.notes))
     return report

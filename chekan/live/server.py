@@ -163,14 +163,14 @@ class LiveServer(ThreadingHTTPServer):
     def url(self) -> str:
         """Where to open the page on this machine (``127.0.0.1`` for an all-interfaces bind)."""
         host, port = self.server_address[:2]
-        shown = "127.0.0.1" if self.open_to_network else host
+        shown = "127.0.0.1" if self.open_to_network else str(host)
         return f"http://{shown}:{port}/"
 
     @property
     def bound(self) -> str:
         """The address actually bound, ``HOST:PORT``."""
         host, port = self.server_address[:2]
-        return f"{host}:{port}"
+        return str(host) + f":{port}"
 
     def follow(self, poll_s: float = POLL_S) -> None:
         """Update the state from the files until :meth:`stop` (runs in its own thread)."""

@@ -15,6 +15,7 @@ import threading
 import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -99,7 +100,7 @@ class LiveState:
         self.runs: list[list] = []  # [t0, t1, step] of the step column's runs
         self.gaps = 0
         self.lost = 0
-        self.health = {
+        self.health: dict[str, Any] = {
             "reconnects": {},
             "link_lost": {},
             "faults": 0,
@@ -285,7 +286,7 @@ class LiveState:
         with self.lock:
             cols = {c: self._cols[c][start:] for c in _PLOT}
             n = self.n
-        out = {c: _jsonable(v, _DEC[c]) for c, v in cols.items()}
+        out: dict[str, Any] = {c: _jsonable(v, _DEC[c]) for c, v in cols.items()}
         out["start"] = start
         out["n"] = n
         return out

@@ -197,10 +197,10 @@ class RecordWriter:
         cut = max(cut, data_start)
         torn = raw[cut:]
         if torn:
-            k = 1
-            while os.path.exists(f"{self.path}.torn-{k}"):
-                k += 1
-            self.torn_path = f"{self.path}.torn-{k}"
+            n = 1
+            while os.path.exists(f"{self.path}.torn-{n}"):
+                n += 1
+            self.torn_path = f"{self.path}.torn-{n}"
             with open(self.torn_path, "xb") as t:
                 t.write(torn)
                 t.flush()

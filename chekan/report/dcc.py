@@ -382,11 +382,11 @@ def _influence(mr: ET.Element, result: Mapping[str, Any]) -> None:
     a = result.get("angle_sensors") or result.get("angle_sensor")  # both, where both tilt
     text = json.dumps(a, ensure_ascii=False, sort_keys=True) if a else "not stated in the result"
     _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
-    h = result.get("pendulum_horizontal")  # a record with rounds about X: a Type B input
-    if h:
+    horizontal = result.get("pendulum_horizontal")  # rounds about X: a Type B input
+    if horizontal:
         ic = _sub(ics, _d("influenceCondition"), refType="chekan_pendulumHorizontal")
         _text(ic, "name", "the pendulums' horizontal about the CCD centre")
-        text = json.dumps(h, ensure_ascii=False, sort_keys=True)
+        text = json.dumps(horizontal, ensure_ascii=False, sort_keys=True)
         _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
 
 

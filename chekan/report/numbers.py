@@ -10,13 +10,14 @@ same decimal place) and the typography, which no formatting library does.
 from __future__ import annotations
 
 import math
+from typing import TypeGuard
 
 MINUS = "−"
 DASH = "—"
 _SUP = str.maketrans("0123456789-+", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺")
 
 
-def is_num(x: object) -> bool:
+def is_num(x: object) -> TypeGuard[int | float]:
     """A finite real number (bools excluded)."""
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 

@@ -67,13 +67,14 @@ class SampleClock:
             return self._advance(self.last_idx, self.last_seq, seq, step=step)
         anchor = self._resumed_from
         if anchor is None or anchor.idx is None:
-            idx: int | None = 0
+            idx = 0
         elif anchor.seq is None:
             idx = anchor.idx + 1  # no seq anchor in the journal: continue right after
         else:
-            idx = self._advance(anchor.idx, anchor.seq, seq, step=None, across_resume=True)
-            if idx is None:
+            advanced = self._advance(anchor.idx, anchor.seq, seq, step=None, across_resume=True)
+            if advanced is None:
                 return None
+            idx = advanced
         self.last_seq, self.last_idx = seq, idx
         self._journal(
             Event.SYNC, seq_ref=seq, t_ref=idx / self.rate, resumed=self._resumed_from is not None

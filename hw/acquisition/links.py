@@ -55,11 +55,21 @@ class LinkSupervisor:
 
     def open(self, raw: RawLog) -> None:
         """Open both ports (a port that fails to open is reopened with back-off)."""
-        o = self.opts
-        mk = dict(read_timeout_s=o.read_timeout_s, raw_log=raw, clock=self._clock)
-        common = dict(events=self.events, reply_timeout_s=o.reply_timeout_s, clock=self._clock)
-        self.sensor = SensorDriver(Link(o.sensor_url, "sensor", **mk), **common)
-        self.platform = PlatformDriver(Link(o.platform_url, "platform", **mk), **common)
+        o, clock = self.opts, self._clock
+
+        def link(url: str, name: str) -> Link:
+            return Link(url, name, read_timeout_s=o.read_timeout_s, raw_log=raw, clock=clock)
+
+        timeout = o.reply_timeout_s
+        self.sensor = SensorDriver(
+            link(o.sensor_url, "sensor"), events=self.events, reply_timeout_s=timeout, clock=clock
+        )
+        self.platform = PlatformDriver(
+            link(o.platform_url, "platform"),
+            events=self.events,
+            reply_timeout_s=timeout,
+            clock=clock,
+        )
         for port, drv in self.drivers().items():
             assert drv is not None
             try:
