@@ -77,19 +77,23 @@ def rad_to_deg(x):
 
 
 def arcsec_to_rad(x):
-    return np.asarray(x, dtype=float) / ARCSEC_PER_RAD if not np.isscalar(x) else x / ARCSEC_PER_RAD
+    scalar = np.isscalar(x)  # a Python or NumPy scalar stays a scalar
+    return x / ARCSEC_PER_RAD if scalar else np.asarray(x, dtype=float) / ARCSEC_PER_RAD
 
 
 def rad_to_arcsec(x):
-    return np.asarray(x, dtype=float) * ARCSEC_PER_RAD if not np.isscalar(x) else x * ARCSEC_PER_RAD
+    scalar = np.isscalar(x)  # a Python or NumPy scalar stays a scalar
+    return x * ARCSEC_PER_RAD if scalar else np.asarray(x, dtype=float) * ARCSEC_PER_RAD
 
 
 def arcmin_to_rad(x):
-    return np.asarray(x, dtype=float) / ARCMIN_PER_RAD if not np.isscalar(x) else x / ARCMIN_PER_RAD
+    scalar = np.isscalar(x)  # a Python or NumPy scalar stays a scalar
+    return x / ARCMIN_PER_RAD if scalar else np.asarray(x, dtype=float) / ARCMIN_PER_RAD
 
 
 def rad_to_arcmin(x):
-    return np.asarray(x, dtype=float) * ARCMIN_PER_RAD if not np.isscalar(x) else x * ARCMIN_PER_RAD
+    scalar = np.isscalar(x)  # a Python or NumPy scalar stays a scalar
+    return x * ARCMIN_PER_RAD if scalar else np.asarray(x, dtype=float) * ARCMIN_PER_RAD
 
 
 def gal_to_mgal(x):

@@ -190,13 +190,13 @@ def _core(
 
         solver_ = _make_solver(solver, rtol, atol, sd_tol)
         traces[0] += 1  # Python side effect: counts traces
-        fn = functools.partial(stacked_residuals_of, space, residuals)
+        fn: Callable[..., Any] = functools.partial(stacked_residuals_of, space, residuals)
         if solver == "gn":
             # LM keeps its linearisation as before: the regression snapshot was taken with
             # it, and J formed once moves a near-zero drift slope there by 1.8e-6 relative
             # (1e-7 sd), past the snapshot's 1e-6; GN's answers equal 0.3.4's to 1e-11 sd
             fn = jacobian_once(fn)
-        sol = optx.least_squares(fn, solver_, z0, data, max_steps=max_steps, throw=False)
+        sol: Any = optx.least_squares(fn, solver_, z0, data, max_steps=max_steps, throw=False)
         z = sol.value
         # R and J at ẑ from the solver's last accepted step (its linearisation there, J
         # already a matrix: see ``jacobian_once``)
