@@ -844,26 +844,31 @@ def test_the_page_in_a_browser_shows_what_went_wrong(short_session, tmp_path):
             )
             page = ctx.new_page()
 
-            def show(p: Path) -> str:
+            def show(p: Path, expect: str = "") -> str:
+                """The alarms once they hold ``expect`` (the page first says "all healthy"
+                until the follower has read the file to the line at fault)."""
                 srv, url = _serve_in_process(p)
                 servers.append(srv)
                 page.goto(url)
                 page.wait_for_function(
-                    "document.getElementById('alarms').textContent.length > 0", timeout=30_000
+                    "(s) => { const t = document.getElementById('alarms').textContent;"
+                    " return t.length > 0 && t.includes(s); }",
+                    arg=expect,
+                    timeout=30_000,
                 )
                 box = page.locator("#alarms").bounding_box()
                 assert box is not None and box["y"] + box["height"] <= 768, (p, box)
                 return page.locator("#alarms").inner_text()
 
-            text = show(binary)
+            text = show(binary, f"{binary}: ")
             assert "all healthy" not in text and f"{binary}: " in text and "format" in text
             assert page.locator("#state").inner_text().lower() == "not a record"
 
-            text = show(back)
+            text = show(back, f"{back}:{header + 3002}: ")
             assert f"{back}:{header + 3002}: t_s goes backwards" in text, text
             assert "partial" not in text and "<live>" not in text
 
-            text = show(stopped)
+            text = show(stopped, "refused: RANGE")
             assert "TILT (step 3: +1°50', round 1) refused: RANGE" in text
             assert page.locator("#remaining").inner_text() == "stopped: device error"
             assert page.locator("#end-lbl").inner_text() == "stopped at"
