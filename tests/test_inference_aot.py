@@ -137,7 +137,8 @@ SPY = textwrap.dedent(
 
 def test_background_loads_bind_lapack_before_their_threads_start(tmp_path):
     _run(tmp_path, "code-v1")  # compiles and stores "toy"
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
+    # the flags `_run` stored under: a developer's own XLA_FLAGS would change the key
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu", "XLA_FLAGS": ""}
     proc = subprocess.run(
         [sys.executable, "-c", SPY, str(tmp_path), "code-v1"],
         env=env,
