@@ -13,7 +13,7 @@ On one simulated record (the paper's 9 h program; ``--quick``: the 3 h one of
   which compiles or loads the persistent cache, is in the note): the MAP with EM
   (:func:`chekan.joint.fit_map_em`), emcee (:func:`chekan.joint.sampling.sample_posterior`,
   the ``--method bayes`` settings) and the derived draws
-  (:func:`chekan.joint.derived.posterior_draws`); its min bulk ESS over the 12 sampled
+  (:func:`chekan.joint.reported.posterior_draws`); its min bulk ESS over the 12 sampled
   coordinates and whether it converged (R̂ ≤ 1.01, bulk ESS ≥ 400, the sampler's own rule);
 - the reference: blackjax's window adaptation (dense mass matrix seeded with the Laplace
   covariance at the 12-dim mode, :func:`inference.mode.refine_mode`, as emcee's proposal)

@@ -18,7 +18,7 @@ from chekan import joint
 from chekan.classical import calibrate_record
 from chekan.errors import ChekanError
 from chekan.joint.angles import AngleSensorSpec, commanded_groups, spec_for, systematic_basis
-from chekan.joint.derived import map_derived
+from chekan.joint.reported import map_derived
 from chekan.program import build_program
 from chekan.simulate import Truth, simulate_session
 from chekan.units import ARCSEC_PER_RAD

@@ -7,10 +7,10 @@ import pytest
 
 from chekan import joint
 from chekan.classical import calibrate_record
-from chekan.joint import em
 from chekan.joint import likelihood as cm
-from chekan.joint.derived import map_derived
 from chekan.joint.layout import padded_shape
+from chekan.joint.map import between_passes
+from chekan.joint.reported import map_derived
 from chekan.pipeline import CalibrationOptions, calibrate_file
 from inference.linear import marginal_loglik
 from inference.normal_eq import marginal_loglik_normal
@@ -110,7 +110,7 @@ def test_map_slow_damping_recentres_level_and_converges_em(short_program):
     fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
     res, h = fit.result, fit.hyper
     np.testing.assert_allclose(np.asarray(fit.model.data.m_ref), m_true, atol=0.3)
-    h2 = em.between_passes(fit.model, res.z, h)[1]
+    h2 = between_passes(fit.model, res.z, h)[1]
     for k in ("sigma_theta_arcsec", "sigma_hold_pix"):
         assert abs(np.log(float(h2[k]) / float(h[k]))) < 0.02, (k, h[k], h2[k])
     md = map_derived(fit)

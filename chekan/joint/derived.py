@@ -4,23 +4,22 @@ bayes and design.
     a = mean over systems of a(m_h) (eq. 10 at the level reading),
     bⱼ,₀ = b at the CCD centre (eq. 24), drift slope = Σₗ dⱼₗ (Pₗ(1) − Pₗ(−1)) / duration.
 
-:func:`map_derived` adds delta-method sds at the MAP; :func:`posterior_draws` evaluates
-them for every posterior draw, with β drawn given θ.
+:func:`map_derived_fn` adds what the delta-method sds at the MAP need; :func:`draws_fn`
+evaluates them for a posterior draw, with β drawn given θ. The engine compiles both
+(:mod:`chekan.joint.engine`); :mod:`chekan.joint.reported` runs them on a fit.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from chekan import model as fm
-from chekan.jaxconfig import device_array
 from chekan.joint.hold_blocks import apply_blocks, block_normal_equations
-from chekan.joint.layout import ModelStructure, RecordData, RecordModel
+from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import (
     beta_prior_var,
     dense_design,
@@ -28,10 +27,7 @@ from chekan.joint.likelihood import (
     sensor_params,
     solve_beta,
 )
-from chekan.joint.map import MapFit
-from chekan.joint.typea import reliabilities
 from chekan.parameters import PHYSICAL
-from inference.chunks import map_chunks
 from inference.normal_eq import draw_beta_blocks, split_prior
 
 
@@ -81,6 +77,14 @@ def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordDa
     return out, sp.m_level_pix, dr
 
 
+def equilibria_of(sp: fm.SensorParams, tx, ty):
+    """E and ∂E/∂θ (draws, K, 2) for parameters batched on their leading axis (the
+    posterior predictive's hold equilibria, :mod:`chekan.joint.predictive`)."""
+    E = jax.vmap(fm.equilibrium_readings, in_axes=(0, None, None))(sp, tx, ty)
+    S = jax.vmap(fm.reading_sensitivity_to_tilt, in_axes=(0, None, None))(sp, tx, ty)
+    return E, S
+
+
 def map_derived_fn(structure: ModelStructure, space) -> Callable:
     """``(z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂, Ã, base, transient, Λ)``,
     traceable; compiled once per structure by :class:`chekan.joint.engine.Engine` (eager
@@ -109,55 +113,6 @@ def map_derived_fn(structure: ModelStructure, space) -> Callable:
         return g(z, beta), Jz, Jb, Linv.T @ Linv, beta, A_w, base, trans, pv
 
     return core
-
-
-def prefetch(model: RecordModel) -> None:
-    """Start loading the stored executable of :func:`map_derived` for this model's
-    structure in the background."""
-    from chekan.joint.engine import MAP_DERIVED, engine_for
-
-    engine_for(model.structure).prefetch(MAP_DERIVED, model.data, model.duration_h)
-
-
-def map_derived(fit: MapFit) -> dict:
-    """Derived quantities at the MAP with delta-method sds: ``{name: (value, sd)}``.
-
-    With θ ~ N(θ̂, C) and β | θ ~ N(β̂(θ), M⁻¹):
-    var g = (∂g/∂θ + ∂g/∂β ∂β̂/∂θ) C (…)ᵀ + ∂g/∂β M⁻¹ (∂g/∂β)ᵀ + uₕ²,
-    uₕ² the variance from the hyperparameters' estimation (:mod:`chekan.joint.typea`).
-    Hyperparameters are reported at their EM values (sd None); ``_m_level`` holds the
-    estimated level readings, ``_nu_eff`` and ``_u_hyper`` each quantity's effective
-    degrees of freedom and uₕ (:mod:`chekan.joint.typea`).
-    """
-    model, res, h = fit.model, fit.result, fit.hyper
-    data = model.data
-    blocks = model.structure.beta_blocks
-    from chekan.joint.engine import engine_for
-
-    jitted = engine_for(model.structure).map_derived
-    out_j = jitted(device_array(res.z), h, data, model.duration_h)
-    val, Jz, Jb, Minv, beta, A_w, base, trans, pv = (np.asarray(x) for x in out_j)
-    cov = np.asarray(res.cov_z)
-    finite = np.isfinite(np.diag(cov))
-    cz = np.where(np.isfinite(cov), cov, 0.0)
-    var = np.einsum("ij,jk,ik->i", Jz, cz, Jz) + np.einsum("ij,jk,ik->i", Jb, Minv, Jb)
-    rel = reliabilities(fit, Jz, Jb, Minv, A_w, base, trans, pv)
-    u_hyper = np.array([r.u2_components for r in rel])
-    sd = np.sqrt(np.maximum(var + u_hyper, 0.0))
-    if not finite.all():
-        sd = np.where(np.abs(Jz[:, ~finite]).sum(axis=1) > 0, np.inf, sd)
-    out: dict[str, Any] = {n: (float(val[i]), float(sd[i])) for i, n in enumerate(PHYSICAL)}
-    s = np.asarray(h["noise_scale"]) * np.asarray(data.sigma_base)
-    out["sigma1_pix"] = (float(s[0]), None)
-    out["sigma2_pix"] = (float(s[1]), None)
-    out["sigma_theta_arcsec"] = (float(h["sigma_theta_arcsec"]), None)
-    out["sigma_hold_pix"] = (float(h["sigma_hold_pix"]), None)
-    out["slew_error"] = (float(h["slew_error"]), None)
-    out["_m_level"] = np.asarray(data.m_ref) + np.asarray(beta)[blocks["c"]]
-    out["_nu_eff"] = {n: rel[i].nu_eff for i, n in enumerate(PHYSICAL)}
-    out["_type_a_clipped"] = any(r.clipped for r in rel)
-    out["_u_hyper"] = {n: float(np.sqrt(max(u_hyper[i], 0.0))) for i, n in enumerate(PHYSICAL)}
-    return out
 
 
 def draws_fn(structure: ModelStructure, space) -> Callable:
@@ -204,15 +159,3 @@ def draws_fn(structure: ModelStructure, space) -> Callable:
         return jax.lax.map(lambda zk: one(zk[0], zk[1], data, dur_h), (zs, keys))
 
     return many
-
-
-def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 256) -> dict:
-    """Every reported quantity for each posterior draw ``zs`` (n, 12), β drawn given θ
-    with ``keys``; in fixed-size chunks on both cores (one compile, bounded memory; the size:
-    ``docs/tuning.md``)."""
-    model = fit.model
-    from chekan.joint.engine import engine_for
-
-    fn = engine_for(model.structure).draws
-    dur_h = model.duration_h  # traced, as in map_derived
-    return map_chunks(lambda z, k: fn(z, k, model.data, dur_h), [zs, keys], chunk)

@@ -42,7 +42,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chekan.jaxconfig import device_array
 from chekan.joint.hold_blocks import (
     BinRows,
     bin_rows,
@@ -52,7 +51,7 @@ from chekan.joint.hold_blocks import (
     rows_t_times,
     rows_times,
 )
-from chekan.joint.layout import ModelStructure, RecordData, RecordModel
+from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import (
     beta_prior_var,
     noise_var,
@@ -142,37 +141,6 @@ def implausible_angle_error(h: Hyper, bound_arcsec: float) -> list[str]:
         "record's slews (the recorded angles may lag the readings); b may be biased and its "
         "uncertainty too small"
     ]
-
-
-def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:
-    """What follows every MAP pass but the last, compiled (:func:`em_pass_fn`): the model
-    with its level moved to the estimate (m_ref ← m_ref + ĉ), the hyperparameters at their
-    EM fixed point given θ = z, and the number of EM updates.
-
-    The equilibrium Eₖ is computed about m_ref (b is dG/dm there) while c only shifts the
-    readings; the classical m_h that m_ref starts from is biased where the level holds have
-    not settled (17 pix at τ = 90 s on the 3 h program), and that bias went into b (≈ +0.5
-    sd). After one pass ĉ is known to ~0.01 pix, so the next pass works about the estimate.
-
-    Where EM has not converged after ``EM_UPDATES_BEFORE_NEWTON`` updates the fixed point is
-    solved for by a second compiled function (:func:`em_newton_fn`): records whose EM
-    converges never compile or load it (it is most of the EM's code).
-    """
-    from chekan.joint.engine import engine_for
-
-    engine = engine_for(model.structure)
-    m_ref, h_new, n, change = engine.em_pass(device_array(z), h, model.data)
-    moved = model.with_level(np.asarray(m_ref))
-    if float(change) >= HYPER_TOL:
-        h_new, n = engine.em_newton(device_array(z), h_new, n, change, moved.data)
-    return moved, h_new, int(n)
-
-
-def prefetch(model: RecordModel) -> None:
-    """Start loading this structure's stored EM pass in the background."""
-    from chekan.joint.engine import EM_PASS, engine_for
-
-    engine_for(model.structure).prefetch(EM_PASS, model.data)
 
 
 def _em_body(update: Callable, data: RecordData):

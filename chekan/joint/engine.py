@@ -9,7 +9,7 @@ stored name                 what it computes                            maths in
 ``em_newton``               EM's fixed point by Newton (EM creeping)    :mod:`.em`
 ``map_derived``             derived quantities and their Jacobians      :mod:`.derived`
 ``draws``                   every reported quantity per posterior draw  :mod:`.derived`
-``predictive_equilibria``   equilibria of the posterior predictive      :mod:`.predictive`
+``predictive_equilibria``   equilibria of the posterior predictive      :mod:`.derived`
 ==========================  ==========================================  =======================
 
 An :class:`Engine` per structure (:func:`engine_for`, the one cache of the joint model)
@@ -18,7 +18,10 @@ executable store (:mod:`inference.aot`, scoped by the structure), so that record
 structure share them and a new process loads instead of tracing. Per-record numbers
 (duration, counts) are arguments of the compiled functions, never part of their keys.
 :func:`clear_caches` forgets them all (as equinox's ``clear_caches``). The model modules
-stay pure maths: each gives the function to compile, the engine compiles it.
+stay pure maths: each gives the function to compile, the engine compiles it; what runs them
+on a record stands above the engine (:func:`chekan.joint.map.between_passes`,
+:mod:`chekan.joint.reported`, :mod:`chekan.joint.predictive`), so no module that the
+engine compiles from imports it.
 """
 
 from __future__ import annotations
@@ -79,8 +82,8 @@ class Engine:
 
     @functools.cached_property
     def predictive(self) -> Callable:
-        """``(sensor params, tx, ty) →`` equilibria: :func:`.predictive.equilibria_of`."""
-        from chekan.joint.predictive import equilibria_of
+        """``(sensor params, tx, ty) →`` equilibria: :func:`.derived.equilibria_of`."""
+        from chekan.joint.derived import equilibria_of
 
         return self.store.jit(PREDICTIVE, equilibria_of)
 

@@ -18,11 +18,11 @@ from chekan.joint import em
 from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
-from chekan.joint.derived import map_derived
-from chekan.joint.derived import prefetch as prefetch_map_derived
 from chekan.joint.layout import padded_shape
-from chekan.joint.map import MapFit, fit_map_em
+from chekan.joint.map import MapFit, fit_map_em, prefetch_em
 from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
+from chekan.joint.reported import map_derived
+from chekan.joint.reported import prefetch as prefetch_map_derived
 from chekan.joint.sampling import sample_posterior
 from chekan.joint.start import initial_values
 from chekan.joint.xresponse import horizontal_prior
@@ -70,7 +70,7 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         # per-hold outputs would carry the padding)
         model = model.pad(*padded_shape([model]))
     # a new process loads the stored executables it will need next while the MAP runs
-    em.prefetch(model)
+    prefetch_em(model)
     if options.method == "map":
         prefetch_map_derived(model)
     else:  # the sampler's imports (emcee → scipy.stats, ≈ 1 s) while the MAP runs

@@ -2,7 +2,7 @@
 
 ``MAP_PASSES`` Gauss–Newton solves over θ (β projected out; LM where GN fails). Between
 two solves the level reference moves to its estimate and the hyperparameters are
-converged at fixed θ (:func:`chekan.joint.em.between_passes`, one compiled loop, whatever
+converged at fixed θ (:func:`between_passes`: :mod:`chekan.joint.em`'s compiled loop, whatever
 the passes' solver).
 
 Each pass is one :func:`inference.map.fit_map`. The fit returns new state, :class:`MapFit`,
@@ -18,8 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from chekan.joint import em
-from chekan.joint.engine import problem_for
+from chekan.jaxconfig import device_array
+from chekan.joint.em import HYPER_TOL
+from chekan.joint.engine import EM_PASS, engine_for, problem_for
 from chekan.joint.layout import RecordModel
 from chekan.joint.problem import Hyper, default_hyper
 from inference.map import MapResult, SolverName, fit_map
@@ -72,9 +73,37 @@ def fit_map_em(
             res, pass_solver = _solve_pass(prob.lsq, (model.data, h), res.z, pass_solver)
         updates = 0
         if it < MAP_PASSES - 1:
-            model, h, updates = em.between_passes(model, res.z, h)
+            model, h, updates = between_passes(model, res.z, h)
         history.append(pass_entry(it, res.converged, res.num_steps, res.cost, progress, updates))
     return MapFit(res, h, tuple(history), model)
+
+
+def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:
+    """What follows every MAP pass but the last, compiled (:func:`chekan.joint.em.em_pass_fn`):
+    the model with its level moved to the estimate (m_ref ← m_ref + ĉ), the hyperparameters
+    at their EM fixed point given θ = z, and the number of EM updates.
+
+    The equilibrium Eₖ is computed about m_ref (b is dG/dm there) while c only shifts the
+    readings; the classical m_h that m_ref starts from is biased where the level holds have
+    not settled (17 pix at τ = 90 s on the 3 h program), and that bias went into b (≈ +0.5
+    sd). After one pass ĉ is known to ~0.01 pix, so the next pass works about the estimate.
+
+    Where EM has not converged after ``EM_UPDATES_BEFORE_NEWTON`` updates the fixed point is
+    solved for by a second compiled function (:func:`chekan.joint.em.em_newton_fn`): records
+    whose EM converges never compile or load it (it is most of the EM's code).
+    """
+    engine = engine_for(model.structure)
+    m_ref, h_new, n, change = engine.em_pass(device_array(z), h, model.data)
+    moved = model.with_level(np.asarray(m_ref))
+    if float(change) >= HYPER_TOL:
+        h_new, n = engine.em_newton(device_array(z), h_new, n, change, moved.data)
+    return moved, h_new, int(n)
+
+
+def prefetch_em(model: RecordModel) -> None:
+    """Start loading this structure's stored EM pass (:func:`between_passes`) in the
+    background."""
+    engine_for(model.structure).prefetch(EM_PASS, model.data)
 
 
 def _apart(tau_s: float, tried_tau_s: Sequence[float]) -> bool:

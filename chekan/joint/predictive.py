@@ -12,6 +12,8 @@ import numpy as np
 
 from chekan import model as fm
 from chekan.classical import fit_by_axis, increments_of_readings
+from chekan.joint.derived import equilibria_of
+from chekan.joint.engine import engine_for
 from chekan.joint.problem import K_DESIGN
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
@@ -31,8 +33,6 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     s = 2.0 * (holds.t_mid_s - t0) / max(t1 - t0, 1.0) - 1.0
     P = np.polynomial.legendre.legvander(np.nan_to_num(s), model.drift_degree)[:, 1:]
     g = float(g_local)
-    from chekan.joint.engine import engine_for
-
     compiled = engine_for(model.structure).predictive
     m0 = float(np.asarray(model.data.m0))  # the record's CCD centre, as the fit uses it
     E_all, S_all = _equilibria(g, m0, flat, take, holds, compiled)  # (draws, K, 2) each
@@ -77,13 +77,6 @@ def _equilibria(g: float, m0: float, flat: dict, take, holds, compiled: Callable
     fn = _equilibria_jit if compiled is None else compiled
     E, S = fn(sp, tx, ty)
     return np.asarray(E), np.asarray(S)
-
-
-def equilibria_of(sp: fm.SensorParams, tx, ty):
-    """E and ∂E/∂θ (draws, K, 2) for parameters batched on their leading axis."""
-    E = jax.vmap(fm.equilibrium_readings, in_axes=(0, None, None))(sp, tx, ty)
-    S = jax.vmap(fm.reading_sensitivity_to_tilt, in_axes=(0, None, None))(sp, tx, ty)
-    return E, S
 
 
 _equilibria_jit = jax.jit(equilibria_of)

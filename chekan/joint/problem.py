@@ -18,7 +18,7 @@ s₁, s₂                  log s ~ N(0, 0.5)                  noise estimated f
 σ_o (pix)               log σ_o ~ N(log 0.05, 1)           weak
 κ                       log κ ~ N(log 0.003, 1.5)          slew error, weak
 c (pix)                 N(0, 1)                            around m_ref (classical m_h, then
-                                                           the estimate: em.between_passes)
+                                                           the estimate: between_passes)
 d (pix)                 N(0, 2²) per coefficient           drift over a session ≲ a few pixels
 ======================  =================================  ===================================
 

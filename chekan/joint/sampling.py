@@ -6,7 +6,7 @@ independence-MH proposal is fitted by importance sampling (:func:`sampler_config
 independent ensembles for R-hat, burn-in from the integrated autocorrelation time, stopped
 on the bulk ESS and R̂ of the draws it keeps and of every quantity reported from them. The
 draws of θ and h are returned with those quantities
-(:func:`chekan.joint.derived.posterior_draws`, β drawn given θ).
+(:func:`chekan.joint.reported.posterior_draws`, β drawn given θ).
 """
 
 from __future__ import annotations
@@ -102,11 +102,11 @@ def sample_posterior(fit: MapFit, options: CalibrationOptions):
 
 def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> dict[str, np.ndarray]:
     """Every reported quantity of the draws (chain, draw, 12) of z, β drawn given θ with
-    keys from ``seed`` (:func:`chekan.joint.derived.posterior_draws`): {name: (chain,
+    keys from ``seed`` (:func:`chekan.joint.reported.posterior_draws`): {name: (chain,
     draw, ...)}."""
     import jax
 
-    from chekan.joint.derived import posterior_draws
+    from chekan.joint.reported import posterior_draws
 
     C, Dn = draws.shape[:2]
     keys = jax.random.split(jax.random.PRNGKey(seed), C * Dn)
