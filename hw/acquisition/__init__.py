@@ -44,9 +44,9 @@ from hw.acquisition.plan import (
     PlanStep,
     plan_from_program,
 )
-from hw.acquisition.resume import ResumeState, resume, resume_state
+from hw.acquisition.resume import ResumeState, resume_state
 from hw.acquisition.runner import Acquisition
-from hw.acquisition.start import PROTECTED_META, acquire
+from hw.acquisition.start import PROTECTED_META, acquire, resume
 from hw.acquisition.steps import Phase, StepMachine
 from hw.acquisition.summary import PORTS, Summary
 

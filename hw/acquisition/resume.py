@@ -1,4 +1,5 @@
-"""Resume: where a killed or interrupted run stands (journal + record), and continuing it.
+"""Resume: where a killed or interrupted run stands (journal + record); continuing it is
+:func:`hw.acquisition.start.resume`.
 
 Completed steps are kept; the first unfinished step is re-run from its ``TILT``
 (its partial rows stay); ``t_s`` continues strictly after the last complete row,
@@ -8,9 +9,7 @@ through ``seq`` (the journal's last ``sync`` event keeps the ``seq`` ↔ ``t_s``
 from __future__ import annotations
 
 import math
-import time
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,14 +19,10 @@ import numpy as np
 from chekan.errors import ChekanError
 from chekan.records import Record, read_record
 from hw.acquisition.clock import Anchor
-from hw.acquisition.plan import Options, PlanStep
-from hw.acquisition.runner import Acquisition
-from hw.acquisition.summary import Summary
-from hw.errors import PortsUnknown
+from hw.acquisition.plan import PlanStep
 from hw.events import Event
 from hw.journal import journal_path, read_journal
 from hw.nmea import SEQ_MOD
-from hw.progress import Progress
 
 
 @dataclass
@@ -116,52 +111,3 @@ def resume_state(
         serial=str(start["sensor"]["serial"]),
     )
     return state, start, plan, syncs[-1] if syncs else {}
-
-
-def resume(
-    record_path: str | Path,
-    *,
-    sensor_url: str | None = None,
-    platform_url: str | None = None,
-    options: Options | None = None,
-    overrides: dict[str, Any] | None = None,
-    progress: Callable[[Progress], None] | None = None,
-    report: Callable[[str], None] | None = None,
-    clock: Callable[[], float] = time.monotonic,
-    sleep: Callable[[float], None] = time.sleep,
-) -> Summary:
-    """Continue a killed or interrupted run of ``record_path`` (see the module docstring).
-
-    Ports and options come from the journal unless given (``overrides``: Options fields;
-    ``options`` is not changed). ``report`` receives the summary text at the end.
-    """
-    state, start, plan, _ = resume_state(record_path)
-    if state is None:
-        s = Summary(status="completed", n_steps=len(plan), steps_done=len(plan))
-        s.message = "nothing to resume: the run is complete"
-        if report is not None:
-            report(s.message)
-        return s
-    base = options or Options.from_json(start.get("options", {}))
-    opts = Options.from_json(base.to_json())  # a copy: the caller's options stay as they are
-    for k, v in (overrides or {}).items():
-        if v is not None:
-            setattr(opts, k, v)
-    if sensor_url:
-        opts.sensor_url = sensor_url
-    if platform_url:
-        opts.platform_url = platform_url
-    if not opts.sensor_url or not opts.platform_url:
-        raise PortsUnknown()
-    acq = Acquisition(
-        record_path,
-        plan,
-        opts,
-        program_name=str(start.get("program", "custom")),
-        resume_state=state,
-        progress=progress,
-        report=report,
-        clock=clock,
-        sleep=sleep,
-    )
-    return acq.run()

@@ -1,4 +1,6 @@
-"""A new run: :func:`acquire` checks the request (record, metadata, g) and runs it."""
+"""How a run starts: :func:`acquire` checks a new run's request (record, metadata, g) and
+runs it; :func:`resume` continues a killed or interrupted one from where it stands
+(:mod:`hw.acquisition.resume`)."""
 
 from __future__ import annotations
 
@@ -7,13 +9,15 @@ import re
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 from chekan.errors import ChekanError
 from chekan.program import TiltProgram
 from hw.acquisition.plan import Options, plan_from_program
+from hw.acquisition.resume import resume_state
 from hw.acquisition.runner import Acquisition
 from hw.acquisition.summary import Summary
-from hw.errors import BadMetadata, RecordExists
+from hw.errors import BadMetadata, PortsUnknown, RecordExists
 from hw.journal import journal_path
 from hw.progress import Progress
 
@@ -73,6 +77,56 @@ def acquire(
         options,
         program_name=program.name,
         meta=user,
+        progress=progress,
+        report=report,
+        clock=clock,
+        sleep=sleep,
+    )
+    return acq.run()
+
+
+def resume(
+    record_path: str | Path,
+    *,
+    sensor_url: str | None = None,
+    platform_url: str | None = None,
+    options: Options | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: Callable[[Progress], None] | None = None,
+    report: Callable[[str], None] | None = None,
+    clock: Callable[[], float] = time.monotonic,
+    sleep: Callable[[float], None] = time.sleep,
+) -> Summary:
+    """Continue a killed or interrupted run of ``record_path`` (what is kept and what is run
+    again: :mod:`hw.acquisition.resume`).
+
+    Ports and options come from the journal unless given (``overrides``: Options fields;
+    ``options`` is not changed). ``report`` receives the summary text at the end.
+    """
+    state, start, plan, _ = resume_state(record_path)
+    if state is None:
+        s = Summary(status="completed", n_steps=len(plan), steps_done=len(plan))
+        s.message = "nothing to resume: the run is complete"
+        if report is not None:
+            report(s.message)
+        return s
+    base = options or Options.from_json(start.get("options", {}))
+    opts = Options.from_json(base.to_json())  # a copy: the caller's options stay as they are
+    for k, v in (overrides or {}).items():
+        if v is not None:
+            setattr(opts, k, v)
+    if sensor_url:
+        opts.sensor_url = sensor_url
+    if platform_url:
+        opts.platform_url = platform_url
+    if not opts.sensor_url or not opts.platform_url:
+        raise PortsUnknown()
+    acq = Acquisition(
+        record_path,
+        plan,
+        opts,
+        program_name=str(start.get("program", "custom")),
+        resume_state=state,
         progress=progress,
         report=report,
         clock=clock,
