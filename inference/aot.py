@@ -399,6 +399,13 @@ class ExecutableStore:
             return
         (self.pending[key],) = loads_in_background([(self._load, (path, name, key))], 1, name)
 
+    def stored(self, name: str, *args) -> bool:
+        """Whether a call of ``name`` with ``args`` would find its executable (loaded in this
+        process, loading, or in the folder) rather than compile it."""
+        key, *_ = self._signature(name, args)
+        path = self._path(key)
+        return key in self.loaded or key in self.pending or (path is not None and path.is_file())
+
     def remember(self, label: str) -> Path | None:
         """Write the executables this process has run, in order of first use, as the
         manifest ``recent/<label>.json`` (what :meth:`preload` starts loading in the next

@@ -325,6 +325,22 @@ def test_shapes_and_static_leaves_key_the_executables():
     assert float(f(7.0, "double")) == 14.0  # Python numbers are traced, as jax.jit does
 
 
+def test_stored_tells_whether_a_call_would_load_or_compile(tmp_path):
+    """``stored``: False before the first call of a signature, True once it is compiled (in
+    memory, and in the folder for a new store of the same code), False for another shape
+    and for other code."""
+    x = np.ones(3)
+    memory = ExecutableStore(None, "memory only")
+    assert not memory.stored("f", x)
+    memory.jit("f", lambda v: v + 1)(x)
+    assert memory.stored("f", x) and not memory.stored("f", np.ones(4))
+    first = ExecutableStore(tmp_path, "code-v1")
+    assert not first.stored("f", x)
+    first.jit("f", lambda v: v + 1)(x)
+    assert ExecutableStore(tmp_path, "code-v1").stored("f", x)  # a new process: its file
+    assert not ExecutableStore(tmp_path, "code-v2").stored("f", x)
+
+
 def test_scoped_stores_never_share_an_executable():
     store = ExecutableStore(None, "code")
     a = store.scoped("structure A").jit("f", lambda x: x + 1)

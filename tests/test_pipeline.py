@@ -74,3 +74,26 @@ def test_the_preload_label_follows_the_program_not_the_instrument(short_session,
     monkeypatch.setattr(type(store), "remember", lambda self, lab: asked.append(("r", lab)))
     calibrate(rec, opts)
     assert asked == [("p", label), ("r", label)]
+
+
+def test_the_first_run_of_a_model_structure_says_that_it_compiles(
+    short_session, capsys, monkeypatch
+):
+    """A program's first run compiles for a minute or two before the MAP prints anything: it
+    says so first; a run whose executables are stored (or loaded) does not."""
+    import importlib
+
+    # the module (chekan.joint re-exports its function of the same name)
+    joint_estimate = importlib.import_module("chekan.joint.estimate")
+
+    _, rec, _ = short_session
+    opts = CalibrationOptions(method="map", progress=True)
+    calibrate(rec, opts)  # compiles or loads this structure's executables
+    capsys.readouterr()
+    calibrate(rec, opts)  # now loaded in this process
+    assert joint_estimate.FIRST_RUN_NOTICE not in capsys.readouterr().out
+    monkeypatch.setattr(joint_estimate, "compiled_before", lambda model: False)
+    calibrate(rec, opts)
+    out = capsys.readouterr().out
+    assert joint_estimate.FIRST_RUN_NOTICE in out
+    assert out.index(joint_estimate.FIRST_RUN_NOTICE) < out.index("MAP pass 1")

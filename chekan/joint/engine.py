@@ -91,8 +91,15 @@ class Engine:
         """Start loading the stored executable ``name`` (a MAP-side one: ``(z, h, data,
         *extra)``) in the background; z on the host (``jnp.zeros`` would compile a program
         in a new process, 20 ms)."""
-        z = np.zeros(self.problem.map_space.size)
-        self.store.prefetch(name, z, default_hyper(), data, *extra)
+        self.store.prefetch(name, *self._map_side_args(data, *extra))
+
+    def stored(self, name: str, data: RecordData, *extra) -> bool:
+        """Whether the MAP-side executable ``name`` for ``data`` would be loaded, not
+        compiled (as :meth:`prefetch`)."""
+        return self.store.stored(name, *self._map_side_args(data, *extra))
+
+    def _map_side_args(self, data: RecordData, *extra) -> tuple:
+        return (np.zeros(self.problem.map_space.size), default_hyper(), data, *extra)
 
 
 @functools.cache

@@ -19,7 +19,7 @@ from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
 from chekan.joint.layout import padded_shape
-from chekan.joint.map import MapFit, fit_map_em, prefetch_em
+from chekan.joint.map import MapFit, compiled_before, fit_map_em, prefetch_em
 from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.reported import map_derived
 from chekan.joint.reported import prefetch as prefetch_map_derived
@@ -30,6 +30,11 @@ from chekan.options import CalibrationOptions
 from chekan.parameters import PARAMETER_UNITS
 from chekan.result import param_entry, posterior_entry
 from chekan.settling import settled_items, tau_from_transients
+
+FIRST_RUN_NOTICE = (
+    "compiling the joint model for this record's shape, its first run with this code (up to "
+    "a minute or two on 2 cores; later runs load it)"
+)
 
 
 def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOptions) -> dict:
@@ -71,6 +76,8 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         model = model.pad(*padded_shape([model]))
     # a new process loads the stored executables it will need next while the MAP runs
     prefetch_em(model)
+    if options.progress and not compiled_before(model):
+        print(FIRST_RUN_NOTICE)
     if options.method == "map":
         prefetch_map_derived(model)
     else:  # the sampler's imports (emcee → scipy.stats, ≈ 1 s) while the MAP runs

@@ -106,6 +106,12 @@ def prefetch_em(model: RecordModel) -> None:
     engine_for(model.structure).prefetch(EM_PASS, model.data)
 
 
+def compiled_before(model: RecordModel) -> bool:
+    """Whether this structure's EM pass is stored (or loaded): False on the first run of a
+    program (a new model structure), which compiles its executables before it computes."""
+    return engine_for(model.structure).stored(EM_PASS, model.data)
+
+
 def _apart(tau_s: float, tried_tau_s: Sequence[float]) -> bool:
     """Whether a restart from ``tau_s`` is worth a solve after those from ``tried_tau_s``."""
     return all(abs(math.log(tau_s / t)) > math.log(RESTART_APART) for t in tried_tau_s)
