@@ -1,6 +1,6 @@
 """Reader of legacy calibration protocol tables, format ``chekan-protocol/1``.
 
-The contract is ``shared/specs/legacy-protocol.md``: the framing of
+The contract is ``docs/specs/legacy-protocol.md``: the framing of
 ``chekan-record/1`` (``# key: value`` metadata, a header line, CSV rows) with
 one row per tilt angle: the angle, the reference increment ``da_ref_mgal`` and
 the measured increments ``dg_rR_sS`` of system S in round R, each with its

@@ -17,7 +17,7 @@ Modules (one job each)::
                  log), runner, start (acquire), resume
     cli          ``chekan emulate`` / ``chekan acquire`` sub-commands
 
-Protocol contract: ``shared/specs/serial-protocol.md``.
+Protocol contract: ``docs/specs/serial-protocol.md``.
 """
 
 import serial as _serial

@@ -1,6 +1,6 @@
 """Emulator of both devices (sensor and gyro-platform) on one device clock.
 
-It follows ``shared/specs/serial-protocol.md``; the physics is
+It follows ``docs/specs/serial-protocol.md``; the physics is
 :class:`chekan.simulate.Instrument`:
 
 - the platform slews at ``Truth.slew_deg_per_s`` (both axes reach the target

@@ -1,7 +1,7 @@
 """NMEA-style sentences of the sensor and the platform: encode, checksum, robust parsing.
 
 A sentence is ``$<body>*HH\\r\\n`` with ``HH`` the XOR of the body's bytes, two
-upper-case hex digits (``shared/specs/serial-protocol.md``). :class:`SentenceParser`
+upper-case hex digits (``docs/specs/serial-protocol.md``). :class:`SentenceParser`
 is fed raw bytes in arbitrary chunks and returns typed sentences; it never raises
 on bad input: it skips garbage before a ``$``, resynchronises on every ``$``,
 accepts ``\\r\\n`` and a bare ``\\n``, keeps a bounded buffer, and drops (and counts

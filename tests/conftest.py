@@ -17,12 +17,12 @@ os.environ.setdefault("CHEKAN_JAX_CACHE", str(Path(__file__).resolve().parents[1
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
 # opt-in: CHEKAN_TEST_PROFILE=FILE appends, per test, its wall seconds (setup and teardown
 # included) and what it added to the JAX cache folder: which tests compile a model
 # structure of their own, where a cold suite spends its time
 PROFILE = os.environ.get("CHEKAN_TEST_PROFILE")
-PAPER_PROTOCOL = SHARED / "reference" / "calibr_46_protocol.csv"
+# the paper's protocol no. 46, shipped with the repository (a clone stands alone)
+PAPER_PROTOCOL = Path(__file__).resolve().parents[1] / "examples" / "calibr_46_protocol.csv"
 
 
 @pytest.hookimpl(trylast=True)
@@ -45,8 +45,9 @@ _CRASH_LOG = pytest.StashKey()
 
 @pytest.fixture(scope="session")
 def paper_protocol() -> Path:
+    """The paper's protocol no. 46 (``examples/``); missing, the suite fails rather than skips."""
     if not PAPER_PROTOCOL.is_file():
-        pytest.skip(f"the paper's protocol is not at {PAPER_PROTOCOL}")
+        pytest.fail(f"the paper's protocol is missing from the repository: {PAPER_PROTOCOL}")
     return PAPER_PROTOCOL
 
 

@@ -33,8 +33,7 @@ SESSIONS = 12
 
 @pytest.fixture(scope="module")
 def tree(tmp_path_factory, paper_protocol) -> dict:
-    """Inputs: 36 simulated records, the protocol, a duplicate, broken and foreign files
-    (skipped where the paper's protocol in ../shared is not checked out)."""
+    """Inputs: 36 simulated records, the protocol, a duplicate, broken and foreign files."""
     root = tmp_path_factory.mktemp("inputs")
     made = write_archive_inputs(root / "records", SPECS, sessions=SESSIONS, years=10.0)
     good = [p for v in made.values() for p, _ in v]

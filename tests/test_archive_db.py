@@ -25,8 +25,7 @@ from chekan.result import write_result
 
 @pytest.fixture(scope="module")
 def result46(paper_protocol) -> dict:
-    """The paper's protocol, classical: b1, b2 estimated, a held fixed (skipped where
-    ../shared is not checked out)."""
+    """The paper's protocol, classical: b1, b2 estimated, a held fixed."""
     return calibrate_file(paper_protocol, CalibrationOptions(method="classical", progress=False))
 
 

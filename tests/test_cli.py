@@ -19,14 +19,12 @@ from chekan.durable import atomic_output
 from chekan.outputs import OutputError, check_outputs, sniff_format
 
 ROOT = Path(__file__).resolve().parents[1]
-PROTOCOL = ROOT.parent / "shared" / "reference" / "calibr_46_protocol.csv"
+PROTOCOL = ROOT / "examples" / "calibr_46_protocol.csv"
 RECORD_HEAD = "# format: chekan-record/1\n# serial: 46\n# g_local_mgal: 981922.05\nt_s,m1_pix\n"
 
 
 @pytest.fixture
 def proto(tmp_path) -> Path:
-    if not PROTOCOL.is_file():
-        pytest.skip(f"the paper's protocol is not at {PROTOCOL}")
     p = tmp_path / "calibr_46.csv"
     p.write_bytes(PROTOCOL.read_bytes())
     return p
@@ -380,7 +378,7 @@ def test_quiet_prints_nothing_on_success(tmp_path, capsys):
     writes files (issue 33 §6), and the files are there."""
     from chekan.cli import main
 
-    paper = Path(__file__).resolve().parents[2] / "shared" / "reference" / "calibr_46_protocol.csv"
+    paper = PROTOCOL
     res = tmp_path / "r.json"
     prog = tmp_path / "p.toml"
     prog.write_text('angles = ["2°30\'"]\ndwell_s = 60\nsettle_s = 20\nrounds = 1\n')

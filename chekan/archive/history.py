@@ -69,7 +69,7 @@ variance, :meth:`HistoryFit.predict`).
 Sign of a (the quadratic coefficient): every value of ``a`` here is in the record's
 convention (readings grow with gravity, Δg = b(m − m_h) + a(m − m_h)², eq. 8). A legacy
 protocol prints a in its own convention (increments counted positive when gravity decreases,
-``shared/specs/legacy-protocol.md``), which has the opposite sign; its re-analysis reports a
+``docs/specs/legacy-protocol.md``), which has the opposite sign; its re-analysis reports a
 in the record's convention (:func:`chekan.classical.increments_from_protocol`): protocol
 no. 46's printed +78 nGal/pix² is archived as −7.8e-5 mGal/pix² (its printed δg are
 reproduced only with that reading). Eq. (10), a = g/2K², is positive in the record's

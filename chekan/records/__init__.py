@@ -1,4 +1,4 @@
-"""Calibration records, format ``chekan-record/1`` (``shared/specs/record-format.md``).
+"""Calibration records, format ``chekan-record/1`` (``docs/specs/record-format.md``).
 
 - :mod:`chekan.records.framing` — metadata/header/data framing, shared with
   :mod:`chekan.protocol`;

@@ -1,6 +1,6 @@
 """Framing shared by ``chekan-record/1`` and ``chekan-protocol/1`` files.
 
-Both formats (``shared/specs/record-format.md``, ``legacy-protocol.md``) are a UTF-8
+Both formats (``docs/specs/record-format.md``, ``legacy-protocol.md``) are a UTF-8
 file of ``# key: value`` metadata lines, one comma-separated column header line and
 CSV data rows. This module splits such a file into its parts (:func:`read_frame`),
 normalises the data block (:func:`data_block`) and holds the helpers both readers

@@ -1,6 +1,6 @@
 """The :class:`Record` type and :func:`read_record`, the reader of ``chekan-record/1``.
 
-The contract is ``shared/specs/record-format.md``: ``# key: value`` metadata
+The contract is ``docs/specs/record-format.md``: ``# key: value`` metadata
 lines, one comma-separated header line, then one data row per sensor sample.
 
 Reading is fast: the data block is parsed by a vectorised NumPy parser

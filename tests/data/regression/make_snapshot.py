@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-PROTOCOL = HERE.parents[3] / "shared" / "reference" / "calibr_46_protocol.csv"
+PROTOCOL = HERE.parents[2] / "examples" / "calibr_46_protocol.csv"
 SEEDS = tuple(range(500, 510))
 
 
