@@ -14,6 +14,16 @@ program file, so records of any program (or of another recorder) are understood:
 - tilt magnitudes are clustered (tolerance ``angle_tol_deg``) into the program's angles.
 
 Dwell means use the samples after ``settle_s`` from the start of the hold.
+
+**Gaps** (lost samples: consecutive ``t_s`` further apart than 1.5 sample periods) are
+not slews. Where the record has no attitude for a slew (a gap between the last sample of
+a hold and the first of the next, or a slew sample without angles), the sensor's state at
+the start of the next hold is unknown; so it is after a gap longer than
+``GAP_HOLDING_S`` inside a hold (the acquisition may have stopped and commanded the
+platform again). Such a state is unknown until the sensor settles: the samples within
+``settle_s`` of the gap's end are not used (:attr:`HoldTable.known`), and a hold that
+never settles after its gap leaves the next hold's start unknown too. A shorter gap inside
+a hold, while the platform holds its step's target on both sides, loses only its samples.
 """
 
 from __future__ import annotations
@@ -25,6 +35,9 @@ import numpy as np
 
 from chekan.errors import ChekanError
 from chekan.units import ARCSEC_PER_RAD, format_dms
+
+GAP_PERIODS = 1.5  # consecutive samples further apart than this many periods: a gap
+GAP_HOLDING_S = 5.0  # a gap inside a hold up to this long loses only its samples
 
 
 @dataclass
@@ -64,6 +77,24 @@ class HoldTable:
     hold_axis: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype="<U1"))
     """(n,) "x" or "y" per hold: the axis of a tilt; a level hold takes the axis of the
     round after it (of the last round for a trailing level hold)."""
+    known: np.ndarray | None = None
+    """(record rows,) False where the sensor's state is unknown after a gap (module
+    docstring); None: the record has no gap that hides the state."""
+    gaps: list[tuple[float, float]] = field(default_factory=list)
+    """Every gap of the record: (t of the last sample before, t of the first after), s."""
+
+    def settled(self, k: int, t: np.ndarray) -> np.ndarray:
+        """The settled samples of hold k (a mask over its rows): ``settle_s`` after its
+        start and outside the unknown state after a gap. ``t``: the record's ``t_s``."""
+        a, b = int(self.start[k]), int(self.stop[k])
+        sel = t[a:b] - t[a] >= self.settle_s
+        return sel if self.known is None else sel & self.known[a:b]
+
+    def restarted(self, k: int) -> bool:
+        """Whether a gap leaves hold k's state unknown somewhere (its start or after a
+        gap inside it): the joint model then takes it as settled where it uses it."""
+        a, b = int(self.start[k]), int(self.stop[k])
+        return self.known is not None and not bool(self.known[a:b].all())
 
     @property
     def n(self) -> int:
@@ -83,6 +114,49 @@ def _runs(step: np.ndarray) -> list[tuple[int, int, int]]:
     return [
         (int(step[a]), int(a), int(b)) for a, b in zip(starts, stops, strict=True) if step[a] >= 0
     ]
+
+
+def sample_period_s(t: np.ndarray, sample_rate_hz: float) -> float:
+    """The record's sample period: the nominal one, or the typical spacing of its samples
+    where that is longer (a record kept at a lower rate than its sensor's)."""
+    d = np.diff(t)
+    return max(1.0 / float(sample_rate_hz), float(np.median(d)) if d.size else 0.0)
+
+
+def record_gaps(t: np.ndarray, sample_rate_hz: float) -> np.ndarray:
+    """Row indices i with a gap between rows i and i + 1 (lost samples)."""
+    return np.flatnonzero(np.diff(t) > GAP_PERIODS * sample_period_s(t, sample_rate_hz))
+
+
+def known_state(
+    t: np.ndarray,
+    attitude_ok: np.ndarray,
+    start: np.ndarray,
+    stop: np.ndarray,
+    settle_s: float,
+    sample_rate_hz: float,
+) -> np.ndarray | None:
+    """Per row, whether the sensor's state is known there (module docstring): False within
+    ``settle_s`` of a hold's start after a slew with a gap or without angles, or of the end
+    of a gap longer than ``GAP_HOLDING_S`` inside it. None where no gap hides the state.
+    ``attitude_ok``: rows whose angles were both read."""
+    gap = np.zeros(t.size, bool)  # gap[i]: samples lost between rows i − 1 and i
+    gap[record_gaps(t, sample_rate_hz) + 1] = True
+    known = np.ones(t.size, bool)
+    end_known = True
+    for k in range(start.size):
+        a, b = int(start[k]), int(stop[k])
+        lost_from: list[float] = []
+        if k:
+            slew = slice(int(stop[k - 1]), a)
+            if not end_known or gap[int(stop[k - 1]) : a + 1].any() or not attitude_ok[slew].all():
+                lost_from.append(float(t[a]))
+        inside = np.flatnonzero(gap[a + 1 : b]) + a + 1
+        lost_from += [float(t[i]) for i in inside if t[i] - t[i - 1] > GAP_HOLDING_S]
+        for t0 in lost_from:
+            known[a:b] &= ~((t[a:b] >= t0) & (t[a:b] < t0 + settle_s))
+        end_known = not lost_from or float(t[b - 1]) >= max(lost_from) + settle_s
+    return None if known.all() else known
 
 
 def segment_record(
@@ -112,11 +186,22 @@ def segment_record(
     msd = np.full((n, 2), np.nan)
     notes: list[str] = []
     for i, s in enumerate(steps):
-        a, b = last[s]
-        start[i], stop[i] = a, b
+        start[i], stop[i] = last[s]
+    rate = float(record.sample_rate_hz)
+    known = known_state(t, np.isfinite(tx) & np.isfinite(ty), start, stop, settle_s, rate)
+    gaps = [(float(t[i]), float(t[i + 1])) for i in record_gaps(t, rate)]
+    for i, s in enumerate(steps):
+        a, b = int(start[i]), int(stop[i])
         tt = t[a:b]
         sel = tt - tt[0] >= settle_s
-        if not sel.any():
+        if known is not None and not known[a:b].all():
+            sel &= known[a:b]
+            if not sel.any():
+                notes.append(
+                    f"step {s}: no settled sample after the gap in the record before"
+                    f" t = {tt[-1]:.0f} s (the sensor's state is unknown until it settles)"
+                )
+        if not sel.any() and (known is None or known[a:b].all()):
             notes.append(
                 f"step {s}: hold of {tt[-1] - tt[0]:.0f} s is shorter than settle_s={settle_s:g}"
             )
@@ -184,6 +269,20 @@ def segment_record(
     axis = "xy" if len(axes) > 1 else axes.pop()
     if not is_level.any():
         raise ChekanError(f"{src}: no level hold found: the level reading m_h is undefined")
+    if gaps:
+        lost = sum(b - a for a, b in gaps) - len(gaps) * sample_period_s(t, rate)
+        where = ", ".join(f"{a:.0f}–{b:.0f}" for a, b in gaps[:5]) + (
+            ", …" if len(gaps) > 5 else ""
+        )
+        notes.append(
+            f"{len(gaps)} gap(s) in the record, {lost:.0f} s without samples (t = {where} s);"
+            " the sensor's state after a gap is unknown until it settles"
+            + (
+                f": {int((~known).sum())} samples after them are not used"
+                if known is not None
+                else ""
+            )
+        )
     for msg in notes:
         warnings.warn(f"{src}: {msg}", stacklevel=2)
     return HoldTable(
@@ -209,4 +308,17 @@ def segment_record(
         settle_s=float(settle_s),
         warnings=notes,
         hold_axis=hold_axis,
+        known=known,
+        gaps=gaps,
     )
+
+
+def gaps_entry(holds: HoldTable) -> dict:
+    """The record's gaps as the result states them: how many, where (s on the sample
+    clock: the samples either side), and how many samples the unknown state after them
+    leaves unused."""
+    return {
+        "count": len(holds.gaps),
+        "at_s": [[a, b] for a, b in holds.gaps],
+        "unused_samples": 0 if holds.known is None else int((~holds.known).sum()),
+    }

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from chekan.errors import ChekanError
+from chekan.holds import gaps_entry
 from chekan.inputs import input_kind, read_input
 from chekan.options import METHODS, CalibrationOptions
 from chekan.protocol import Protocol
@@ -205,6 +206,8 @@ def classical_of(
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
     if unsettled is not None:
         result["unsettled_hold_means"] = unsettled.entry()
+    if isinstance(data, Record) and holds.gaps:
+        result["record_gaps"] = gaps_entry(holds)
     name = data.meta.get("program") or None
     if isinstance(data, Record):
         result["tilt_program"] = tilt_program_entry(holds=holds, name=name)

@@ -114,7 +114,7 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     out = np.full((holds.n, 2), np.nan)
     for k in range(holds.n):
         a, b = int(holds.start[k]), int(holds.stop[k])
-        sel = t[a:b] - t[a] >= holds.settle_s
+        sel = holds.settled(k, t)
         if sel.any():
             out[k] = y[a:b][sel].mean(axis=0)
     return out
@@ -134,7 +134,11 @@ def unsettled_transient_pix(result: Mapping[str, Any], holds: Any, record: Any):
     tau = result_tau_s(result)
     if params is None or record is None or tau is None:
         return None
-    return lagged_hold_means(params, holds, record, tau) - model_at_holds(params, holds)
+    out = lagged_hold_means(params, holds, record, tau) - model_at_holds(params, holds)
+    for k in range(holds.n):  # after a gap the model takes the state as settled (chekan.holds)
+        if holds.restarted(k):
+            out[k] = 0.0
+    return out
 
 
 def transient_bound_pix(holds: Any, record: Any, tau_s: float) -> float:
@@ -154,7 +158,7 @@ def transient_bound_pix(holds: Any, record: Any, tau_s: float) -> float:
         a, b = int(holds.start[k]), int(holds.stop[k])
         tt = t[a:b] - t[a]
         d = float(tt[-1]) if tt.size else 0.0
-        if d <= s:
+        if d <= s or holds.restarted(k):  # after a gap: taken as settled (chekan.holds)
             continue
         early = tt <= min(tau_s, s / 2.0)
         grow = (np.exp(tt[early] / tau_s) / (1.0 - np.exp((tt[early] - s) / tau_s)))[:, None]
@@ -323,7 +327,7 @@ def raw_transient_pix(holds: Any, record: Any, tau_s: float) -> np.ndarray:
         a, b = int(holds.start[k]), int(holds.stop[k])
         tt = t[a:b] - t[a]
         e = np.exp(-tt / tau_s)
-        settled = tt >= holds.settle_s
+        settled = holds.settled(k, t)
         for j in range(2):
             ok = np.isfinite(m[a:b, j])
             if ok.sum() < _MIN_SAMPLES or not (settled & ok).any():

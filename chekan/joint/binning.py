@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from chekan.holds import HoldTable, segment_record
+from chekan.holds import GAP_PERIODS, HoldTable, sample_period_s, segment_record
 from chekan.jaxconfig import device_arrays
 from chekan.joint.angles import AngleSensorSpec, SensorReads, all_sensor_terms
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
@@ -65,13 +65,14 @@ def _robust_sigma(record, holds: HoldTable) -> np.ndarray:
     m = np.stack([record.m1_pix, record.m2_pix], axis=1)
     t = np.asarray(record.t_s, dtype=float)
     out = np.zeros(2)
+    period = sample_period_s(t, record.sample_rate_hz)
     for j in range(2):
         diffs = []
-        for a, b in zip(holds.start, holds.stop, strict=True):
-            sel = np.arange(a, b)
-            sel = sel[t[sel] - t[a] >= holds.settle_s]
+        for k, a in enumerate(holds.start):
+            sel = a + np.flatnonzero(holds.settled(k, t))
             d = np.diff(m[sel, j])
-            diffs.append(d[np.isfinite(d)])
+            near = np.diff(t[sel]) <= GAP_PERIODS * period  # not across a gap
+            diffs.append(d[np.isfinite(d) & near])
         d = np.concatenate(diffs) if diffs else np.zeros(0)
         mad = np.median(np.abs(d - np.median(d))) if d.size else np.nan
         out[j] = 1.4826 * mad / math.sqrt(2.0) if d.size > 10 and mad > 0 else 0.1
@@ -108,28 +109,48 @@ def _moves(record, holds: HoldTable, dt_s: float):
     return mx, my, lag, mask, t_last
 
 
-def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s) -> list[tuple]:
+SETTLED_D0_S = 1e9  # a bin's time since the slew where the model takes the state as settled
+
+
+def _bin(k: int, m, ts, d0: float) -> tuple:
+    """One bin of hold k: ``(hold, mean (2), count (2), d0, dstep, n_t, t_mid)``."""
+    cnt = np.sum(np.isfinite(m), axis=0)
+    with np.errstate(invalid="ignore"):
+        mean = np.where(cnt > 0, np.nansum(m, axis=0) / np.maximum(cnt, 1), 0.0)
+    dstep = (ts[-1] - ts[0]) / (ts.size - 1) if ts.size > 1 else 1.0
+    return (k, mean, cnt, d0, dstep, ts.size, ts.mean())
+
+
+def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s, period_s: float) -> list[tuple]:
     """The bins of every hold: ``(hold, mean (2), count (2), d0, dstep, n_t, t_mid)``, the
-    settling part cut at ``bin_edges_s``, the settled part one bin."""
+    settling part cut at ``bin_edges_s``, the settled part one bin. After a gap that leaves
+    the sensor's state unknown (:mod:`chekan.holds`) the samples are not used until it has
+    settled, and each run of samples without a gap after that is one bin of the settled
+    state (``d0`` = :data:`SETTLED_D0_S`); a bin never spans a gap."""
     rows = []
     for k in range(holds.n):
         a, b = holds.start[k], holds.stop[k]
         tt = t[a:b]
-        rel = tt - tt[0]
+        known = np.ones(b - a, bool) if holds.known is None else holds.known[a:b]
+        lost = np.concatenate([[False], np.diff(tt) > GAP_PERIODS * period_s])
+        run = np.cumsum(lost)  # runs of samples without a gap
+        # before the first unknown state: the lag followed from the slew, bins cut at gaps
+        brk = np.flatnonzero(~known)
+        n_plain = int(brk[0]) if brk.size else tt.size
+        rel = tt[:n_plain] - tt[0]
         edges = sorted({e for e in bin_edges_s if e < holds.settle_s} | {holds.settle_s})
-        edges = [e for e in edges if e <= rel[-1]] + [np.inf]
+        edges = [e for e in edges if rel.size and e <= rel[-1]] + [np.inf]
         for lo, hi in itertools.pairwise(edges):
-            sel = (rel >= lo) & (rel < hi)
-            if not sel.any():
-                continue
-            mm = m[a:b][sel]
-            cnt = np.sum(np.isfinite(mm), axis=0)
-            with np.errstate(invalid="ignore"):
-                mean = np.where(cnt > 0, np.nansum(mm, axis=0) / np.maximum(cnt, 1), 0.0)
-            ts = tt[sel]
-            d0 = ts[0] - t_last[k]
-            dstep = (ts[-1] - ts[0]) / (ts.size - 1) if ts.size > 1 else 1.0
-            rows.append((k, mean, cnt, d0, dstep, ts.size, ts.mean()))
+            inside = np.flatnonzero((rel >= lo) & (rel < hi))
+            for r in np.unique(run[inside]):
+                sel = inside[run[inside] == r]
+                rows.append(_bin(k, m[a:b][sel], tt[sel], tt[sel[0]] - t_last[k]))
+        # after it: runs of known samples, the state settled
+        use = np.flatnonzero(known[n_plain:]) + n_plain
+        part = np.cumsum(lost | ~known)[use]
+        for r in np.unique(part):
+            sel = use[part == r]
+            rows.append(_bin(k, m[a:b][sel], tt[sel], SETTLED_D0_S))
     return rows
 
 
@@ -218,7 +239,10 @@ def prepare_record(
     mv_tx, mv_ty, mv_lag, mv_mask, t_last = _moves(record, holds, dt_s)
     # time from the end of the slew into hold k to the hold's last sample (lag carried on)
     hold_T = np.array([t[holds.stop[k] - 1] - t_last[k] if k else 0.0 for k in range(H)])
-    rows = _bin_rows(t, m, holds, t_last, bin_edges_s)
+    # a hold whose state a gap hid ends settled: nothing of its slew carries on
+    restarted = np.array([holds.restarted(k) for k in range(H)], bool)
+    hold_T = np.where(restarted, SETTLED_D0_S, hold_T)
+    rows = _bin_rows(t, m, holds, t_last, bin_edges_s, sample_period_s(t, record.sample_rate_hz))
     N = len(rows)
     hold_of = np.array([r[0] for r in rows])
     own = np.zeros((N, H))
@@ -229,7 +253,7 @@ def prepare_record(
     y = np.stack([r[1] for r in rows])
     cnt = np.stack([r[2] for r in rows]).astype(float)
     d0 = np.array([r[3] for r in rows])
-    d0 = np.where(hold_of > 0, d0, 1e9)  # first hold: settled from the start
+    d0 = np.where(hold_of > 0, d0, SETTLED_D0_S)  # first hold: settled from the start
     t_mid = np.array([r[6] for r in rows])
     t0, t1 = float(t.min()), float(t.max())
     s = 2.0 * (t_mid - t0) / max(t1 - t0, 1.0) - 1.0
