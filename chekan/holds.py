@@ -313,6 +313,50 @@ def segment_record(
     )
 
 
+def _ranges(steps: list[int]) -> str:
+    """``[3, 4, 5, 9]`` → ``"3–5, 9"``."""
+    out: list[str] = []
+    for s in steps:
+        if out and out[-1].split("–")[-1] == str(s - 1):
+            out[-1] = f"{out[-1].split('–')[0]}–{s}"
+        else:
+            out.append(str(s))
+    return ", ".join(out)
+
+
+def program_coverage(holds: HoldTable, meta: dict) -> dict | None:
+    """What of the tilt program the record lacks, or None where it holds every step: the
+    program's steps are ``program_steps`` of the header (written by chekan's acquisition and
+    simulator), else those up to the last one recorded (a missing tail is then not seen).
+    A step is missing where the record has no sample of it, or none settled."""
+    recorded = {int(s) for s, n in zip(holds.step, holds.n_used, strict=True) if n > 0}
+    present = {int(s) for s in holds.step}
+    try:
+        total = int(meta["program_steps"])
+    except (KeyError, ValueError):
+        total = None
+    n = total if total is not None else max(present) + 1
+    missing = sorted(set(range(n)) - recorded)
+    if not missing:
+        return None
+    unsettled = sorted(present & set(missing))
+    what = f"steps {_ranges(missing)} of 0–{n - 1}" + (
+        f" (of them {_ranges(unsettled)} without a settled sample)" if unsettled else ""
+    )
+    of = "the program's" if total is not None else "the recorded program's first"
+    problem = (
+        f"the record holds {n - len(missing)} of {of} {n} steps: {what} are missing;"
+        " the calibration rests on part of the program"
+    )
+    return {
+        "program_steps": n,
+        "program_steps_known": total is not None,
+        "steps_used": n - len(missing),
+        "missing_steps": missing,
+        "problems": [problem],
+    }
+
+
 def gaps_entry(holds: HoldTable) -> dict:
     """The record's gaps as the result states them: how many, where (s on the sample
     clock: the samples either side), and how many samples the unknown state after them

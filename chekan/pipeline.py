@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from chekan.errors import ChekanError
-from chekan.holds import gaps_entry
+from chekan.holds import gaps_entry, program_coverage
 from chekan.inputs import input_kind, read_input
 from chekan.options import METHODS, CalibrationOptions
 from chekan.protocol import Protocol
@@ -195,8 +195,12 @@ def classical_of(
     from chekan import classical
 
     unsettled = None
+    coverage = None
     if isinstance(data, Record):
         cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
+        coverage = program_coverage(holds, data.meta)
+        if coverage is not None:
+            cres = dataclasses.replace(cres, problems=[*cres.problems, *coverage["problems"]])
         if opts.method == "classical":  # a joint result settles its items (settled_items)
             unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
         if unsettled is not None:
@@ -206,6 +210,8 @@ def classical_of(
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
     if unsettled is not None:
         result["unsettled_hold_means"] = unsettled.entry()
+    if coverage is not None:
+        result["program_coverage"] = coverage
     if isinstance(data, Record) and holds.gaps:
         result["record_gaps"] = gaps_entry(holds)
     name = data.meta.get("program") or None

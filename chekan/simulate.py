@@ -451,6 +451,7 @@ def simulate_session(
         "program": program.name,
         "program_dwell_s": f"{program.dwell_s:g}",
         "program_settle_s": f"{program.settle_s:g}",
+        "program_steps": str(program.n_steps),
         "ccd_center_pix": f"{truth.m0_pix:g}",
         "ccd_range_pix": "0 2048",
         "b1_prior": f"{truth.b_mgal_per_pix[0] * (1 + 2e-4):.6f}",

@@ -127,6 +127,7 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         "not_identified": list(res.degenerate),
         "data": "bin means inside holds (lag modelled), β marginalised",
         "problems": ([] if res.converged else [f"MAP did not converge: {res.message}"])
+        + list(base.get("program_coverage", {}).get("problems", []))
         + em.hyper_at_bounds(fit.hyper)
         + em.residual_misfit(fit.hyper)
         + em.implausible_angle_error(fit.hyper, _specified_accuracy(model)),

@@ -57,8 +57,10 @@ def record_meta(
     settle_s: float | None,
     started: str,
     user: dict[str, str],
+    steps: int | None = None,
 ) -> dict[str, str]:
-    """Header of a new record: what the devices reported, the program, then the user's keys."""
+    """Header of a new record: what the devices reported, the program (its number of steps:
+    what a calibration checks the record against), then the user's keys."""
     meta = {
         "format": "chekan-record/1",
         "serial": sensor.serial,
@@ -72,6 +74,8 @@ def record_meta(
     if dwell_s is not None and settle_s is not None:
         meta["program_dwell_s"] = f"{dwell_s:g}"
         meta["program_settle_s"] = f"{settle_s:g}"
+    if steps:
+        meta["program_steps"] = str(steps)
     meta["sensor_firmware"] = sensor.firmware
     meta["platform_firmware"] = platform.firmware
     meta.update(user)

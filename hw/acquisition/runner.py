@@ -199,6 +199,7 @@ class Acquisition:
                     program=self.program_name,
                     dwell_s=first.dwell_s if first else None,
                     settle_s=first.settle_s if first else None,
+                    steps=len(self.plan),
                     started=self._utc(),
                     user=self.meta,
                 )

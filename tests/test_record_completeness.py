@@ -1,0 +1,75 @@
+"""A record that lacks part of its program, and an EM that stops at its cap, are flagged:
+the result, the console and the certificate say so, and ``--strict`` exits 3."""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+
+from chekan.cli import main
+from chekan.pipeline import CalibrationOptions, calibrate
+from chekan.records import Record, write_record
+from chekan.summary import format_summary
+
+COLUMNS = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "step", "temp_c")
+
+
+def _rows(rec: Record, keep: np.ndarray, meta: dict | None = None) -> Record:
+    parts = {k: getattr(rec, k) for k in COLUMNS}
+    out = dataclasses.replace(rec, **{k: v[keep] for k, v in parts.items() if v is not None})
+    return out if meta is None else dataclasses.replace(out, meta=meta)
+
+
+@pytest.fixture(scope="module")
+def one_round(short_session) -> tuple[Record, int]:
+    """The short session (2 rounds) cut after its first round, as a run stopped half way."""
+    _, rec, _ = short_session
+    steps = int(rec.meta["program_steps"])
+    half = steps // 2
+    return _rows(rec, rec.t_s < rec.t_s[rec.step == half][0]), steps
+
+
+def _classical(rec: Record) -> dict:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return calibrate(rec, CalibrationOptions(method="classical", progress=False))
+
+
+def test_the_simulator_states_the_programs_steps(short_session, short_program) -> None:
+    _, rec, _ = short_session
+    assert rec.meta["program_steps"] == str(short_program.n_steps)
+    assert "program_coverage" not in _classical(rec)
+
+
+def test_a_record_missing_half_its_program_says_so(one_round) -> None:
+    rec, steps = one_round
+    res = _classical(rec)
+    cov = res["program_coverage"]
+    assert cov["program_steps"] == steps and cov["program_steps_known"]
+    assert cov["missing_steps"] == list(range(steps // 2, steps))
+    problems = res["diagnostics"]["problems"]
+    assert any(f"of the program's {steps} steps" in p for p in problems), problems
+    assert f"{steps // 2}–{steps - 1}" in format_summary(res)
+
+
+def test_without_the_header_a_missing_inner_step_is_still_seen(short_session) -> None:
+    _, rec, _ = short_session
+    meta = {k: v for k, v in rec.meta.items() if k != "program_steps"}
+    res = _classical(_rows(rec, rec.step != 5, meta))
+    assert res["program_coverage"]["missing_steps"] == [5]
+    assert not res["program_coverage"]["program_steps_known"]
+
+
+def test_strict_exits_3_on_a_record_missing_part_of_its_program(one_round, tmp_path) -> None:
+    rec, _ = one_round
+    path = tmp_path / "half.csv"
+    write_record(path, rec)
+    args = ["calibrate", str(path), "--method", "classical", "-q"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert main(args) == 0
+        assert main([*args, "--strict"]) == 3
+
