@@ -75,7 +75,7 @@ def test_between_passes_moves_the_level_by_c_and_ends_at_a_fixed_point(short_ses
     z, h = fit.result.z, joint.default_hyper()
     model = fit.model
     m_ref_before = np.array(model.data.m_ref)
-    moved, h_new, n = between_passes(model, z, h)
+    moved, h_new, n, _ = between_passes(model, z, h)
     v = prob.map_space.to_values(z)
     _, beta, _ = solve_beta(v, h, model.structure, model.data)
     c = np.asarray(beta)[model.structure.beta_blocks["c"]]
@@ -128,7 +128,7 @@ def test_between_passes_reaches_the_fixed_point_where_em_creeps(tmp_path):
     prob = joint.problem_for(model.structure)
     fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
     z, h0 = fit.result.z, joint.default_hyper()
-    moved, h, n = between_passes(fit.model, z, h0)
+    moved, h, n, _ = between_passes(fit.model, z, h0)
     assert em.EM_UPDATES_BEFORE_NEWTON < n < em.HYPER_MAX_UPDATES
     assert "em_newton" in {name for name, _ in joint.engine_for(model.structure).store.events}
     st, data = model.structure, moved.data

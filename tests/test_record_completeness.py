@@ -73,3 +73,24 @@ def test_strict_exits_3_on_a_record_missing_part_of_its_program(one_round, tmp_p
         assert main(args) == 0
         assert main([*args, "--strict"]) == 3
 
+
+def test_an_em_stopped_at_its_cap_is_not_converged(short_session, monkeypatch) -> None:
+    """The MAP converged but EM did not: before, the result said "converged: yes"."""
+    from chekan.joint import map as joint_map
+
+    real = joint_map.between_passes
+
+    def capped(model, z, h):
+        moved, h_new, n, _ = real(model, z, h)
+        return moved, h_new, n, False
+
+    monkeypatch.setattr(joint_map, "between_passes", capped)
+    _, rec, _ = short_session
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = calibrate(rec, CalibrationOptions(method="map", progress=False))
+    d = res["diagnostics"]
+    assert d["converged"] is False
+    assert any("stopped at its cap" in p for p in d["problems"]), d["problems"]
+    assert [p.get("hyper_converged", True) for p in d["map_passes"]][:-1] == [False, False]
+    assert "converged: NO" in format_summary(res)

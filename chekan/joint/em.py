@@ -143,6 +143,18 @@ def implausible_angle_error(h: Hyper, bound_arcsec: float) -> list[str]:
     ]
 
 
+def capped_passes(passes: list[int]) -> list[str]:
+    """The problem of EM passes that stopped at ``HYPER_MAX_UPDATES`` still moving: the
+    hyperparameters (and so the weights of the MAP after them) are not at their fixed point."""
+    if not passes:
+        return []
+    return [
+        f"the EM of the hyperparameters stopped at its cap of {HYPER_MAX_UPDATES} updates without"
+        f" converging (after MAP pass {', '.join(map(str, passes))}): the noise and angle-error"
+        " variances, and so b's weights and uncertainty, are not at their estimate"
+    ]
+
+
 def _em_body(update: Callable, data: RecordData):
     """One EM update of the loop's carry (h, updates, largest change in log h)."""
 
@@ -199,16 +211,15 @@ def em_pass_fn(structure: ModelStructure, space) -> Callable:
 
 
 def em_newton_fn(structure: ModelStructure, space) -> Callable:
-    """``(z, h, updates, change, data) → (h, updates)``: where :func:`em_pass_fn` stopped
-    unconverged (``data`` with the level already moved), the fixed point by Newton
+    """``(z, h, updates, change, data) → (h, updates, change)``: where :func:`em_pass_fn`
+    stopped unconverged (``data`` with the level already moved), the fixed point by Newton
     (:func:`_newton`), then EM on to convergence or ``HYPER_MAX_UPDATES`` updates (where
-    Newton failed), traceable."""
+    Newton failed; ``change`` ≥ ``HYPER_TOL`` then), traceable."""
 
     def fn(z, h: Hyper, n, change, data: RecordData):
         update = _em_stage(z, h, structure, data, space)
         c = _newton(update, data, (h, n, change))
-        h, n, _ = jax.lax.while_loop(_em_until(HYPER_MAX_UPDATES), _em_body(update, data), c)
-        return h, n
+        return jax.lax.while_loop(_em_until(HYPER_MAX_UPDATES), _em_body(update, data), c)
 
     return fn
 

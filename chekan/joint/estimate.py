@@ -119,14 +119,16 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
             "source": horizontal_prior(options.horizontal_u_pix)[1],
         }
     out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2") if k in base["parameters"]}
+    capped = [p["iteration"] + 1 for p in fit.history if p.get("hyper_converged") is False]
     diag = {
-        "converged": bool(res.converged),
+        "converged": bool(res.converged) and not capped,
         "map_steps": int(res.num_steps),
         "map_passes": list(fit.history),
         "jacobian_cond": float(res.jacobian_cond),
         "not_identified": list(res.degenerate),
         "data": "bin means inside holds (lag modelled), β marginalised",
         "problems": ([] if res.converged else [f"MAP did not converge: {res.message}"])
+        + em.capped_passes(capped)
         + list(base.get("program_coverage", {}).get("problems", []))
         + em.hyper_at_bounds(fit.hyper)
         + em.residual_misfit(fit.hyper)

@@ -71,17 +71,20 @@ def fit_map_em(
     for it in range(MAP_PASSES):
         if it > 0:  # from the previous pass's θ̂, with its solver (LM where GN failed)
             res, pass_solver = _solve_pass(prob.lsq, (model.data, h), res.z, pass_solver)
-        updates = 0
+        updates, em_converged = 0, True
         if it < MAP_PASSES - 1:
-            model, h, updates = between_passes(model, res.z, h)
-        history.append(pass_entry(it, res.converged, res.num_steps, res.cost, progress, updates))
+            model, h, updates, em_converged = between_passes(model, res.z, h)
+        history.append(
+            pass_entry(it, res.converged, res.num_steps, res.cost, progress, updates, em_converged)
+        )
     return MapFit(res, h, tuple(history), model)
 
 
-def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int]:
+def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int, bool]:
     """What follows every MAP pass but the last, compiled (:func:`chekan.joint.em.em_pass_fn`):
     the model with its level moved to the estimate (m_ref ← m_ref + ĉ), the hyperparameters
-    at their EM fixed point given θ = z, and the number of EM updates.
+    at their EM fixed point given θ = z, the number of EM updates, and whether EM converged
+    (False: it stopped at ``HYPER_MAX_UPDATES`` still moving).
 
     The equilibrium Eₖ is computed about m_ref (b is dG/dm there) while c only shifts the
     readings; the classical m_h that m_ref starts from is biased where the level holds have
@@ -96,8 +99,8 @@ def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper,
     m_ref, h_new, n, change = engine.em_pass(device_array(z), h, model.data)
     moved = model.with_level(np.asarray(m_ref))
     if float(change) >= HYPER_TOL:
-        h_new, n = engine.em_newton(device_array(z), h_new, n, change, moved.data)
-    return moved, h_new, int(n)
+        h_new, n, change = engine.em_newton(device_array(z), h_new, n, change, moved.data)
+    return moved, h_new, int(n), bool(float(change) < HYPER_TOL)
 
 
 def prefetch_em(model: RecordModel) -> None:
@@ -229,18 +232,29 @@ def _solve(lsq, args: tuple, z, solver: SolverName) -> MapResult:
     return fit_map(lsq, args, z, **map_pass_settings(solver))
 
 
-def pass_entry(it: int, converged, steps, cost, progress: bool, hyper_updates: int) -> dict:
-    """One MAP pass as the result's ``diagnostics.map_passes`` lists it (printed on request)."""
+def pass_entry(
+    it: int,
+    converged,
+    steps,
+    cost,
+    progress: bool,
+    hyper_updates: int,
+    hyper_converged: bool = True,
+) -> dict:
+    """One MAP pass as the result's ``diagnostics.map_passes`` lists it (printed on request);
+    ``hyper_converged`` False (EM stopped at its cap still moving) adds that to the entry."""
     if progress:
         tail = f", then {hyper_updates} EM updates of the hyperparameters" if hyper_updates else ""
+        tail += "" if hyper_converged else " (EM NOT converged: stopped at its cap)"
         print(
             f"  MAP pass {it + 1}: {'converged' if converged else 'NOT converged'} "
             f"in {int(steps)} steps, cost {float(cost):.1f}{tail}"
         )
-    return {
+    entry = {
         "iteration": it,
         "converged": bool(converged),
         "steps": int(steps),
         "cost": float(cost),
         "hyper_updates": int(hyper_updates),
     }
+    return entry if hyper_converged else {**entry, "hyper_converged": False}
