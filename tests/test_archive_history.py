@@ -211,3 +211,23 @@ def test_the_decision_rule_is_stated(tmp_path, paper_protocol):
         hist = stability_history(a, "46", at="2017-01-01", tolerance_ppm=500.0)
     assert hist["decision_rule"] == DECISION_RULE
     assert f"decision rule: {DECISION_RULE}" in format_history(hist)
+
+
+def test_plot_legend_names_each_panels_parameter():
+    """The posterior's legend names the panel's parameter: "posterior of a(t)" on the a
+    panel (it said "posterior of b(t)" on every panel)."""
+    from dataclasses import asdict
+
+    from chekan.archive.history import history_figure
+
+    at = dt.date(2016, 1, 1)
+    hist = {"serial": "T", "at": at.isoformat(), "hdi_prob": 0.95, "parameters": {}, "fits": {}}
+    for name, unit, value in (("b1", "mGal/pix", 6.98), ("a", "mGal/pix^2", -7.8e-5)):
+        pts = points([value * (1 + 1e-4 * i) for i in range(4)], [abs(value) * 1e-4] * 4)
+        h, fit = param_history(name, pts, unit, at=at, tolerance_ppm=None)
+        hist["parameters"][name] = asdict(h)
+        hist["fits"][name] = fit
+    fig = history_figure(hist)
+    labels = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in fig.axes]
+    assert "posterior of b1(t)" in labels[0] and "posterior of a(t)" in labels[1], labels
+    assert not any("b(t)" in x for x in labels[1]), labels
