@@ -231,3 +231,22 @@ def test_plot_legend_names_each_panels_parameter():
     labels = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in fig.axes]
     assert "posterior of b1(t)" in labels[0] and "posterior of a(t)" in labels[1], labels
     assert not any("b(t)" in x for x in labels[1]), labels
+
+
+@pytest.mark.parametrize(
+    "value,problem", [("2027-13-45", "month must be in 1..12"), ("banana", "YYYY-MM-DD")]
+)
+def test_at_is_a_date(tmp_path, capsys, value, problem):
+    """An impossible date is one line naming the option and the problem, exit 2 (it was a
+    ValueError's traceback, exit 1)."""
+    from chekan.archive.db import Archive
+    from chekan.cli import main
+
+    Archive(tmp_path / "a.sqlite").close()
+    try:
+        status = main(["history", "46", "--db", str(tmp_path / "a.sqlite"), "--at", value])
+    except SystemExit as e:  # argparse's refusal of an option's value
+        status = int(e.code or 0)
+    err = capsys.readouterr().err
+    assert status == 2 and len(err.strip().splitlines()) == 1, err
+    assert "argument --at" in err and repr(value) in err and problem in err, err

@@ -20,7 +20,9 @@ raised an ALARM; 130 interrupted; 141 standard output closed early (``| head``).
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -32,6 +34,19 @@ from chekan.outputs import SQLITE, Output, check_outputs, run_command
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 DB_HELP = "archive database (default $CHEKAN_ARCHIVE, else ~/.local/share/chekan/archive.sqlite)"
+
+
+def iso_date(text: str) -> dt.date:
+    """A calendar date written YYYY-MM-DD (argparse's one-line refusal otherwise)."""
+    if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date YYYY-MM-DD")
+    try:
+        return dt.date.fromisoformat(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date YYYY-MM-DD ({e})") from None
+
+
+iso_date.__name__ = "date YYYY-MM-DD"
 
 
 def _db_arg(p: argparse.ArgumentParser) -> None:
@@ -294,7 +309,7 @@ def add_history_parser(sub: Any) -> argparse.ArgumentParser:
         choices=METHODS,
         help="only this method (default per session: bayes > map > classical)",
     )
-    p.add_argument("--at", help="date of the prediction, YYYY-MM-DD (default today)")
+    p.add_argument("--at", type=iso_date, help="date of the prediction, YYYY-MM-DD (default today)")
     p.add_argument(
         "--tolerance-ppm",
         type=argtypes.positive,
