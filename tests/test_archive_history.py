@@ -211,3 +211,42 @@ def test_the_decision_rule_is_stated(tmp_path, paper_protocol):
         hist = stability_history(a, "46", at="2017-01-01", tolerance_ppm=500.0)
     assert hist["decision_rule"] == DECISION_RULE
     assert f"decision rule: {DECISION_RULE}" in format_history(hist)
+
+
+def test_plot_legend_names_each_panels_parameter():
+    """The posterior's legend names the panel's parameter: "posterior of a(t)" on the a
+    panel (it said "posterior of b(t)" on every panel)."""
+    from dataclasses import asdict
+
+    from chekan.archive.history import history_figure
+
+    at = dt.date(2016, 1, 1)
+    hist = {"serial": "T", "at": at.isoformat(), "hdi_prob": 0.95, "parameters": {}, "fits": {}}
+    for name, unit, value in (("b1", "mGal/pix", 6.98), ("a", "mGal/pix^2", -7.8e-5)):
+        pts = points([value * (1 + 1e-4 * i) for i in range(4)], [abs(value) * 1e-4] * 4)
+        h, fit = param_history(name, pts, unit, at=at, tolerance_ppm=None)
+        hist["parameters"][name] = asdict(h)
+        hist["fits"][name] = fit
+    fig = history_figure(hist)
+    labels = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in fig.axes]
+    assert "posterior of b1(t)" in labels[0] and "posterior of a(t)" in labels[1], labels
+    assert not any("b(t)" in x for x in labels[1]), labels
+
+
+@pytest.mark.parametrize(
+    "value,problem", [("2027-13-45", "month must be in 1..12"), ("banana", "YYYY-MM-DD")]
+)
+def test_at_is_a_date(tmp_path, capsys, value, problem):
+    """An impossible date is one line naming the option and the problem, exit 2 (it was a
+    ValueError's traceback, exit 1)."""
+    from chekan.archive.db import Archive
+    from chekan.cli import main
+
+    Archive(tmp_path / "a.sqlite").close()
+    try:
+        status = main(["history", "46", "--db", str(tmp_path / "a.sqlite"), "--at", value])
+    except SystemExit as e:  # argparse's refusal of an option's value
+        status = int(e.code or 0)
+    err = capsys.readouterr().err
+    assert status == 2 and len(err.strip().splitlines()) == 1, err
+    assert "argument --at" in err and repr(value) in err and problem in err, err

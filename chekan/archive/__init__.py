@@ -6,6 +6,8 @@ Importing this package is cheap (no NumPy/JAX): worker processes import it first
   ``get_session``, ``export_csv``.
 * :mod:`chekan.archive.reanalyze` — ``reanalyze(DIR, method)``, ``solve_many_map``.
 * :mod:`chekan.archive.history` — ``stability_history``, ``fit_history``.
+* :mod:`chekan.archive.export` — the history as dated periods for survey software
+  (GravTools' gravimeter JSON, CSV): ``write_export``.
 * :mod:`chekan.archive.cli` — ``add_parsers(subparsers)`` for ``chekan archive|reanalyze|history``.
 """
 

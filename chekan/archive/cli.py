@@ -11,6 +11,8 @@
                      [--scheduler ADDR] [--results-dir D] [--db PATH]
     chekan history SERIAL [--param b1 b2 a] [--method M] [--at DATE] [--tolerance-ppm X]
                    [--plot history.png] [--json out.json] [--db PATH]
+                   [--export gravtools|csv FILE [--system 1|2] [--reference-b B]
+                    [--height-offset-m H] [--valid-until DATE]]
 
 Exit status: 0; 1 when some input/result failed (``reanalyze``, ``archive add``); 2 on an
 error (also an output refused by :func:`chekan.outputs.check_outputs`); 4 when ``history``
@@ -20,7 +22,9 @@ raised an ALARM; 130 interrupted; 141 standard output closed early (``| head``).
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -32,6 +36,19 @@ from chekan.outputs import SQLITE, Output, check_outputs, run_command
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 DB_HELP = "archive database (default $CHEKAN_ARCHIVE, else ~/.local/share/chekan/archive.sqlite)"
+
+
+def iso_date(text: str) -> dt.date:
+    """A calendar date written YYYY-MM-DD (argparse's one-line refusal otherwise)."""
+    if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", text):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date YYYY-MM-DD")
+    try:
+        return dt.date.fromisoformat(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a date YYYY-MM-DD ({e})") from None
+
+
+iso_date.__name__ = "date YYYY-MM-DD"
 
 
 def _db_arg(p: argparse.ArgumentParser) -> None:
@@ -242,6 +259,35 @@ def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
 
 
 # ----------------------------------------------------------------------------- history
+def _export_args(args: argparse.Namespace) -> tuple[str, str] | None:
+    """``(format, file)`` of ``--export``, its options checked before any work."""
+    from chekan.archive.export import check_export
+
+    if args.export is None:
+        given = [
+            o
+            for o, v in (
+                ("--system", args.system),
+                ("--reference-b", args.reference_b),
+                ("--height-offset-m", args.height_offset_m),
+                ("--valid-until", args.valid_until),
+            )
+            if v is not None
+        ]
+        if given:
+            raise ChekanError(f"{', '.join(given)}: only with --export FORMAT FILE")
+        return None
+    fmt, path = args.export
+    check_export(
+        path,
+        fmt,
+        system=args.system,
+        reference_b=args.reference_b,
+        height_offset_m=args.height_offset_m,
+    )
+    return fmt, path
+
+
 def _cmd_history(args: argparse.Namespace) -> int:
     from chekan.archive.db import Archive
     from chekan.archive.history import (
@@ -252,12 +298,14 @@ def _cmd_history(args: argparse.Namespace) -> int:
     )
 
     db = _db(args)
-    check_outputs([db.path], [args.plot, args.json])
+    check_outputs([db.path], [args.plot, args.json, args.export and args.export[1]])
+    export = _export_args(args)  # after the guard: a record or an archive gets its message
     if args.plot and Path(args.plot).suffix.lower() not in PLOT_SUFFIXES:
         raise ChekanError(
             f"{args.plot}: a plot is written as {', '.join(PLOT_SUFFIXES)} (from the file's "
             "suffix); choose one of them"
         )
+    notes: list[str] = []
     with Archive(db.path, readonly=True) as a:
         hist = stability_history(
             a,
@@ -268,13 +316,30 @@ def _cmd_history(args: argparse.Namespace) -> int:
             tolerance_ppm=args.tolerance_ppm,
             extra_error=not args.no_extra_error,
         )
-    # the files first: a standard output closed early (| head) must not cut them short
-    written = []
+        # the files first: a standard output closed early (| head) must not cut them short
+        written = []
+        if export:
+            from chekan.archive.export import write_export
+
+            out, notes = write_export(
+                export[1],
+                export[0],
+                a,
+                args.serial,
+                method=args.method,
+                system=args.system,
+                reference_b=args.reference_b,
+                height_offset_m=args.height_offset_m,
+                valid_until=args.valid_until,
+            )
+            written.append(out)
     if args.plot:
         written.append(plot_history(hist, args.plot))
     if args.json:
         written.append(write_history_json(args.json, hist))
     print(format_history(hist))
+    for note in notes:
+        print(f"note: export: {note}")
     for path in written:
         print(f"wrote {path}")
     return 4 if any(x["level"] == "ALARM" for x in hist["alarms"]) else 0
@@ -294,7 +359,7 @@ def add_history_parser(sub: Any) -> argparse.ArgumentParser:
         choices=METHODS,
         help="only this method (default per session: bayes > map > classical)",
     )
-    p.add_argument("--at", help="date of the prediction, YYYY-MM-DD (default today)")
+    p.add_argument("--at", type=iso_date, help="date of the prediction, YYYY-MM-DD (default today)")
     p.add_argument(
         "--tolerance-ppm",
         type=argtypes.positive,
@@ -308,6 +373,46 @@ def add_history_parser(sub: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--plot", help="write the history plot (PNG, PDF, SVG)")
     p.add_argument("--json", help="write the history as JSON")
+    g = p.add_argument_group(
+        "export for survey software",
+        "the scale factor as dated periods: each verification from its date to the day "
+        "before the next",
+    )
+    g.add_argument(
+        "--export",
+        nargs=2,
+        metavar=("FORMAT", "FILE"),
+        help="write the periods: 'gravtools' (BEV GravTools' gravimeter JSON, "
+        "linear_factor = b/b_ref) or 'csv' (b and sd of both systems); an existing FILE "
+        "is replaced only by an export of the same kind",
+    )
+    g.add_argument(
+        "--system",
+        type=int,
+        choices=(1, 2),
+        help="gravtools: the quartz system whose scale factor the file carries (required: "
+        "GravTools keeps one linear factor per gravimeter)",
+    )
+    g.add_argument(
+        "--reference-b",
+        type=argtypes.positive,
+        metavar="B",
+        help="gravtools: b_ref in mGal/pix, the scale that converted the survey's pixel "
+        "readings to mGal (default: the first period's b)",
+    )
+    g.add_argument(
+        "--height-offset-m",
+        type=argtypes.real(-10.0, 10.0),
+        metavar="H",
+        help="gravtools: GravTools' height_offset_m, the sensor's level relative to the "
+        "instrument's top, m (negative below it; default 0.0: chekan does not know it)",
+    )
+    g.add_argument(
+        "--valid-until",
+        type=iso_date,
+        metavar="DATE",
+        help="end of the last period, YYYY-MM-DD (default 2100-01-01, GravTools' open end)",
+    )
     _db_arg(p)
     p.set_defaults(func=_cmd_history)
     return p

@@ -625,7 +625,19 @@ def format_history(hist: dict) -> str:
 
 
 def plot_history(hist: dict, path: str | Path) -> Path:
-    """One panel per parameter: sessions ± sd, the posterior of b(t) with its band, alarms."""
+    """Write :func:`history_figure` to ``path`` (PNG, PDF or SVG from its suffix)."""
+    from chekan.durable import atomic_output
+
+    fig = history_figure(hist)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path, "wb") as f:
+        fig.savefig(f, dpi=120, format=path.suffix.lstrip(".").lower() or "png")
+    return path
+
+
+def history_figure(hist: dict):
+    """One panel per parameter p: sessions ± sd, the posterior of p(t) with its band, alarms."""
     from chekan.plotting import new_figure
 
     names = list(hist["parameters"])
@@ -652,7 +664,7 @@ def plot_history(hist: dict, path: str | Path) -> Path:
             ref, scale = h["reference"], abs(h["reference"]) or 1.0
             mu = ref + m * scale * 1e-6
             band = z * sd * scale * 1e-6
-            ax.plot(grid, mu, "C1-", lw=1, label="posterior of b(t)")
+            ax.plot(grid, mu, "C1-", lw=1, label=f"posterior of {name}(t)")
             ax.fill_between(grid, mu - band, mu + band, color="C1", alpha=0.2)
             lin = ref + (fit.beta[0] + fit.beta[1] * tq) * scale * 1e-6
             ax.plot(grid, lin, "C2--", lw=1, label="trend")
@@ -675,10 +687,4 @@ def plot_history(hist: dict, path: str | Path) -> Path:
         ax.legend(fontsize=7, loc="best")
     axes[0, 0].set_title(f"Gravimeter {hist['serial']}: scale stability")
     fig.tight_layout()
-    from chekan.durable import atomic_output
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path, "wb") as f:
-        fig.savefig(f, dpi=120, format=path.suffix.lstrip(".").lower() or "png")
-    return path
+    return fig
