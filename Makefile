@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO := demo
 
-.PHONY: venv browser demo test lint bench clean
+.PHONY: venv browser docs demo test lint bench clean
 
 $(BIN)/chekan: pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) (set PY=python3)"; exit 1; }
@@ -16,8 +16,15 @@ $(BIN)/chekan: pyproject.toml
 # bytecode of the project's own modules, as pip writes it for installed packages: a new
 # `chekan` process then skips compiling ~50 source files (0.3 s; where PYTHONDONTWRITEBYTECODE
 # is set, Python never writes it). Quick, and only changed files are recompiled.
-venv: $(BIN)/chekan browser
+venv: $(BIN)/chekan browser docs
 	@$(BIN)/python -m compileall -q chekan inference hw bench >/dev/null
+
+# the documentation site (MkDocs, Material theme, mkdocstrings for the API reference) into
+# site/ (a few seconds); --strict: a broken link or anchor, a page left out of the nav or a
+# docstring the API reference cannot read fails the build. Every `make venv` builds it, so
+# `make test` checks it before pytest
+docs: $(BIN)/chekan
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet -d site
 
 # Debian's chromium for the live page's end-to-end test (playwright drives it; it never
 # downloads a browser). Needs root or sudo; without it the test is skipped with the reason.
@@ -32,7 +39,7 @@ demo: venv
 
 # pytest-xdist: one worker per core (at most 4), a test file per worker so module fixtures
 # are built once; the suite is single-threaded CPU work, so 2 cores halve it (10 min 36 s →
-# 6 min 31 s warm, 2026-11-23). `pytest tests/…` alone still runs in one process.
+# 6 min 31 s warm). `pytest tests/…` alone still runs in one process.
 # A worker that dies (a segfault, pytest-timeout's thread ending a hang) ends the run as a
 # failure naming its test: xdist 3.8's replacement worker under loadfile can wait forever
 # (pytest-xdist#1327; a CI run hung so until its 90 min ran out). A process that crashed
@@ -53,4 +60,4 @@ bench: venv
 	$(BIN)/python -m bench
 
 clean:
-	rm -rf $(VENV) $(DEMO) .pytest_cache
+	rm -rf $(VENV) $(DEMO) .pytest_cache site
