@@ -180,7 +180,7 @@ def test_a_known_horizontal_is_an_input_and_pins_a(dual_fit, tmp_path):
     assert "0.5" in conditions["chekan_pendulumHorizontal"]
     root = ET.fromstring(xml)
     u = root.find(f".//{{{DCC_NS}}}quantity[@refType='chekan_horizontal_u_pix']")
-    assert float("".join(u.itertext()).split()[1]) == 0.5  # label u_pix, then the value
+    assert float(u.findtext(".//{https://ptb.de/si}value")) == 0.5
     sensors = root.find(f".//{{{DCC_NS}}}influenceCondition[@refType='chekan_angleSensors']")
     axes = {el.get("refType") for el in sensors.iter(f"{{{DCC_NS}}}list")}
     assert axes == {"chekan_angleSensor_x", "chekan_angleSensor_y"}
