@@ -1,4 +1,4 @@
-"""The Digital Calibration Certificate (PTB DCC 3.1.2): valid against the vendored XSDs
+"""The Digital Calibration Certificate (PTB DCC 3.3.0): valid against the vendored XSDs
 (offline), the numbers equal the result JSON's, it reads back into the same archive row,
 and a certificate without a lab file is refused."""
 
@@ -19,6 +19,9 @@ from chekan.report.dcc import DCC_NS, SI_NS, dcc_schema, validate_dcc  # noqa: E
 from chekan.report.dcc_read import is_dcc, read_dcc  # noqa: E402
 
 DATA = Path(__file__).resolve().parent / "data" / "report"
+# where an si:real states its expanded uncertainty (D-SI 2.2.1: si:expandedMU)
+_MU = f"{{{SI_NS}}}measurementUncertaintyUnivariate/{{{SI_NS}}}expandedMU/{{{SI_NS}}}"
+UNC, UNC_K, UNC_DIST = _MU + "valueExpandedMU", _MU + "coverageFactor", _MU + "distribution"
 LAB = """\
 [lab]
 name = "Gravimetry Lab <A&B> \\"north\\""
@@ -115,9 +118,9 @@ def test_dcc_of_a_simulated_bayes_session_validates_and_carries_b1_and_u(
     reals = _reals(out)
     b1 = reals["b1"]
     assert float(b1.findtext(f"{{{SI_NS}}}value")) == res["parameters"]["b1"]["mean"]
-    u = float(b1.findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}uncertainty"))
+    u = float(b1.findtext(UNC))
     assert u == res["uncertainty_budget"]["b1"]["expanded"]
-    assert float(b1.findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}coverageFactor")) == 2.0
+    assert float(b1.findtext(UNC_K)) == 2.0
     for name in ("b2", "a", "b1_0", "b2_0"):
         assert float(reals[name].findtext(f"{{{SI_NS}}}value")) == res["parameters"][name]["mean"]
     assert read_dcc(out) == res
@@ -138,12 +141,12 @@ def test_dcc_of_a_map_result_states_its_coverage_factor(sim_map_json, lab, tmp_p
     reals = _reals(out)
     for name in ("b1", "b2"):
         bud = res["uncertainty_budget"][name]
-        k = float(reals[name].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}coverageFactor"))
+        k = float(reals[name].findtext(UNC_K))
         assert k == bud["coverage_factor"] == coverage_factor(bud["nu_eff"]) > 2.0
-        u = float(reals[name].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}uncertainty"))
+        u = float(reals[name].findtext(UNC))
         assert u == bud["expanded"] == pytest.approx(k * bud["total"], rel=1e-12)
-        assert reals[name].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}distribution") == "t"
-    a = reals["a"].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}coverageFactor")
+        assert reals[name].findtext(UNC_DIST) == "t"
+    a = reals["a"].findtext(UNC_K)
     assert float(a) == coverage_factor(res["parameters"]["a"]["nu_eff"])
     assert read_dcc(out)["parameters"]["b1"] == res["parameters"]["b1"]
 
@@ -156,7 +159,7 @@ def test_dcc_header_is_escaped_and_complete(bayes_json, lab, tmp_path):
     assert "Gravimetry Lab &lt;A&amp;B&gt;" in text and "Customer &amp; Co &lt;x&gt;" in text
     root = ET.parse(out).getroot()
     d = f"{{{DCC_NS}}}"
-    assert root.get("schemaVersion") == "3.1.2"
+    assert root.get("schemaVersion") == "3.3.0"
     ids = [el.text for el in root.iter(d + "value")]
     assert res["serial"] in ids and res["metadata"]["platform_serial"] in ids
     assert root.findtext(f".//{d}respPerson/{d}person/{d}name/{d}content") == "I. Ivanov"
@@ -170,7 +173,7 @@ def test_dcc_header_is_escaped_and_complete(bayes_json, lab, tmp_path):
     # the budget's U (not 2·sd of something else) and the SI value beside the mGal one
     b1 = root.find(f".//{d}quantity[@refType='chekan_b1']")
     reals = b1.findall(f"{{{SI_NS}}}hybrid/{{{SI_NS}}}real")
-    assert float(reals[0].findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}uncertainty")) == 0.00021
+    assert float(reals[0].findtext(UNC)) == 0.00021
     assert float(reals[1].findtext(f"{{{SI_NS}}}value")) == pytest.approx(6.980412e-5, rel=1e-15)
     assert reals[1].findtext(f"{{{SI_NS}}}unit").startswith(r"\metre\second\tothe{-2}")
 

@@ -177,8 +177,13 @@ def test_a_known_horizontal_is_an_input_and_pins_a(dual_fit, tmp_path):
         ic.get("refType"): "".join(ic.itertext())
         for ic in ET.fromstring(xml).iter(f"{{{DCC_NS}}}influenceCondition")
     }
-    assert '"u_pix": 0.5' in conditions["chekan_pendulumHorizontal"]
-    assert '"x"' in conditions["chekan_angleSensors"] and '"y"' in conditions["chekan_angleSensors"]
+    assert "0.5" in conditions["chekan_pendulumHorizontal"]
+    root = ET.fromstring(xml)
+    u = root.find(f".//{{{DCC_NS}}}quantity[@refType='chekan_horizontal_u_pix']")
+    assert float(u.findtext(".//{https://ptb.de/si}value")) == 0.5
+    sensors = root.find(f".//{{{DCC_NS}}}influenceCondition[@refType='chekan_angleSensors']")
+    axes = {el.get("refType") for el in sensors.iter(f"{{{DCC_NS}}}list")}
+    assert axes == {"chekan_angleSensor_x", "chekan_angleSensor_y"}
 
 
 def test_budget_survives_an_svd_that_does_not_converge(monkeypatch):

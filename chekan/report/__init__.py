@@ -98,7 +98,11 @@ def render_report(
     from chekan.durable import atomic_output
 
     if kind == "dcc":
-        return _write_dcc(result, out, lab, customer, tolerance_percent)
+        from chekan.report.dcc import write_dcc
+
+        return write_dcc(
+            result, out, lab, customer=customer, tolerance_percent=tolerance_percent, lang=lang
+        )
     lab_data = _optional_lab(lab)
 
     try:
@@ -117,9 +121,15 @@ def render_report(
                 customer=customer,
             )
             if kind == "pdf":
+                from chekan.report.pdf_certificate import certificate_attachments
                 from chekan.report.typst_pdf import render_pdf
 
-                data = render_pdf(rep)
+                data = render_pdf(  # PDF/A-3b carrying the DCC (with a lab) and the result
+                    rep,
+                    attachments=certificate_attachments(
+                        result, lab_data, customer, float(tolerance_percent), lang
+                    ),
+                )
             else:
                 from chekan.report.html_page import render_html
 
@@ -131,35 +141,6 @@ def render_report(
             for i, fig in enumerate(rep.figures, start=1):
                 with atomic_output(folder / f"fig{i}-{fig.name}.png", "wb") as g:
                     g.write(fig.png)
-    except OSError as e:
-        raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
-    return out
-
-
-def _write_dcc(
-    result: Mapping[str, Any],
-    out: Path,
-    lab_path: str | Path | None,
-    customer: str | None,
-    tolerance_percent: float,
-) -> Path:
-    """The DCC of ``result`` at ``out``; the lab file is read before anything is written."""
-    from chekan.durable import atomic_output
-    from chekan.report.dcc import build_dcc, dcc_bytes, decision_rule_text, load_lab
-
-    lab = load_lab(lab_path)
-    data = dcc_bytes(
-        build_dcc(
-            result,
-            lab,
-            customer=customer,
-            decision_rule=decision_rule_text(result, float(tolerance_percent)),
-        )
-    )
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_output(out, "wb") as f:
-            f.write(data)
     except OSError as e:
         raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
     return out

@@ -1,5 +1,6 @@
-"""``chekan report RESULT.json --out calibr_<serial>.pdf [--lang ru|en] [--format pdf|html|dcc]``
-(dcc: PTB Digital Calibration Certificate, XML; needs ``--lab`` or ``$CHEKAN_LAB``)."""
+"""``chekan report RESULT --out calibr_<serial>.pdf [--lang ru|en] [--format pdf|html|dcc]``
+(dcc: PTB Digital Calibration Certificate, XML; needs ``--lab`` or ``$CHEKAN_LAB``).
+RESULT is a result JSON, a DCC or a PDF certificate (its embedded result is read)."""
 
 from __future__ import annotations
 
@@ -13,9 +14,9 @@ from chekan.report.i18n import LANGS
 def _cmd_report(args: argparse.Namespace) -> int:
     from chekan.outputs import check_outputs
     from chekan.report import render_report
-    from chekan.result import read_result
+    from chekan.report.dcc_read import read_any_result
 
-    res = read_result(args.result)
+    res = read_any_result(args.result)  # a result JSON, a DCC, or a PDF certificate
     out = args.out
     if out is None:
         suffix = {"html": ".html", "dcc": ".xml"}.get(args.format or "pdf", ".pdf")
@@ -53,7 +54,11 @@ def add_report_parser(subparsers) -> argparse.ArgumentParser:
         "protocol of Calibr.exe (items a–f of the paper) with uncertainties, figures and a "
         "verdict.",
     )
-    p.add_argument("result", help="chekan-result/1 JSON written by 'chekan calibrate --json'")
+    p.add_argument(
+        "result",
+        help="chekan-result/1 JSON written by 'chekan calibrate', or a DCC (.xml) or PDF "
+        "certificate of chekan (the result embedded in it is read)",
+    )
     p.add_argument(
         "-o",
         "--out",

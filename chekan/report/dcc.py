@@ -1,9 +1,12 @@
-"""The Digital Calibration Certificate (PTB DCC 3.1.2, D-SI 2.1.0) of a chekan-result/1.
+"""The Digital Calibration Certificate (PTB DCC 3.3.0, D-SI 2.2.1) of a chekan-result/1.
 
-Built with :mod:`xml.etree.ElementTree` (escaping by the library). Numbers are written
-with ``repr`` precision, so that :mod:`chekan.report.dcc_read` reads them back exactly.
-The expanded uncertainty is the certificate's: U = k·u with k = 2 (u from the uncertainty
-budget for b₁, b₂ when present, else the standard deviation), p = 0.9545 (normal).
+Built with :mod:`xml.etree.ElementTree` (escaping by the library), in the certificate's
+language (``en``; ``ru`` writes every text in Russian and English, Russian mandatory).
+Each result is named in words with its symbol and carries its value, its expanded
+uncertainty (U = k·u as the PDF states it, :func:`chekan.report.expanded.expanded_of`)
+and its SI value beside it (:mod:`chekan.report.dcc_xml` writes numbers at their
+meaning). The result JSON is embedded, so that :mod:`chekan.report.dcc_read` reads it back
+and checks every value against it. Unknown optional elements are left out.
 """
 
 from __future__ import annotations
@@ -11,65 +14,62 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import json
-import math
 import os
 import tomllib
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from chekan.errors import ChekanError
-from chekan.report.issue import certificate_id, temperature_text
+from chekan.report.dcc_conditions import influence_conditions, used_methods
+from chekan.report.dcc_schema import SCHEMA_VERSION, SCHEMAS, dcc_schema, validate_dcc
+from chekan.report.dcc_trace import Trace, criteria_text, decide, trace
+from chekan.report.dcc_words import RESULT_NAMES, words
+from chekan.report.dcc_xml import (
+    DCC_NS,
+    K_COVERAGE,
+    P_COVERAGE,
+    RAD_PER_ARCMIN,
+    SI_NS,
+    d,
+    hybrid_real,
+    quantity,
+    sub,
+    text,
+)
+from chekan.report.issue import certificate_id
 
-DCC_NS = "https://ptb.de/dcc"
-SI_NS = "https://ptb.de/si"
-SCHEMA_VERSION = "3.1.2"
-SCHEMAS = Path(__file__).resolve().parent / "schemas"
-SI_LOCATION = "https://ptb.de/si/v2.1.0/SI_Format.xsd"
-K_COVERAGE = 2.0
-P_COVERAGE = 0.9545
+__all__ = [
+    "DCC_NS",
+    "EMBEDDED_NAME",
+    "SCHEMAS",
+    "SCHEMA_VERSION",
+    "SI_NS",
+    "build_dcc",
+    "dcc_bytes",
+    "dcc_schema",
+    "load_lab",
+    "validate_dcc",
+    "write_dcc",
+]
+
 MGAL_TO_SI = 1e-5  # 1 mGal = 1e-5 m s^-2
 LAB_ENV = "CHEKAN_LAB"
 EMBEDDED_NAME = "chekan-result.json"
-# parameter → (unit in the hybrid's mGal real, the SI real's unit, the SI factor)
+# parameter unit → (the unit of its own si:real, the SI real's unit, the SI factor)
 UNITS = {
     "mGal/pix": (r"|mGal\per|pixel", r"\metre\second\tothe{-2}\per|pixel", MGAL_TO_SI),
     "mGal/pix^2": (
         r"|mGal\per|pixel\tothe{2}",
         r"\metre\second\tothe{-2}\per|pixel\tothe{2}",
-        1e-5,
+        MGAL_TO_SI,
     ),
-    "arcmin": (r"|arcminute", r"\radian", math.pi / 10800.0),
+    "arcmin": (r"|arcminute", r"\radian", RAD_PER_ARCMIN),
 }
 RESULT_PARAMS = ("b1", "b2", "a", "b1_0", "b2_0")
-
-ET.register_namespace("dcc", DCC_NS)
-ET.register_namespace("si", SI_NS)
-
 LAB_REQUIRED = ("name", "email", "street", "city", "post_code", "country_code", "accreditation")
-
-
-def _d(tag: str) -> str:
-    return f"{{{DCC_NS}}}{tag}"
-
-
-def _s(tag: str) -> str:
-    return f"{{{SI_NS}}}{tag}"
-
-
-def _sub(parent: ET.Element, tag: str, text: str | None = None, **attrib: str) -> ET.Element:
-    el = ET.SubElement(parent, tag, attrib)
-    if text is not None:
-        el.text = text
-    return el
-
-
-def _text(parent: ET.Element, tag: str, content: str, lang: str = "en") -> ET.Element:
-    """A dcc:textType element with one ``dcc:content``."""
-    el = _sub(parent, _d(tag))
-    _sub(el, _d("content"), content, lang=lang)
-    return el
+__all__ += ["K_COVERAGE", "P_COVERAGE", "UNITS"]
 
 
 # ----------------------------------------------------------------------------- lab file
@@ -111,6 +111,12 @@ def load_lab(path: str | os.PathLike | None) -> dict[str, Any]:
         raise ChekanError(f"{p}: [customer] must be a table with a name")
     if not (isinstance(lab["country_code"], str) and len(lab["country_code"]) == 2):
         raise ChekanError(f"{p}: [lab] country_code must be two letters (ISO 3166-1)")
+    site = data.get("site")
+    if site is not None and (
+        not isinstance(site, dict)
+        or ("gravity_survey" in site and not _nonempty(site["gravity_survey"]))
+    ):
+        raise ChekanError(f"{p}: [site] gravity_survey must be a non-empty text")
     return data
 
 
@@ -137,43 +143,13 @@ def expanded_uncertainties(result: Mapping[str, Any]) -> dict[str, tuple[float, 
     return out
 
 
-def _real(
-    parent: ET.Element,
-    label: str,
-    value: float,
-    unit: str,
-    big_u: float | None,
-    k: float = K_COVERAGE,
-) -> None:
-    r = _sub(parent, _s("real"))
-    _sub(r, _s("label"), label)
-    _sub(r, _s("value"), repr(float(value)))
-    _sub(r, _s("unit"), unit)
-    if big_u is not None:
-        e = _sub(r, _s("expandedUnc"))
-        _sub(e, _s("uncertainty"), repr(float(big_u)))
-        _sub(e, _s("coverageFactor"), repr(float(k)))
-        _sub(e, _s("coverageProbability"), repr(P_COVERAGE))
-        _sub(e, _s("distribution"), "normal" if k == K_COVERAGE else "t")
+def dcc_langs(lang: str) -> tuple[str, ...]:
+    """The languages of a DCC issued in ``lang``: the language itself first (mandatory),
+    English beside any other."""
+    from chekan.report.i18n import check_lang
 
-
-def _hybrid_quantity(
-    parent: ET.Element,
-    name: str,
-    label: str,
-    value: float,
-    unit: str,
-    expanded: tuple[float, float] | None,
-) -> None:
-    """A dcc:quantity with an si:hybrid: the value in ``unit`` and in SI beside it, with
-    ``expanded`` = (U, k) when it has one."""
-    q = _sub(parent, _d("quantity"), refType=f"chekan_{name}")
-    _text(q, "name", label)
-    h = _sub(q, _s("hybrid"))
-    own, si_unit, factor = UNITS[unit]
-    big_u, k = expanded if expanded is not None else (None, K_COVERAGE)
-    _real(h, name, value, own, big_u, k)
-    _real(h, name, value * factor, si_unit, None if big_u is None else big_u * factor, k)
+    check_lang(lang)
+    return (lang,) if lang == "en" else (lang, "en")
 
 
 # ----------------------------------------------------------------------------- the document
@@ -186,86 +162,115 @@ def build_dcc(
     customer: str | None = None,
     issued: _dt.date | None = None,
     decision_rule: str | None = None,
+    lang: str = "en",
+    tolerance_percent: float = 0.05,
 ) -> ET.ElementTree:
-    """The DCC element tree of ``result`` issued by ``lab`` (a :func:`load_lab` dict)."""
+    """The DCC element tree of ``result`` issued by ``lab`` (a :func:`load_lab` dict) in
+    ``lang``; conformity judged against ``tolerance_percent``. ``decision_rule``: the
+    lab's own words of its rule, added to the statement of conformity."""
     from chekan import __version__
 
+    langs = dcc_langs(lang)
     issued = issued or _dt.datetime.now(_dt.UTC).date()
-    root = ET.Element(_d("digitalCalibrationCertificate"), schemaVersion=SCHEMA_VERSION)
-    adm = _sub(root, _d("administrativeData"))
-    sw = _sub(_sub(adm, _d("dccSoftware")), _d("software"))
-    _text(sw, "name", "chekan")
-    _sub(sw, _d("release"), __version__)
-    _core_data(adm, result, lab, issued)
-    _items(adm, result)
-    _laboratory(adm, lab["lab"])
-    rp = _sub(_sub(adm, _d("respPersons")), _d("respPerson"))
-    _text(_sub(rp, _d("person")), "name", str(lab["responsible"]["name"]))
+    tr = trace(result, lab)
+    root = ET.Element(d("digitalCalibrationCertificate"), schemaVersion=SCHEMA_VERSION)
+    adm = sub(root, d("administrativeData"))
+    sw = sub(sub(adm, d("dccSoftware")), d("software"))
+    text(sw, "name", "chekan", langs)
+    sub(sw, d("release"), __version__)
+    sub(sw, d("type"), "application")
+    _core_data(adm, result, lab, issued, langs)
+    _items(adm, result, langs)
+    _laboratory(adm, lab["lab"], langs)
+    rp = sub(sub(adm, d("respPersons")), d("respPerson"))
+    text(sub(rp, d("person")), "name", str(lab["responsible"]["name"]), langs)
     if _nonempty(lab["responsible"].get("role")):
-        _sub(rp, _d("role"), str(lab["responsible"]["role"]))
-    _sub(rp, _d("mainSigner"), "true")
-    cust = dict(lab.get("customer") or {})
-    if customer:
-        cust = {"name": customer}
-    _contact(_sub(adm, _d("customer")), cust or {"name": "not stated"})
-    _statements(adm, result, lab, decision_rule)
-    _measurement_results(root, result)
+        sub(rp, d("role"), str(lab["responsible"]["role"]))
+    sub(rp, d("mainSigner"), "true")
+    cust = {"name": customer} if customer else dict(lab.get("customer") or {})
+    if cust:
+        _contact(sub(adm, d("customer")), cust, langs)
+    else:  # the schema requires a customer: its absence is stated, not invented
+        el = sub(adm, d("customer"))
+        text(el, "name", words("no_customer"), langs)
+        text(sub(el, d("location")), "further", words("no_customer"), langs)
+    _statements(adm, result, lab, tr, decision_rule, float(tolerance_percent), langs)
+    mrs = sub(root, d("measurementResults"))
+    mr = sub(mrs, d("measurementResult"))
+    text(mr, "name", words("results"), langs)
+    used_methods(mr, result, langs)
+    sws = sub(mr, d("usedSoftware"))
+    sw = sub(sws, d("software"))
+    text(sw, "name", "chekan", langs)
+    sub(sw, d("release"), str((result.get("software") or {}).get("version") or __version__))
+    sub(sw, d("type"), "application")
+    influence_conditions(mr, result, tr, langs)
+    _results(mr, result, langs)
     return ET.ElementTree(root)
 
 
 def _session_date(result: Mapping[str, Any], issued: _dt.date) -> str:
-    for key in ("date",):
-        v = result.get(key)
-        if isinstance(v, str) and len(v) >= 10:
-            return v[:10]
+    v = result.get("date")
+    if isinstance(v, str) and len(v) >= 10:
+        return v[:10]
     started = (result.get("metadata") or {}).get("started")
     if isinstance(started, str) and len(started) >= 10:
         return started[:10]
     return issued.isoformat()
 
 
-def _core_data(
-    adm: ET.Element, result: Mapping[str, Any], lab: Mapping[str, Any], issued: _dt.date
-) -> None:
-    core = _sub(adm, _d("coreData"))
-    _sub(core, _d("countryCodeISO3166_1"), str(lab["lab"]["country_code"]).upper())
-    _sub(core, _d("usedLangCodeISO639_1"), "en")
-    _sub(core, _d("mandatoryLangCodeISO639_1"), "en")
-    _sub(core, _d("uniqueIdentifier"), certificate_id(result, lab, issued))
-    ids = _sub(core, _d("identifications"))
-    ident = _sub(ids, _d("identification"))
-    _sub(ident, _d("issuer"), "calibrationLaboratory")
-    _sub(ident, _d("value"), issued.isoformat())
-    _text(ident, "name", "date of issue")
+def _core_data(adm, result, lab, issued: _dt.date, langs: Sequence[str]) -> None:
+    core = sub(adm, d("coreData"))
+    sub(core, d("countryCodeISO3166_1"), str(lab["lab"]["country_code"]).upper())
+    for lang in langs:
+        sub(core, d("usedLangCodeISO639_1"), lang)
+    sub(core, d("mandatoryLangCodeISO639_1"), langs[0])
+    sub(core, d("uniqueIdentifier"), certificate_id(result, lab, issued))
+    ident = sub(sub(core, d("identifications")), d("identification"))
+    sub(ident, d("issuer"), "calibrationLaboratory")
+    sub(ident, d("value"), issued.isoformat())
+    text(ident, "name", words("date_of_issue"), langs)
     day = _session_date(result, issued)
-    _sub(core, _d("beginPerformanceDate"), day)
-    _sub(core, _d("endPerformanceDate"), day)
-    _sub(core, _d("performanceLocation"), "laboratory")
+    sub(core, d("beginPerformanceDate"), day)
+    sub(core, d("endPerformanceDate"), day)
+    sub(core, d("performanceLocation"), "laboratory")
+    sub(core, d("issueDate"), issued.isoformat())
 
 
-def _items(adm: ET.Element, result: Mapping[str, Any]) -> None:
+def _items(adm: ET.Element, result: Mapping[str, Any], langs: Sequence[str]) -> None:
+    from chekan.report.i18n import value_name
+
     meta = result.get("metadata") or {}
-    items = _sub(adm, _d("items"))
-    for label, model, serial in (
-        ("gravimeter", str(meta.get("instrument") or "Chekan-AM"), str(result["serial"])),
-        ("tilting platform", "platform", meta.get("platform_serial")),
+    items = sub(adm, d("items"))
+    instrument = str(meta.get("instrument") or "Chekan-AM")
+    gravimeter = {k: v.format(model=value_name(instrument, k)) for k, v in
+                  words("gravimeter", model="{model}").items()}  # fmt: skip
+    for name, model, serial in (
+        (gravimeter, str(meta.get("model") or instrument), result["serial"]),
+        (words("platform"), None, meta.get("platform_serial")),
     ):
         if serial is None:
             continue
-        it = _sub(items, _d("item"))
-        _text(it, "name", f"{label} {model}")
-        _contact(_sub(it, _d("manufacturer")), {"name": "CSRI Elektropribor"})
-        _sub(it, _d("model"), str(meta.get("model") or model) if label == "gravimeter" else model)
-        ident = _sub(_sub(it, _d("identifications")), _d("identification"))
-        _sub(ident, _d("issuer"), "manufacturer")
-        _sub(ident, _d("value"), str(serial))
-        _text(ident, "name", "serial number")
+        it = sub(items, d("item"))
+        text(it, "name", name, langs)
+        if model is not None:
+            text(sub(it, d("manufacturer")), "name", "CSRI Elektropribor", langs)
+            sub(it, d("model"), model)
+        ident = sub(sub(it, d("identifications")), d("identification"))
+        sub(ident, d("issuer"), "manufacturer")
+        sub(ident, d("value"), str(serial))
+        text(ident, "name", words("serial"), langs)
 
 
-def _contact(el: ET.Element, c: Mapping[str, Any], further: str | None = None) -> None:
-    _text(el, "name", str(c["name"]))
-    _sub(el, _d("eMail"), str(c["email"]) if _nonempty(c.get("email")) else "not stated")
-    loc = _sub(el, _d("location"))
+def _contact(
+    el: ET.Element, c: Mapping[str, Any], langs: Sequence[str], further: dict | None = None
+) -> None:
+    """A dcc:contactType: name, e-mail and address where stated (the schema requires a
+    location: without any address, ``further`` repeats the name)."""
+    text(el, "name", str(c["name"]), langs)
+    if _nonempty(c.get("email")):
+        sub(el, d("eMail"), str(c["email"]))
+    loc = sub(el, d("location"))
     for key, tag in (
         ("city", "city"),
         ("country_code", "countryCode"),
@@ -273,141 +278,92 @@ def _contact(el: ET.Element, c: Mapping[str, Any], further: str | None = None) -
         ("street", "street"),
     ):
         if _nonempty(c.get(key)):
-            _sub(loc, _d(tag), str(c[key]))
-    if further is not None or len(loc) == 0:
-        _sub(loc, _d("further")).append(_content(further or "not stated"))
+            sub(loc, d(tag), str(c[key]).upper() if key == "country_code" else str(c[key]))
+    if further is not None:
+        text(loc, "further", further, langs)
+    elif len(loc) == 0:
+        text(loc, "further", str(c["name"]), langs)
 
 
-def _content(text: str) -> ET.Element:
-    el = ET.Element(_d("content"), lang="en")
-    el.text = text
-    return el
-
-
-def _laboratory(adm: ET.Element, lab: Mapping[str, Any]) -> None:
-    el = _sub(adm, _d("calibrationLaboratory"))
+def _laboratory(adm: ET.Element, lab: Mapping[str, Any], langs: Sequence[str]) -> None:
+    el = sub(adm, d("calibrationLaboratory"))
     if _nonempty(lab.get("code")):
-        _sub(el, _d("calibrationLaboratoryCode"), str(lab["code"]))
-    _contact(_sub(el, _d("contact")), lab, further=f"accreditation: {lab['accreditation']}")
-
-
-def _statement(parent: ET.Element, text: str, ref: str, **extra: str) -> ET.Element:
-    st = _sub(parent, _d("statement"), refType=ref)
-    _text(st, "declaration", text)
-    for tag, value in extra.items():
-        _sub(st, _d(tag), value)
-    return st
-
-
-def _default_traceability(result: Mapping[str, Any]) -> str:
-    """What the angle and the gravity are traceable through, as the result says."""
-    cal = result.get("angle_calibration")
-    if isinstance(cal, Mapping) and cal.get("id"):
-        lab = f" ({cal['laboratory']})" if cal.get("laboratory") else ""
-        angle = (
-            f"The tilt angles are traceable to the SI through the platform's angle "
-            f"calibration {cal['id']} of {cal.get('date', '?')}{lab}"
-        )
-    else:
-        angle = (
-            "The tilt angles rest on the platform's specification of its angle sensors "
-            "(a bound, no calibration of the platform was given)"
-        )
-    return (
-        angle + "; the site gravity through the gravity survey named in the influence conditions."
-    )
+        sub(el, d("calibrationLaboratoryCode"), str(lab["code"]))
+    _contact(sub(el, d("contact")), lab, langs, words("accreditation", a=lab["accreditation"]))
 
 
 def _statements(
-    adm: ET.Element, result: Mapping[str, Any], lab: Mapping[str, Any], rule: str | None
+    adm: ET.Element,
+    result: Mapping[str, Any],
+    lab: Mapping[str, Any],
+    tr: Trace,
+    rule: str | None,
+    tolerance_percent: float,
+    langs: Sequence[str],
 ) -> None:
-    sts = _sub(adm, _d("statements"))
-    trace = str(lab["lab"].get("traceability") or _default_traceability(result))
-    st = _sub(sts, _d("statement"), refType="basic_traceability")
-    _sub(st, _d("traceable"), "true")
-    _text(st, "declaration", trace)
-    _statement(sts, "The results relate only to the calibrated item.", "basic_itemOnly")
+    sts = sub(adm, d("statements"))
+    st = sub(sts, d("statement"), refType="basic_traceability")
+    sub(st, d("traceable"), "true" if tr.traceable else "false")
+    decl = text(st, "declaration", tr.statement(), langs)
+    if _nonempty(lab["lab"].get("traceability")):  # the lab's own words, after the facts
+        sub(decl, d("content"), str(lab["lab"]["traceability"]))
+    st = sub(sts, d("statement"), refType="basic_itemOnly")
+    text(st, "declaration", words("item_only"), langs)
+    _conformity(sts, result, rule, tolerance_percent, langs)
+    st = sub(sts, d("statement"), refType="basic_uncertainty")
+    text(st, "declaration", words("uncertainty"), langs)
+
+
+def _conformity(sts, result, rule: str | None, tolerance_percent: float, langs) -> None:
+    """The statement of conformity: the decision rule with each criterion's outcome, and
+    dcc:conformity where one is stated (else the reason why not)."""
+    dec = decide(result, tolerance_percent)
+    if not dec.criteria and dec.why is None:
+        return
+    st = sub(sts, d("statement"), refType="basic_conformity")
+    tol = f"{tolerance_percent:g}"
+    crit = criteria_text(dec)
+    decl = words("rule", tol=tol, criteria="{criteria}")
+    decl = {k: v.replace("{criteria}", crit[k]) for k, v in decl.items()}
+    if decl and "ru" in decl:
+        decl["ru"] = decl["ru"].replace(f"{tol} %", f"{tol.replace('.', ',')} %")
+    if dec.why is not None:
+        why = words("conformity_none", why="{why}")
+        decl = {k: f"{decl[k]} {why[k].replace('{why}', dec.why[k])}" for k in decl}
+    el = text(st, "declaration", decl, langs)
     if rule:
-        _statement(sts, rule, "basic_conformity")
-    _statement(
-        sts,
-        f"Expanded uncertainty U = k·u, coverage probability about {P_COVERAGE:.2%}: "
-        f"k = {K_COVERAGE:g} for a normal distribution, Student's t at the effective degrees "
-        "of freedom where the standard uncertainty rests on variances estimated from the "
-        "record (GUM G.4, G.6.4); k is stated with each value.",
-        "basic_uncertainty",
-    )
+        sub(el, d("content"), rule)
+    if dec.outcome is not None:
+        sub(st, d("conformity"), dec.outcome)
 
 
-def _measurement_results(root: ET.Element, result: Mapping[str, Any]) -> None:
-    mr = _sub(_sub(root, _d("measurementResults")), _d("measurementResult"))
-    _text(mr, "name", "Tilt calibration of the scale factors")
-    um = _sub(_sub(mr, _d("usedMethods")), _d("usedMethod"), refType="chekan_tiltCalibration")
-    _text(um, "name", f"tilt calibration, estimator: {result['method']}")
-    desc = _sub(um, _d("description"))
-    from chekan.report.content import program_text, settled_note  # the certificate's words
-    from chekan.report.i18n import tr
+def _results(mr: ET.Element, result: Mapping[str, Any], langs: Sequence[str]) -> None:
+    """Each parameter with a unit of :data:`UNITS`, named in words, and the result JSON."""
+    from chekan.report.i18n import param_name
 
-    prog = program_text(result, tr("en"))
-    _sub(desc, _d("content"), f"tilt program: {prog or 'not stated'}", lang="en")
-    for para in settled_note(result, tr("en")):  # the classical items from settled hold means
-        _sub(desc, _d("content"), para.text, lang="en")
-    sw = _sub(_sub(mr, _d("usedSoftware")), _d("software"))
-    _text(sw, "name", "chekan")
-    _sub(sw, _d("release"), str((result.get("software") or {}).get("version") or "unknown"))
-    _influence(mr, result)
-    _results(mr, result)
-
-
-def _influence(mr: ET.Element, result: Mapping[str, Any]) -> None:
-    ics = _sub(mr, _d("influenceConditions"))
-    ic = _sub(ics, _d("influenceCondition"), refType="chekan_siteGravity")
-    _text(ic, "name", "site gravity")
-    meta = result.get("metadata") or {}
-    src = meta.get("g_source") or "as given to chekan calibrate"
-    _sub(_sub(ic, _d("description")), _d("content"), f"source: {src}", lang="en")
-    data = _sub(ic, _d("data"))
-    q = _sub(data, _d("quantity"), refType="chekan_g_local")
-    _text(q, "name", "g_local")
-    h = _sub(q, _s("hybrid"))
-    g = float(result["g_local_mgal"])
-    _real(h, "g_local", g, "|mGal", None)
-    _real(h, "g_local", g * MGAL_TO_SI, r"\metre\second\tothe{-2}", None)
-    ic = _sub(ics, _d("influenceCondition"), refType="chekan_sensorTemperature")
-    _text(ic, "name", "sensor temperature")
-    text = temperature_text(result, meta) or "not recorded in the result"
-    _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
-    ic = _sub(ics, _d("influenceCondition"), refType="chekan_angleSensors")
-    _text(ic, "name", "platform angle sensors")
-    a = result.get("angle_sensors") or result.get("angle_sensor")  # both, where both tilt
-    text = json.dumps(a, ensure_ascii=False, sort_keys=True) if a else "not stated in the result"
-    _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
-    horizontal = result.get("pendulum_horizontal")  # rounds about X: a Type B input
-    if horizontal:
-        ic = _sub(ics, _d("influenceCondition"), refType="chekan_pendulumHorizontal")
-        _text(ic, "name", "the pendulums' horizontal about the CCD centre")
-        text = json.dumps(horizontal, ensure_ascii=False, sort_keys=True)
-        _sub(_sub(_sub(ic, _d("data")), _d("text")), _d("content"), text, lang="en")
-
-
-def _results(mr: ET.Element, result: Mapping[str, Any]) -> None:
-    params = result["parameters"]
     big_u = expanded_uncertainties(result)
-    res = _sub(mr, _d("results"))
-    for name, p in params.items():
+    res = sub(mr, d("results"))
+    for name, p in result["parameters"].items():
         unit = p.get("unit") or ""
         if unit not in UNITS:
             continue
-        r = _sub(res, _d("result"), refType=f"chekan_{name}")
-        _text(r, "name", name)
-        _hybrid_quantity(_sub(r, _d("data")), name, name, float(p["mean"]), unit, big_u.get(name))
-    r = _sub(res, _d("result"), refType="chekan_resultJson")
-    _text(r, "name", "the chekan-result/1 this certificate was written from")
-    bd = _sub(_sub(r, _d("data")), _d("byteData"))
-    _sub(bd, _d("fileName"), EMBEDDED_NAME)
-    _sub(bd, _d("mimeType"), "application/json")
-    blob = json.dumps(result, ensure_ascii=False, allow_nan=False)  # key order kept
-    _sub(bd, _d("dataBase64"), base64.b64encode(blob.encode("utf-8")).decode("ascii"))
+        label = RESULT_NAMES.get(name) or {lang: param_name(name, lang) for lang in ("en", "ru")}
+        r = sub(res, d("result"), refType=f"chekan_{name}")
+        text(r, "name", label, langs)
+        q = quantity(sub(r, d("data")), f"chekan_{name}", label, langs)
+        own, si_unit, factor = UNITS[unit]
+        hybrid_real(q, name, float(p["mean"]), own, si_unit, factor, big_u.get(name))
+    r = sub(res, d("result"), refType="chekan_resultJson")
+    text(r, "name", words("result_json"), langs)
+    bd = sub(sub(r, d("data")), d("byteData"))
+    sub(bd, d("fileName"), EMBEDDED_NAME)
+    sub(bd, d("mimeType"), "application/json")
+    sub(bd, d("dataBase64"), base64.b64encode(result_json_bytes(result)).decode("ascii"))
+
+
+def result_json_bytes(result: Mapping[str, Any]) -> bytes:
+    """The result as the DCC and the PDF embed it (UTF-8 JSON, key order kept)."""
+    return json.dumps(result, ensure_ascii=False, allow_nan=False).encode("utf-8")
 
 
 def dcc_bytes(tree: ET.ElementTree) -> bytes:
@@ -418,26 +374,26 @@ def dcc_bytes(tree: ET.ElementTree) -> bytes:
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
 
 
-def dcc_schema():  # type: ignore[no-untyped-def]
-    """The vendored DCC 3.1.2 schema, its D-SI import mapped to the local copy (offline)."""
-    import xmlschema
+def write_dcc(
+    result: Mapping[str, Any],
+    out: Path,
+    lab_path: str | os.PathLike | None,
+    *,
+    customer: str | None = None,
+    tolerance_percent: float = 0.05,
+    lang: str = "en",
+) -> Path:
+    """The DCC of ``result`` at ``out``; the lab file is read before anything is written."""
+    from chekan.durable import atomic_output
 
-    local = (SCHEMAS / "SI_Format.xsd").as_uri()
-    return xmlschema.XMLSchema(str(SCHEMAS / "dcc.xsd"), uri_mapper={SI_LOCATION: local})
-
-
-def validate_dcc(source: str | os.PathLike | bytes) -> None:
-    """Raise ``xmlschema.XMLSchemaValidationError`` if ``source`` is not a valid DCC."""
-    data = Path(source).read_bytes() if not isinstance(source, bytes) else source
-    dcc_schema().validate(data.decode("utf-8"))
-
-
-def decision_rule_text(result: Mapping[str, Any], tolerance_percent: float) -> str | None:
-    """The conformity statement with its decision rule (None when there is nothing to judge)."""
-    from chekan.report.content import verdict_of
-    from chekan.report.i18n import tr
-
-    passed, line = verdict_of(result, tolerance_percent, "en")
-    if passed is None:
-        return None
-    return f"{line} {tr('en')('decision_rule')}"
+    lab = load_lab(lab_path)
+    data = dcc_bytes(
+        build_dcc(result, lab, customer=customer, lang=lang, tolerance_percent=tolerance_percent)
+    )
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_output(out, "wb") as f:
+            f.write(data)
+    except OSError as e:
+        raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
+    return out

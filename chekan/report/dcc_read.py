@@ -3,6 +3,7 @@
 The result JSON is embedded (``dcc:byteData`` ``chekan-result.json``); every parameter's
 value and expanded uncertainty in the DCC's ``si:real`` elements must equal the embedded
 result's bit for bit (both are written with ``repr`` precision), else the file is refused.
+:func:`read_any_result` reads a result JSON, a DCC or a PDF certificate alike.
 """
 
 from __future__ import annotations
@@ -19,6 +20,10 @@ from chekan.errors import FormatError
 from chekan.report.dcc import DCC_NS, EMBEDDED_NAME, SI_NS, UNITS, expanded_uncertainties
 
 ROOT_TAG = f"{{{DCC_NS}}}digitalCalibrationCertificate"
+#: where an si:real states its expanded uncertainty (D-SI 2.2.1)
+UNC_PATH = "/".join(
+    f"{{{SI_NS}}}{t}" for t in ("measurementUncertaintyUnivariate", "expandedMU", "valueExpandedMU")
+)
 
 
 def is_dcc(path: str | os.PathLike) -> bool:
@@ -37,15 +42,23 @@ def is_dcc(path: str | os.PathLike) -> bool:
 
 def read_dcc(path: str | os.PathLike) -> dict[str, Any]:
     """The chekan-result/1 dict of the DCC at ``path`` (checked against its si:real values)."""
-    from chekan.result import check_result
-
     p = Path(path)
     try:
-        root = ET.parse(p).getroot()
-    except ET.ParseError as e:
-        raise FormatError(p, e.position[0], f"not well-formed XML: {e}") from None
+        data = p.read_bytes()
     except OSError as e:
         raise FormatError(p, None, f"cannot read: {e.strerror or e}") from None
+    return parse_dcc(data, p)
+
+
+def parse_dcc(data: bytes, src: str | Path) -> dict[str, Any]:
+    """The chekan-result/1 dict of the DCC ``data`` (``src`` names it in errors)."""
+    from chekan.result import check_result
+
+    p = src
+    try:
+        root = ET.fromstring(data)
+    except ET.ParseError as e:
+        raise FormatError(p, e.position[0], f"not well-formed XML: {e}") from None
     if root.tag != ROOT_TAG:
         raise FormatError(p, None, "not a DCC (root is not dcc:digitalCalibrationCertificate)")
     blob = None
@@ -63,7 +76,7 @@ def read_dcc(path: str | os.PathLike) -> dict[str, Any]:
     return result
 
 
-def _check_numbers(p: Path, root: ET.Element, result: dict[str, Any]) -> None:
+def _check_numbers(p: str | Path, root: ET.Element, result: dict[str, Any]) -> None:
     """Every parameter's si:real (own unit) equals the embedded mean and U exactly."""
     big_u = expanded_uncertainties(result)
     seen = set()
@@ -77,7 +90,7 @@ def _check_numbers(p: Path, root: ET.Element, result: dict[str, Any]) -> None:
         if real is None:
             raise FormatError(p, None, f"{name}: no si:real in its quantity")
         value = float(real.findtext(f"{{{SI_NS}}}value") or "nan")
-        unc = real.findtext(f"{{{SI_NS}}}expandedUnc/{{{SI_NS}}}uncertainty")
+        unc = real.findtext(UNC_PATH)
         if (
             value != float(par["mean"])
             or real.findtext(f"{{{SI_NS}}}unit") != UNITS.get(par.get("unit", ""), ("",))[0]
@@ -100,3 +113,10 @@ def read_result_or_dcc(path: str | os.PathLike) -> dict[str, Any]:
     from chekan.result import read_result
 
     return read_dcc(path) if is_dcc(path) else read_result(Path(path))
+
+
+def read_any_result(path: str | os.PathLike) -> dict[str, Any]:
+    """The result of a result JSON, a DCC or a PDF certificate that embeds one."""
+    from chekan.report.pdf_certificate import is_pdf, read_pdf_result
+
+    return read_pdf_result(path) if is_pdf(path) else read_result_or_dcc(path)

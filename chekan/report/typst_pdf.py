@@ -5,16 +5,24 @@ Every piece of text enters the source as a typst *string literal* (``"…"`` wit
 names with ``#``, ``$``, ``*``, ``_`` … are printed as they are. Only typst's
 bundled fonts are used (Libertinus Serif, DejaVu Sans Mono), so the output does
 not depend on the fonts of the machine; both cover Cyrillic.
+
+The PDF is PDF/A-3b; the machine-readable certificate (the DCC, the result JSON) rides in
+it as associated files (``pdf.attach``: an embedded file listed in the catalogue's /AF
+with its /AFRelationship), so the person's and the program's copies cannot part.
 """
 
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 from chekan.errors import ChekanError
 from chekan.report.document import Cell, Figure, Heading, KeyValue, Para, Report, Table
 
+PDF_STANDARD: Literal["a-3b"] = "a-3b"  # PDF/A-3: archival, and allows embedded (associated) files
 FONT = "Libertinus Serif"
 MONO = "DejaVu Sans Mono"
 MAX_UNSPLIT_ROWS = 40  # a table up to this many rows is never split over two pages
@@ -25,6 +33,31 @@ _BOX = {
     "fail": ('rgb("#fbe7e6")', 'rgb("#b3261e")'),
     "warn": ('rgb("#fff4e0")', 'rgb("#b26a00")'),
 }
+
+
+@dataclass(frozen=True)
+class Attachment:
+    """A file embedded in the PDF as an associated file: its ``name`` (a plain file name),
+    bytes, MIME type, relationship to the document (PDF/A-3 /AFRelationship) and a
+    description."""
+
+    name: str
+    data: bytes
+    mime_type: str
+    relationship: Literal["source", "data", "alternative", "supplement"]
+    description: str
+
+    def __post_init__(self) -> None:
+        bad = "/\\" + "".join(chr(c) for c in range(32))
+        if not self.name or self.name.startswith(".") or any(ch in bad for ch in self.name):
+            raise ValueError(f"an attachment needs a plain file name, not {self.name!r}")
+
+
+def _attach(a: Attachment) -> str:
+    return (
+        f"#pdf.attach({tstr(a.name)}, relationship: {tstr(a.relationship)}, "
+        f"mime-type: {tstr(a.mime_type)}, description: {tstr(a.description)})\n"
+    )
 
 
 def tstr(text: str) -> str:
@@ -109,8 +142,11 @@ def _para(p: Para) -> str:
     return f"#{tstr(p.text)}\n"
 
 
-def typst_source(rep: Report, fig_files: dict[int, str]) -> str:
-    """The typst source of ``rep``; ``fig_files`` maps ``id(figure)`` to its file name."""
+def typst_source(
+    rep: Report, fig_files: dict[int, str], attachments: Sequence[Attachment] = ()
+) -> str:
+    """The typst source of ``rep``; ``fig_files`` maps ``id(figure)`` to its file name;
+    ``attachments`` (written beside it under their names) are embedded."""
     head = [
         f'#set document(title: {tstr(rep.title + " — " + rep.subtitle)}, author: "chekan")',
         f"#set text(font: {tstr(FONT)}, size: 10pt, lang: {tstr(rep.lang)})",
@@ -161,12 +197,19 @@ def typst_source(rep: Report, fig_files: dict[int, str]) -> str:
         elif isinstance(b, Figure):
             img = f"image({tstr(fig_files[id(b)])}, width: {100 * b.width:.0f}%)"
             body.append(f"#figure({img}, caption: {tstr(b.caption)})\n")
-    return "\n".join(head) + "\n".join(body)
+    return "\n".join(head) + "\n".join(body) + "".join(_attach(a) for a in attachments)
 
 
-def render_pdf(rep: Report, keep_source: Path | None = None) -> bytes:
-    """Compile ``rep`` to PDF bytes (in a temporary folder with the figure PNGs)."""
+def render_pdf(
+    rep: Report, keep_source: Path | None = None, attachments: Sequence[Attachment] = ()
+) -> bytes:
+    """Compile ``rep`` to PDF/A-3b bytes (in a temporary folder with the figure PNGs),
+    ``attachments`` embedded as associated files."""
     import typst
+
+    names = [a.name for a in attachments]
+    if len(set(names)) != len(names):
+        raise ValueError(f"attachments need distinct names: {names}")
 
     with tempfile.TemporaryDirectory(prefix="chekan-report-") as tmp:
         root = Path(tmp)
@@ -175,12 +218,21 @@ def render_pdf(rep: Report, keep_source: Path | None = None) -> bytes:
             name = f"fig{i}-{f.name}.png"
             (root / name).write_bytes(f.png)
             files[id(f)] = name
-        src = typst_source(rep, files)
+        for a in attachments:
+            if a.name in files.values() or a.name == "certificate.typ":
+                raise ValueError(f"attachment name {a.name!r} is taken by the document")
+            (root / a.name).write_bytes(a.data)
+        src = typst_source(rep, files, attachments)
         main = root / "certificate.typ"
         main.write_text(src, encoding="utf-8")
         if keep_source is not None:
             keep_source.write_text(src, encoding="utf-8")
         try:
-            return typst.compile(str(main), root=str(root), ignore_system_fonts=True)
+            return typst.compile(
+                str(main),
+                root=str(root),
+                ignore_system_fonts=True,
+                pdf_standards=PDF_STANDARD,
+            )
         except Exception as e:  # typst.TypstError: a bug of this module, reported plainly
             raise ChekanError(f"typst could not compile the certificate: {e}") from e
