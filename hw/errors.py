@@ -51,6 +51,21 @@ class GaveUp(HwError):
         )
 
 
+class DwellCut(HwError):
+    """A step's dwell was cut short (samples lost, hold lost, platform silent) so often
+    that no uninterrupted dwell of its full length came: the link or the platform is
+    unreliable. The run levels and stops; ``--resume`` runs the step again."""
+
+    def __init__(self, step: int, label: str, dwell_s: float, cuts: int):
+        self.step = step
+        self.cuts = cuts
+        super().__init__(
+            f"step {step} ({label}): gave up after its dwell was cut short {cuts} times "
+            f"(samples lost, hold lost or the platform silent): no uninterrupted dwell of "
+            f"{dwell_s:g} s on the sample clock; check the links, then resume (--resume)"
+        )
+
+
 class StorageFailed(HwError):
     """A file of the run (record, journal, raw log) cannot be written: a full disk, an I/O
     error. Fatal: the run levels the platform and stops; the record ends at its last

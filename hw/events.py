@@ -50,7 +50,7 @@ FIELDS = MappingProxyType(
         ),
         Event.TILT: ("step", "x", "y", "reason", "t_s"),
         Event.HOLD: ("step", "t_s", "angles"),
-        Event.HOLD_LOST: ("step", "state", "t_s", "samples"),
+        Event.HOLD_LOST: ("step", "state", "t_s", "samples", "lost?"),
         Event.HOLD_TIMEOUT: ("step", "t_s"),
         Event.FAULT: ("step", "t_s", "angles"),
         Event.STEP_DONE: ("step", "t_s_first", "t_s_last", "samples", "lost"),

@@ -17,7 +17,15 @@ from children import interrupt
 from chekan.errors import ChekanError
 from chekan.program import build_program
 from chekan.records import read_record
-from hw.acquisition import EXIT_DEVICE, EXIT_INTERRUPTED, Options, acquire, resume
+from hw.acquisition import (
+    EXIT_DEVICE,
+    EXIT_GAVE_UP,
+    EXIT_INTERRUPTED,
+    Options,
+    acquire,
+    resume,
+)
+from hw.acquisition.resume import resume_state
 from hw.emulator import InProcessEmulator, PtyEmulator
 from hw.faults import parse_faults
 from hw.journal import Journal, journal_path, raw_log_path, read_journal
@@ -70,8 +78,23 @@ def last_run(step: np.ndarray, k: int) -> np.ndarray:
     return w[br[-1] + 1 :] if br.size else w
 
 
+def whole_runs(rec) -> dict[int, int]:
+    """Rows of each step's last uninterrupted run: consecutive rows of the step, one sample
+    period apart (no gap in t_s)."""
+    out: dict[int, int] = {}
+    n = 0
+    for i in range(rec.n):
+        k = int(rec.step[i])
+        go_on = i > 0 and rec.step[i - 1] == k and rec.t_s[i] - rec.t_s[i - 1] == 1
+        n = n + 1 if go_on else 1
+        if k >= 0:
+            out[k] = n
+    return out
+
+
 def check_record(rec_path: Path, n_steps: int = 6, complete: bool = True):
-    """Parses; header keys; t_s strictly increasing; each step's dwell exact on the sample clock."""
+    """Parses; header keys; t_s strictly increasing; each step's dwell exact on the sample
+    clock and whole: its last run of rows spans the dwell without a gap."""
     rec = read_record(rec_path)
     assert HEADER_KEYS <= set(rec.meta)
     assert rec.meta["program"] == "short" and rec.meta["g_local_mgal"] == "981922.05"
@@ -89,6 +112,9 @@ def check_record(rec_path: Path, n_steps: int = 6, complete: bool = True):
         assert np.array_equal(run_rows, np.flatnonzero(window)), f"step {k}"
         lost_in_window = N - window.sum()
         assert e["samples"] == N - lost_in_window
+        assert np.all(np.diff(t[run_rows]) == 1), f"step {k}: a gap in its dwell"
+    if complete:
+        assert whole_runs(rec) == dict.fromkeys(range(n_steps), N)
     return rec, events
 
 
@@ -195,6 +221,40 @@ def test_platform_fault_recommands_tilt(tmp_path):
     assert any(w.startswith("TILT") for w in after[: after.index("MOVE")])  # re-sent, then moved
 
 
+CHAOS = "drop=0.01;garbage=0.03;badsum=0.02;stall=sensor@150+40;fault=300+20;seed=11"
+
+
+def test_every_hold_is_dwelt_whole_under_faults(tmp_path):
+    """Lost lines, garbage, bad checksums, a stalled sensor and a platform FAULT: every hold
+    of the record ends in an uninterrupted run of rows spanning its whole dwell."""
+    with pty_emu(tmp_path, speed=0, faults=parse_faults(CHAOS)) as emu:
+        rec_path, s = run(tmp_path, emu)
+    assert s.exit_code == 0, s.message
+    rec, events = check_record(rec_path)
+    assert s.gaps > 0 and s.lost_samples >= 40 and s.faults == 1  # the faults did strike
+    cuts = [e for e in events if e["event"] == "hold_lost"]
+    assert {e["state"] for e in cuts} >= {"GAP", "FAULT"} and len(cuts) == s.hold_restarts
+    for e in cuts:  # the row after a cut belongs to no step: the runs stay apart
+        i = int(np.searchsorted(rec.t_s, e["t_s"]))
+        if e["state"] == "GAP":
+            assert rec.t_s[i] == e["t_s"] and rec.step[i] == -1 and rec.step[i - 1] == e["step"]
+
+
+def test_a_dwell_cut_too_often_gives_up_levelled_and_resumable(tmp_path):
+    with pty_emu(tmp_path, speed=0, faults=parse_faults("drop=0.2")) as emu:
+        rec_path, s = run(tmp_path, emu, max_dwell_cuts=3)
+        wait_level(emu)
+    assert (s.status, s.exit_code, s.levelled) == ("gave_up", EXIT_GAVE_UP, True)
+    assert "step 0 (" in s.message and "cut short 3 times" in s.message, s.message
+    events = read_journal(journal_path(rec_path))
+    assert [e["state"] for e in events if e["event"] == "hold_lost"] == ["GAP"] * 3
+    assert events[-1]["event"] == "run_stop" and events[-1]["status"] == "gave_up"
+    gave_up_at = [e for e in events if e["event"] == "hold_lost"][-1]["t_s"]
+    assert read_record(rec_path).t_s[-1] > gave_up_at  # rows go on while it levels
+    state, *_ = resume_state(rec_path)
+    assert state is not None and state.first_step == 0 and not state.done
+
+
 def test_lost_tilt_reply_is_not_resent_when_the_platform_moves(tmp_path):
     with pty_emu(tmp_path, speed=0, faults=parse_faults("tiltmute=2")) as emu:
         rec_path, s = run(tmp_path, emu)
@@ -294,6 +354,35 @@ def test_kill9_mid_dwell_then_resume(tmp_path):
     assert res["from_step"] == 2 and res["steps_done"] == [0, 1]
     assert events[-1]["event"] == "run_stop" and events[-1]["status"] == "completed"
     assert resume(rec, report=None).message.startswith("nothing to resume")
+
+
+@pytest.mark.slow
+def test_kill9_mid_hold_under_faults_then_resume_dwells_every_hold_whole(tmp_path):
+    """Faults of every kind and a kill -9 in a hold, then --resume: nothing lost or
+    duplicated, and every hold ends in an uninterrupted run of its whole dwell."""
+    prog = tmp_path / "short.toml"
+    prog.write_text(PROGRAM_TOML, encoding="utf-8")
+    rec = tmp_path / "rec.csv"
+    faults = parse_faults(CHAOS + ";stall=sensor@400+40;stall=sensor@700+40")
+    with pty_emu(tmp_path, speed=100, seed=5, faults=faults) as emu:
+        p = subprocess.Popen(_acquire_cmd(emu, rec, prog, "--timeout-s", "0.3"), cwd=ROOT)
+        try:
+            _wait_event(rec, lambda e: e["event"] == "hold" and e["step"] == 2)
+            time.sleep(0.15)  # ~15 samples into the dwell of step 2
+        finally:
+            os.kill(p.pid, signal.SIGKILL)
+            p.wait()
+        before = read_record(rec)
+        assert 0 < whole_runs(before).get(2, 0) < N  # killed mid-hold
+        s = resume(rec, report=None)
+        wait_level(emu)
+    assert s.exit_code == 0 and s.steps_done == 6, s.message
+    after, events = check_record(rec)
+    assert np.array_equal(after.t_s[: before.n], before.t_s)  # nothing rewritten
+    assert np.unique(after.t_s).size == after.n  # no duplicated t_s
+    assert whole_runs(after) == dict.fromkeys(range(6), N)
+    assert [e["from_step"] for e in events if e["event"] == "resume"] == [2]
+    assert max(e["lost"] for e in events if e["event"] == "gap") >= 30  # a stall struck
 
 
 @pytest.mark.slow

@@ -4,14 +4,17 @@ For each program step it sends ``TILT``, waits for a ``HOLD`` at the target
 (reported after the command's reply, within ``angle_tol_arcsec``), then counts
 the dwell in SENSOR SAMPLES: ``round(dwell_s × rate)`` sample periods from the
 first sample after the hold, on the sample clock (``t_s`` comes from ``seq``
-through its wrap; a jump in ``seq`` is a gap and ``t_s`` jumps with it, so a
-step's rows number ``dwell × rate`` minus the samples lost in gaps). Every
+through its wrap; a jump in ``seq`` is a gap and ``t_s`` jumps with it). Every
 sample is recorded, also while the platform moves (``step`` empty), with the
 latest platform angles (empty when no ``PLT`` came for ``stale_s``). The record
 starts with the first sample after the first ``PLT``; the first row of each
 session (new or resumed) never belongs to a dwell, so a resumed step's new run
-is always a separate contiguous run. A dwell is not extended or repeated for
-samples lost in gaps (they are counted, journaled and in the summary).
+is always a separate contiguous run. A dwell is one uninterrupted run of rows:
+a gap (lost samples), platform statuses gone stale or a lost hold cut it, the
+first row after the cut carries no step, and the dwell is served again in full,
+settling included, until the step's last run of rows spans the whole dwell with
+no gap (lost samples are counted, journaled and in the summary; a step cut
+``max_dwell_cuts`` times gives up, exit 3).
 
 Faults: silence longer than ``timeout_s`` (or a read error) reopens the port with
 back-off, up to ``give_up_s`` without data (exit 3). A platform ``FAULT`` re-sends

@@ -70,6 +70,7 @@ class Options:
     give_up_s: float = 120.0  # host: no data that long -> give up
     reply_timeout_s: float = 2.0  # host: one query's wait for its reply
     hold_timeout_s: float = 900.0  # sample clock: TILT to HOLD (re-sent once, then an error)
+    max_dwell_cuts: int = 100  # a step's dwell cut short this often: give up (exit 3)
     recommand_s: float = 10.0  # sample clock: TILT re-sent this often while FAULT lasts
     angle_tol_arcsec: float = 60.0  # a HOLD counts if this close to the commanded angles
     stale_s: float = 5.0  # sample clock and host: older platform angles are not written

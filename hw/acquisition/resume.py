@@ -2,8 +2,10 @@
 :func:`hw.acquisition.start.resume`.
 
 Completed steps are kept; the first unfinished step is re-run from its ``TILT``
-(its partial rows stay); ``t_s`` continues strictly after the last complete row,
-through ``seq`` (the journal's last ``sync`` event keeps the ``seq`` ↔ ``t_s`` anchor).
+(its partial rows stay; a step whose rows end in an uninterrupted run of its whole dwell
+counts as done, though its ``step_done`` was not journaled); ``t_s`` continues strictly
+after the last complete row, through ``seq`` (the journal's last ``sync`` event keeps
+the ``seq`` ↔ ``t_s`` anchor).
 """
 
 from __future__ import annotations
@@ -55,15 +57,15 @@ class ResumeState:
 
 
 def _step_complete_in_record(rec: Record, step: int, n: int, rate: float) -> bool:
-    """Whether the last contiguous run of ``step`` rows covers ``n`` sample periods."""
+    """Whether the last uninterrupted run of ``step`` rows (consecutive rows, one sample
+    period apart on the sample clock: no gap) holds ``n`` samples."""
     where = np.flatnonzero(rec.step == step)
     if where.size == 0:
         return False
-    breaks = np.flatnonzero(np.diff(where) != 1)
-    start = where[breaks[-1] + 1] if breaks.size else where[0]
-    stop = where[-1]
-    span = round((rec.t_s[stop] - rec.t_s[start]) * rate) + 1
-    return span >= n
+    periods = np.round(np.diff(rec.t_s[where]) * rate)
+    breaks = np.flatnonzero((np.diff(where) != 1) | (periods != 1))
+    start = breaks[-1] + 1 if breaks.size else 0
+    return where.size - start >= n
 
 
 def resume_state(

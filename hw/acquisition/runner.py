@@ -33,7 +33,15 @@ from hw.acquisition.recorder import Recorder, record_meta
 from hw.acquisition.steps import StepMachine
 from hw.acquisition.summary import Summary
 from hw.drivers import LinkDown, PlatformInfo, Received, SensorInfo
-from hw.errors import DeviceError, GaveUp, HwError, LinkLost, ReplyTimeout, StorageFailed
+from hw.errors import (
+    DeviceError,
+    DwellCut,
+    GaveUp,
+    HwError,
+    LinkLost,
+    ReplyTimeout,
+    StorageFailed,
+)
 from hw.events import Event
 from hw.nmea import Grv, Plt
 from hw.progress import Progress
@@ -262,7 +270,7 @@ class Acquisition:
             status, code, message = "stopped", EXIT_DEVICE, str(e)
         except DeviceError as e:
             status, code, message = "device_error", EXIT_DEVICE, str(e)
-        except (GaveUp, LinkLost, ReplyTimeout) as e:
+        except (GaveUp, LinkLost, ReplyTimeout, DwellCut) as e:
             status, code, message = "gave_up", EXIT_GAVE_UP, str(e)
         except (ChekanError, FileExistsError) as e:
             status, code, message = "error", EXIT_CONFIG, str(e)

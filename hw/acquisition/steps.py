@@ -8,6 +8,13 @@ from the first sample after the hold. A platform ``FAULT`` re-sends the ``TILT``
 ``HOLD``; no HOLD within ``hold_timeout_s`` re-sends it once, then is an error.
 At the end the platform is levelled (:attr:`Phase.LEVELING` → :attr:`Phase.LEVEL`).
 
+A dwell is one uninterrupted run of rows: lost samples (a ``seq`` jump: dropped or
+garbled lines, a stalled or vanished sensor port) or platform statuses gone stale
+(its port silent: the hold is unverified) cut it, and it is dwelt again in full, its
+settling included (the settle is the start of the dwell). The first row after a cut
+carries no step, so the cut run and the new one are separate holds in the record (as
+the first row of a resumed session); a step cut ``max_dwell_cuts`` times gives up.
+
 The platform changes axis only through level: a step about one axis that would start
 while the platform stands tilted about the other (beyond ``angle_tol_arcsec``: a
 program whose rounds alternate axes without a level step between them, or a resumed
@@ -25,7 +32,7 @@ from dataclasses import dataclass, replace
 from hw.acquisition.clock import SampleClock
 from hw.acquisition.plan import Options, PlanStep
 from hw.acquisition.recorder import EventLog
-from hw.errors import DeviceError
+from hw.errors import DeviceError, DwellCut
 from hw.events import Event
 from hw.nmea import Plt
 
@@ -67,7 +74,7 @@ class StepStats:
 
     faults: int = 0  # FAULT episodes
     recommands: int = 0  # TILT re-sent (FAULT, hold timeout)
-    hold_restarts: int = 0  # dwells restarted after the hold was lost
+    hold_restarts: int = 0  # dwells restarted (hold lost, samples lost, platform silent)
 
 
 class StepMachine:
@@ -101,6 +108,10 @@ class StepMachine:
         self.dwell_start = 0
         self.dwell_n = 0
         self.dwell_rows = 0
+        self.dwell_cuts = 0  # this step's dwells cut short so far
+        self._prev_idx: int | None = None  # index of the last sample seen
+        self._stale = False  # the last sample came with stale platform angles
+        self.gave_up: DwellCut | None = None  # too many cuts: the run stops at the next row
 
     # ------------------------------------------------------------------ helpers
     def attach(self, samples: SampleClock) -> None:
@@ -153,6 +164,7 @@ class StepMachine:
         """Start ``st``: journal it and send its TILT."""
         self.step = st
         self.dwell_n = st.dwell_samples(self._rate)
+        self.dwell_cuts = 0
         self._hold_retry = False
         self._last_recommand_idx = None
         self._journal(
@@ -234,19 +246,38 @@ class StepMachine:
             elif p.state == "FAULT":
                 self._on_fault(p, prev)
         elif self.phase in (Phase.HOLD_PENDING, Phase.DWELL) and p.state != "HOLD":
-            self.stats.hold_restarts += 1
-            self._journal(
-                Event.HOLD_LOST,
-                step=st.index,
-                state=p.state,
-                t_s=self._t_last(),
-                samples=self.dwell_rows if self.phase is Phase.DWELL else 0,
-            )
-            self.phase = Phase.WAIT_HOLD
-            self._cmd_idx, self._cmd_mono = None, self._clock()
-            self._hold_retry = False
+            self._cut(p.state, self._t_last())
+            self._wait_hold_again()
             if p.state == "FAULT":
                 self._on_fault(p, prev)
+
+    def _wait_hold_again(self) -> None:
+        """The hold is lost: wait for a new HOLD (the hold timeout counts from now)."""
+        self.phase = Phase.WAIT_HOLD
+        self._cmd_idx, self._cmd_mono = None, self._clock()
+        self._hold_retry = False
+
+    def _cut(self, why: str, t_s: float | None, **extra: object) -> None:
+        """Journal the end of the current hold or dwell before its full length (``why``:
+        the platform state, ``GAP`` for lost samples, ``SILENT`` for stale statuses); give
+        up when the step's dwell has been cut ``max_dwell_cuts`` times."""
+        st = self.step
+        assert st is not None
+        self.stats.hold_restarts += 1
+        self._journal(
+            Event.HOLD_LOST,
+            step=st.index,
+            state=why,
+            t_s=t_s,
+            samples=self.dwell_rows if self.phase is Phase.DWELL else 0,
+            **extra,
+        )
+        if self.phase is Phase.DWELL:
+            self.dwell_cuts += 1
+            if self.dwell_cuts >= self.opts.max_dwell_cuts:  # raised once the row is written
+                self.gave_up = DwellCut(
+                    st.index, st.label, self.dwell_n / self._rate, self.dwell_cuts
+                )
 
     def _on_fault(self, p: Plt, prev: str) -> None:
         st = self.step
@@ -263,21 +294,35 @@ class StepMachine:
 
     # ------------------------------------------------------------------ samples
     def angles_for_sample(self) -> tuple[float, float] | None:
-        """The platform angles to write with a new sample (None when stale)."""
-        s = self.status
-        s.samples_since += 1
-        stale = (
-            s.samples_since > self.opts.stale_s * self._rate
-            and self._clock() - s.mono > self.opts.stale_s
-        )  # old on the sample clock AND in host time (an accelerated emulator's ports skew)
-        return None if stale else s.angles
+        """The platform angles to write with the sample just placed by :meth:`on_sample`
+        (None when stale)."""
+        return None if self._stale else self.status.angles
 
     def on_sample(self, idx: int, first_row: bool) -> int | None:
         """A sample at ``idx`` is about to be written: the step it belongs to (None: none).
 
-        The first row of a session never belongs to a dwell (on resume it separates runs).
+        The first row of a session never belongs to a dwell (on resume it separates runs),
+        nor does the first after samples were lost or while the platform's statuses are
+        stale: those cut a dwell, which starts again in full.
         """
+        s = self.status
+        s.samples_since += 1
+        self._stale = (
+            s.samples_since > self.opts.stale_s * self._rate
+            and self._clock() - s.mono > self.opts.stale_s
+        )  # old on the sample clock AND in host time (an accelerated emulator's ports skew)
+        prev, self._prev_idx = self._prev_idx, idx
         st = self.step
+        if st is None or self.commanding:
+            pass
+        elif self._stale and self.phase in (Phase.HOLD_PENDING, Phase.DWELL):
+            self._cut("SILENT", idx / self._rate)  # the hold is unverified: wait for a HOLD
+            self._wait_hold_again()
+            return None
+        elif self.phase is Phase.DWELL and prev is not None and idx - prev > 1:
+            self._cut("GAP", idx / self._rate, lost=idx - prev - 1)
+            self.phase = Phase.HOLD_PENDING  # still holding: the dwell restarts after this row
+            return None
         if self.phase is Phase.HOLD_PENDING and not self.commanding and not first_row:
             assert st is not None
             self.phase = Phase.DWELL
@@ -294,6 +339,9 @@ class StepMachine:
 
     def after_sample(self, idx: int, t_mono: float) -> None:
         """The sample at ``idx`` (received at ``t_mono``) is written: dwell end, hold timeout."""
+        if self.gave_up is not None:  # raised once: the rows while levelling are recorded
+            err, self.gave_up = self.gave_up, None
+            raise err
         if self._cmd_idx is None and t_mono >= self._cmd_mono:
             self._cmd_idx = idx  # the first sample received after the command's reply
         if self.commanding:
