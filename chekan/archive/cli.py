@@ -21,16 +21,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
 
 from chekan import argtypes
 from chekan.errors import ChekanError
+from chekan.filekinds import EXPORT, FOLDER, HISTORY, PDF, PNG, SVG
 from chekan.options import METHODS
 from chekan.outputs import SQLITE, Output, check_outputs, run_command
 
-PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+PLOT_KINDS = {".png": PNG, ".pdf": PDF, ".svg": SVG}
+PLOT_SUFFIXES = tuple(PLOT_KINDS)
 DB_HELP = "archive database (default $CHEKAN_ARCHIVE, else ~/.local/share/chekan/archive.sqlite)"
 
 
@@ -43,7 +46,9 @@ def _db(args: argparse.Namespace) -> Output:
     the outputs are checked so that no output option can name it unnoticed."""
     from chekan.archive.db import default_db_path
 
-    return Output(default_db_path(args.db), writes=SQLITE)
+    # the default location's folders are made; a path someone gave must lie in a folder
+    default = args.db is None and not os.environ.get("CHEKAN_ARCHIVE")
+    return Output(default_db_path(args.db), writes=SQLITE, makes_folders=default)
 
 
 # ----------------------------------------------------------------------------- archive
@@ -134,7 +139,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         raise ChekanError("archive export: give the CSV file once, as OUT or as -o/--out")
     out = args.out if args.out is not None else args.out_opt
     db = _db(args)
-    check_outputs([db.path], [out])
+    check_outputs([db.path], [Output(out, writes=EXPORT)])
     with Archive(db.path, readonly=True) as a:
         n = a.export_csv(out, args.serial)
     if not args.quiet:
@@ -186,7 +191,7 @@ def _cmd_reanalyze(args: argparse.Namespace) -> int:
     from chekan.archive.reanalyze import reanalyze
 
     db = _db(args)
-    check_outputs([args.dir], [db, args.results_dir])
+    check_outputs([args.dir], [db, Output(args.results_dir, writes=FOLDER)])
     rep = reanalyze(
         args.dir,
         args.method,
@@ -252,8 +257,9 @@ def _cmd_history(args: argparse.Namespace) -> int:
     )
 
     db = _db(args)
-    check_outputs([db.path], [args.plot, args.json])
-    if args.plot and Path(args.plot).suffix.lower() not in PLOT_SUFFIXES:
+    kind = PLOT_KINDS.get(Path(args.plot).suffix.lower()) if args.plot else None
+    check_outputs([db.path], [Output(args.plot, writes=kind), Output(args.json, writes=HISTORY)])
+    if args.plot and kind is None:
         raise ChekanError(
             f"{args.plot}: a plot is written as {', '.join(PLOT_SUFFIXES)} (from the file's "
             "suffix); choose one of them"

@@ -96,6 +96,7 @@ def render_report(
     else:
         raise FormatError(source, None, "a result must be a JSON object (dict)")
     from chekan.durable import atomic_output
+    from chekan.outputs import SYSTEM_ERRNOS
 
     if kind == "dcc":
         return _write_dcc(result, out, lab, customer, tolerance_percent)
@@ -132,6 +133,8 @@ def render_report(
                 with atomic_output(folder / f"fig{i}-{fig.name}.png", "wb") as g:
                     g.write(fig.png)
     except OSError as e:
+        if e.errno in SYSTEM_ERRNOS:  # a full disk: exit 1, the file named (atomic_output)
+            raise
         raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
     return out
 
@@ -145,6 +148,7 @@ def _write_dcc(
 ) -> Path:
     """The DCC of ``result`` at ``out``; the lab file is read before anything is written."""
     from chekan.durable import atomic_output
+    from chekan.outputs import SYSTEM_ERRNOS
     from chekan.report.dcc import build_dcc, dcc_bytes, decision_rule_text, load_lab
 
     lab = load_lab(lab_path)
@@ -161,6 +165,8 @@ def _write_dcc(
         with atomic_output(out, "wb") as f:
             f.write(data)
     except OSError as e:
+        if e.errno in SYSTEM_ERRNOS:  # a full disk: exit 1, the file named (atomic_output)
+            raise
         raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
     return out
 
