@@ -85,6 +85,32 @@ def _runs(step: np.ndarray) -> list[tuple[int, int, int]]:
     ]
 
 
+def _short_holds_note(short: list[tuple[int, float]], settle_s: float) -> str:
+    """One note for every hold that ends before ``settle_s``: none of it is used."""
+    steps = [s for s, _ in short]
+    one = len(steps) == 1
+    which = f"step {steps[0]}" if one else f"{len(steps)} holds (steps {_ranges(steps)})"
+    longest = max(d for _, d in short)
+    return (
+        f"{which} {'lasts' if one else 'last at most'} {longest:.0f} s, not longer than the "
+        f"settling time excluded from each hold ({settle_s:g} s): "
+        f"{'it gives' if one else 'they give'} no reading"
+    )
+
+
+def _ranges(values: list[int]) -> str:
+    """``0–3, 5, 7–9`` from sorted whole numbers."""
+    parts: list[str] = []
+    i = 0
+    while i < len(values):
+        j = i
+        while j + 1 < len(values) and values[j + 1] == values[j] + 1:
+            j += 1
+        parts.append(str(values[i]) if i == j else f"{values[i]}–{values[j]}")
+        i = j + 1
+    return ", ".join(parts)
+
+
 def segment_record(
     record,
     settle_s: float = 300.0,
@@ -111,15 +137,14 @@ def segment_record(
     mm = np.full((n, 2), np.nan)
     msd = np.full((n, 2), np.nan)
     notes: list[str] = []
+    short: list[tuple[int, float]] = []  # (step, length in s) of holds with no settled part
     for i, s in enumerate(steps):
         a, b = last[s]
         start[i], stop[i] = a, b
         tt = t[a:b]
         sel = tt - tt[0] >= settle_s
         if not sel.any():
-            notes.append(
-                f"step {s}: hold of {tt[-1] - tt[0]:.0f} s is shorter than settle_s={settle_s:g}"
-            )
+            short.append((s, float(tt[-1] - tt[0])))
         out["t0"][i], out["t1"][i] = tt[0], tt[-1]
         out["tm"][i] = tt[sel].mean() if sel.any() else np.nan
         out["nu"][i] = sel.sum()
@@ -131,6 +156,8 @@ def segment_record(
             use = sel if sel.any() else slice(None)
             out["tx"][i] = np.nanmean(txs[use])
             out["ty"][i] = np.nanmean(tys[use])
+    if short:
+        notes.append(_short_holds_note(short, settle_s))
     mag = np.sqrt(out["tx"] ** 2 + out["ty"] ** 2)
     is_level = mag < np.deg2rad(level_threshold_deg)
     tilts = ~is_level

@@ -14,7 +14,8 @@
   one cannot write to) is one line on stderr naming the file and exit status 2, Ctrl-C is
   130, and a closed standard output (``chekan archive list | head``) ends the command
   quietly with status 141 (128 + SIGPIPE, what a shell reports for a Unix tool killed by
-  SIGPIPE) instead of a ``BrokenPipeError`` traceback.
+  SIGPIPE) instead of a ``BrokenPipeError`` traceback. A warning is one line,
+  ``chekan: warning: …``, without the source line that Python prints.
 
 - :func:`end_process` ends a command-line process once its command has returned: it
   flushes the standard streams and exits without the interpreter's teardown (0.5 s of
@@ -28,8 +29,10 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import sys
 import threading
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -61,6 +64,7 @@ __all__ = [  # the kinds and sniffers of chekan.filekinds are used from here too
     "Output",
     "OutputError",
     "check_outputs",
+    "check_room",
     "end_process",
     "run_command",
     "sniff_format",
@@ -199,6 +203,25 @@ def _refuse_to_replace(out: Path, kind: str | None, writes: str | None) -> None:
         )
 
 
+def check_room(path: PathArg | None, nbytes: int, what: str) -> None:
+    """Before a long computation: an :class:`OSError` (ENOSPC, exit 1) naming ``path`` when
+    the disk of its folder has less than ``nbytes`` free for ``what`` (``None``: no file)."""
+    if path is None:
+        return
+    free = shutil.disk_usage(Path(path).parent).free
+    if free < nbytes:
+        raise OSError(
+            errno.ENOSPC,
+            f"no room for {what}: it needs about {_mb(nbytes)} and its disk has {_mb(free)} "
+            "free (nothing was computed)",
+            str(path),
+        )
+
+
+def _mb(nbytes: int) -> str:
+    return f"{nbytes / 1e6:.1f} MB" if nbytes < 1e9 else f"{nbytes / 1e9:.1f} GB"
+
+
 def _stdout_closed() -> int:
     """After a ``BrokenPipeError`` on stdout: silence it for good (so that the
     interpreter's final flush cannot raise again) and return :data:`EXIT_CLOSED_PIPE`."""
@@ -251,6 +274,8 @@ def run_command(func: Callable[..., int | None], *args, prog: str = "chekan") ->
     """
     guard = _StdoutGuard(sys.stdout)
     sys.stdout = guard  # type: ignore[assignment]
+    formatwarning = warnings.formatwarning
+    warnings.formatwarning = _one_line_warning(prog)
     try:
         try:
             status = int(func(*args) or 0)
@@ -270,8 +295,22 @@ def run_command(func: Callable[..., int | None], *args, prog: str = "chekan") ->
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
+        warnings.formatwarning = formatwarning
         if sys.stdout is guard:
             sys.stdout = guard.stream
+
+
+def _one_line_warning(prog: str) -> Callable[..., str]:
+    """:func:`warnings.formatwarning` for a command: ``prog: warning: message`` on one line,
+    without the source file and line (the message names the input); a category other
+    than a user or runtime warning (a ResourceWarning, …) is named after it."""
+
+    def format_warning(message, category, filename, lineno, line=None) -> str:
+        text = " ".join(str(message).split())
+        ours = issubclass(category, UserWarning | RuntimeWarning)
+        return f"{prog}: warning: {text}{'' if ours else f' ({category.__name__})'}\n"
+
+    return format_warning
 
 
 #: Threads that :func:`end_process` may cut short: background loads of compiled executables

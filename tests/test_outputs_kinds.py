@@ -47,9 +47,9 @@ def made(tmp_path, paper_protocol, capsys) -> dict[str, Path]:
         ["report", str(res), "-q", "-o", str(d / "c.html")],
         ["archive", "add", "-q", str(res), "--db", str(db)],
         ["archive", "export", "-q", str(d / "e.csv"), "--db", str(db)],
-        ["simulate", "-q", "--program", str(_program(d)), "-o", str(d / "s.csv")]
-        + ["--truth", str(d / "t.json")],
+        ["simulate", "-q", "--program", str(_program(d)), "-o", str(d / "s.csv"), "--truth"],
     ]
+    steps[-1].append(str(d / "t.json"))
     for argv in steps:
         assert main(argv) == 0, (argv, capsys.readouterr().err)
     (d / "c.pdf").write_bytes(b"%PDF-1.7\n%\xe2\xe3\xcf\xd3\n1 0 obj\n<<>>\nendobj\n")

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -46,9 +45,9 @@ def _db(args: argparse.Namespace) -> Output:
     the outputs are checked so that no output option can name it unnoticed."""
     from chekan.archive.db import default_db_path
 
-    # the default location's folders are made; a path someone gave must lie in a folder
-    default = args.db is None and not os.environ.get("CHEKAN_ARCHIVE")
-    return Output(default_db_path(args.db), writes=SQLITE, makes_folders=default)
+    # the configured location's folders are made ($CHEKAN_ARCHIVE, the default); a --db
+    # typed on the command line must lie in an existing folder
+    return Output(default_db_path(args.db), writes=SQLITE, makes_folders=args.db is None)
 
 
 # ----------------------------------------------------------------------------- archive
@@ -300,7 +299,9 @@ def add_history_parser(sub: Any) -> argparse.ArgumentParser:
         choices=METHODS,
         help="only this method (default per session: bayes > map > classical)",
     )
-    p.add_argument("--at", help="date of the prediction, YYYY-MM-DD (default today)")
+    p.add_argument(
+        "--at", type=argtypes.date, help="date of the prediction, YYYY-MM-DD (default today)"
+    )
     p.add_argument(
         "--tolerance-ppm",
         type=argtypes.positive,
