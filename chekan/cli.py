@@ -36,7 +36,9 @@ exit status (every command):
   2    bad input or usage: a malformed file (file:line: problem), a bad option, or an
        output refused (it is an input of the command, an existing chekan-record/1 or
        chekan-protocol/1 file or SQLite database (the archive), which no output option
-       overwrites, or a result JSON or program TOML that only its own kind replaces)
+       overwrites, or another file chekan reads or writes (a result, program, lab file,
+       DCC, PDF, …) that only its own kind replaces; a name with another format's
+       suffix (JSON into x.pdf); a folder that does not exist: none is created)
   3    calibrate --strict: the estimate did not converge or was flagged (a hyperparameter
        ended at a bound: diagnostics.problems);
        acquire, demo: a serial link stayed down, acquisition gave up (resume with --resume)

@@ -137,11 +137,10 @@ def check_outputs(
     """
     ins = [Path(p) for p in inputs if p is not None]
     given = (o if isinstance(o, Output) else Output(o) for o in outputs if o is not None)
-    specs = [s for s in given if s.path is not None]
-    folders = [Path(s.path) for s in specs if s.writes == FOLDER]
+    specs = [(Path(s.path), s) for s in given if s.path is not None]
+    folders = [p for p, s in specs if s.writes == FOLDER]
     seen: list[Path] = []
-    for spec in specs:
-        out = Path(spec.path)
+    for out, spec in specs:
         for i in ins:
             if not i.is_dir() and _same(out, i):
                 raise OutputError(
