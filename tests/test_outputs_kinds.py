@@ -189,6 +189,7 @@ def test_a_missing_folder_is_refused_and_not_created(made, tmp_path, capsys):
         ["design", "-o", str(gone / "best.toml")],
         ["emulate", "--truth", str(gone / "t.json"), "--duration-s", "0"],
         ["demo", "--out", str(gone / "demo")],
+        ["acquire", "-o", str(gone / "rec.csv"), "--sensor", "/dev/null", "--platform", "x"],
     ]
     for argv in cases:
         err = _refused(capsys, argv, gone, "no such folder")
