@@ -75,7 +75,8 @@ SUFFIXES: dict[str, tuple[str, ...]] = {
 #: Every suffix that says which format a file holds (others, or none, say nothing).
 KNOWN_SUFFIXES = frozenset(s for v in SUFFIXES.values() for s in v)
 
-_JSON_FORMATS = (RESULT, DESIGN, HISTORY, TRUTH)  # the first "format" of these found wins
+_JSON_FORMATS = frozenset({RESULT, DESIGN, HISTORY, TRUTH})
+_JSON_FORMAT = re.compile(r'"format"\s*:\s*"(chekan-[a-z-]+/\d+)"')
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 _SQLITE_SIDECARS = ("-wal", "-shm", "-journal")
 _NETCDF_MAGIC = (b"\x89HDF\r\n\x1a\n", b"CDF\x01", b"CDF\x02", b"CDF\x05")
@@ -138,10 +139,10 @@ def sniff_kind(path: PathArg) -> str | None:
     if head.startswith(_EXPORT_HEADER):
         return EXPORT
     text = head.decode("utf-8", "replace").lstrip("\ufeff").lstrip()
-    if text.startswith("{"):
-        for kind in _JSON_FORMATS:
-            if re.search(rf'"format"\s*:\s*"{re.escape(kind)}"', text):
-                return kind
+    if text.startswith("{"):  # the first chekan "format" (the writers put theirs first)
+        for m in _JSON_FORMAT.finditer(text):
+            if m.group(1) in _JSON_FORMATS:
+                return m.group(1)
         return None
     if text.startswith("<"):
         return _markup_kind(text)

@@ -47,6 +47,7 @@ def made(tmp_path, paper_protocol, capsys) -> dict[str, Path]:
         ["report", str(res), "-q", "-o", str(d / "c.html")],
         ["archive", "add", "-q", str(res), "--db", str(db)],
         ["archive", "export", "-q", str(d / "e.csv"), "--db", str(db)],
+        ["history", "46", "--db", str(db), "--json", str(d / "h.json")],
         ["simulate", "-q", "--program", str(_program(d)), "-o", str(d / "s.csv"), "--truth"],
     ]
     steps[-1].append(str(d / "t.json"))
@@ -67,6 +68,7 @@ def made(tmp_path, paper_protocol, capsys) -> dict[str, Path]:
         "export": d / "e.csv",
         "record": d / "s.csv",
         "truth": d / "t.json",
+        "history": d / "h.json",
         "program": d / "short.toml",
     }
 
@@ -103,6 +105,7 @@ def test_each_kind_is_recognised(made):
         "export": filekinds.EXPORT,
         "record": filekinds.RECORD,
         "truth": filekinds.TRUTH,
+        "history": filekinds.HISTORY,
         "program": filekinds.PROGRAM,
     }
     assert {k: sniff_kind(made[k]) for k in expect} == expect
@@ -168,6 +171,8 @@ def test_a_file_of_the_same_kind_is_still_replaced(made, capsys):
             Output(made["truth"], writes=filekinds.TRUTH),
         ],
     )
+    db, hist = made["archive"], made["history"]  # a history over a history: allowed
+    assert main(["history", "46", "--db", str(db), "--json", str(hist)]) == 0
     with pytest.raises(OutputError, match="lab file"):
         check_outputs([], [Output(made["lab"], writes=filekinds.PROGRAM)])
 
