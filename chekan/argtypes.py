@@ -9,7 +9,9 @@ must not give numbers with exit 0). Stdlib only: cheap to import from every CLI.
 from __future__ import annotations
 
 import argparse
+import datetime as _dt
 import math
+import re
 from collections.abc import Callable
 
 #: Seeds of NumPy's generators are non-negative integers below 2**63 (``SeedSequence``).
@@ -80,6 +82,22 @@ def zero_or(low: float, high: float = math.inf) -> Callable[[str], float]:
     parse.__name__ = f"0 or a number in [{low:g}, {high:g}]"
     return parse
 
+
+def date(text: str) -> _dt.date:
+    """A calendar date written YYYY-MM-DD (``2027-13-45`` and ``banana`` are none)."""
+    if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", text):
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a date written YYYY-MM-DD (e.g. 2027-03-15)"
+        )
+    try:
+        return _dt.date.fromisoformat(text)
+    except ValueError as e:  # the form is right, the day is not: say which part
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a date written YYYY-MM-DD ({e})"
+        ) from None
+
+
+date.__name__ = "date YYYY-MM-DD"
 
 #: Probabilities of an interval: 0 and 1 are not intervals.
 probability = real(0.0, 1.0, open_low=True, open_high=True)

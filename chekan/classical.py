@@ -406,6 +406,13 @@ def calibrate_record(record, settle_s: float | None = None, a_fixed: float | Non
     if settle_s is None:
         settle_s = float(record.meta.get("program_settle_s", 300.0))
     holds = segment_record(record, settle_s=settle_s)
+    if not np.any(holds.n_used > 0):
+        longest = float(np.max(holds.t_end_s - holds.t_start_s))
+        raise ChekanError(
+            f"{record.path or '<input>'}: the settling time excluded from each hold "
+            f"({settle_s:g} s) is not shorter than any hold (the longest lasts {longest:.0f} s): "
+            "no reading is left to calibrate; give a smaller --settle-s"
+        )
     table = increments_from_holds(holds, record.g_local_mgal)
     try:
         return fit_by_axis(table, a_fixed), holds

@@ -18,16 +18,9 @@ import warnings
 from pathlib import Path
 
 from chekan import __version__, argtypes
+from chekan.filekinds import DESIGN, FOLDER, NETCDF, PROGRAM, RECORD, RESULT, TRUTH, report_kind
 from chekan.options import ANGLE_ERRORS, METHODS
-from chekan.outputs import (
-    PROGRAM,
-    RESULT,
-    Output,
-    check_outputs,
-    end_process,
-    run_command,
-    sniff_format,
-)
+from chekan.outputs import Output, check_outputs, end_process, run_command, sniff_format
 
 #: ``simulate --report-period-s``: a platform reporting its angles faster than every
 #: millisecond is a platform without a report period (0); slower than hourly is no platform.
@@ -43,7 +36,9 @@ exit status (every command):
   2    bad input or usage: a malformed file (file:line: problem), a bad option, or an
        output refused (it is an input of the command, an existing chekan-record/1 or
        chekan-protocol/1 file or SQLite database (the archive), which no output option
-       overwrites, or a result JSON or program TOML that only its own kind replaces)
+       overwrites, or another file chekan reads or writes (a result, program, lab file,
+       DCC, PDF, …) that only its own kind replaces; a name with another format's
+       suffix (JSON into x.pdf); a folder that does not exist: none is created)
   3    calibrate --strict: the estimate did not converge or was flagged (a hyperparameter
        ended at a bound: diagnostics.problems);
        acquire, demo: a serial link stayed down, acquisition gave up (resume with --resume)
@@ -65,7 +60,9 @@ def _cmd_simulate(args) -> int:
     from chekan.records import write_record
     from chekan.simulate import Truth, random_truth, simulate_session, write_truth
 
-    check_outputs([args.program], [args.out, args.truth])
+    check_outputs(
+        [args.program], [Output(args.out, writes=RECORD), Output(args.truth, writes=TRUTH)]
+    )
     program = load_program(args.program) if args.program else default_program()
     truth = (
         random_truth(np.random.default_rng(args.seed + 10_000), serial=args.serial)
@@ -75,7 +72,6 @@ def _cmd_simulate(args) -> int:
     truth = dataclasses.replace(truth, **_platform_timing(args))
     rec, truth = simulate_session(program, truth, seed=args.seed)
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     write_record(out, rec)
     if args.truth:
         write_truth(args.truth, truth)
@@ -109,8 +105,14 @@ def _cmd_calibrate(args) -> int:
     if args.method == "bayes":
         nc = args.netcdf or (json_path.with_suffix(".nc") if json_path else None)
         opts = dataclasses.replace(opts, netcdf=nc)
-    result_out = Output(json_path, writes=RESULT) if json_path else None
-    check_outputs([args.input, args.angle_calibration], [result_out, opts.netcdf, args.report])
+    check_outputs(
+        [args.input, args.angle_calibration],
+        [
+            Output(json_path, writes=RESULT),
+            Output(opts.netcdf, writes=NETCDF),
+            Output(args.report, writes=report_kind(args.report)) if args.report else None,
+        ],
+    )
     if args.report:
         from chekan.report import output_format
 
@@ -154,7 +156,7 @@ def _cmd_design(args) -> int:
 
     check_outputs(
         [args.program, args.angle_calibration],
-        [Output(args.out, writes=PROGRAM) if args.out else None, args.json],
+        [Output(args.out, writes=PROGRAM), Output(args.json, writes=DESIGN)],
     )
     return run_design_command(args)
 
@@ -180,6 +182,7 @@ def _cmd_demo(args) -> int:
     from chekan.demo import run_demo
     from chekan.errors import ChekanError
 
+    check_outputs([], [Output(args.out, writes=FOLDER)])
     rec = Path(args.out) / "record.csv"
     if sniff_format(rec) is not None and b"# operator: chekan demo" not in _head(rec):
         raise ChekanError(

@@ -50,7 +50,9 @@ def _umask() -> int:
 def atomic_output(path: PathArg, mode: str = "w", **open_kw) -> Iterator:
     """Open a temporary file beside ``path``; on success fsync it and rename it into place.
 
-    On any exception the temporary file is removed and ``path`` is left as it was.
+    On any exception the temporary file is removed and ``path`` is left as it was; an
+    :class:`OSError` that names no file (a full disk while writing) is given ``path``.
+    A missing folder is a :class:`FileNotFoundError` naming it (none is created).
     ``mode`` is ``"w"`` (text, UTF-8 unless ``encoding`` is given) or ``"wb"``.
     The file gets the permissions of a plain ``open()`` (0666 less the umask), not the
     owner-only 0600 of :func:`tempfile.mkstemp`.
@@ -60,6 +62,8 @@ def atomic_output(path: PathArg, mode: str = "w", **open_kw) -> Iterator:
     out = Path(path)
     if "b" not in mode:
         open_kw.setdefault("encoding", "utf-8")
+    if not out.parent.is_dir():  # mkstemp would name its temporary file instead
+        raise FileNotFoundError(errno.ENOENT, "no such folder", str(out.parent))
     fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, mode, **open_kw) as f:
@@ -69,9 +73,11 @@ def atomic_output(path: PathArg, mode: str = "w", **open_kw) -> Iterator:
         os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, out)
         fsync_dir(out)
-    except BaseException:
+    except BaseException as e:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(e, OSError) and e.filename is None:
+            e.filename = str(out)  # a full disk on write/fsync names no file by itself
         raise
 
 

@@ -159,6 +159,32 @@ def known_state(
     return None if known.all() else known
 
 
+def _short_holds_note(short: list[tuple[int, float]], settle_s: float) -> str:
+    """One note for every hold that ends before ``settle_s``: none of it is used."""
+    steps = [s for s, _ in short]
+    one = len(steps) == 1
+    which = f"step {steps[0]}" if one else f"{len(steps)} holds (steps {_ranges(steps)})"
+    longest = max(d for _, d in short)
+    return (
+        f"{which} {'lasts' if one else 'last at most'} {longest:.0f} s, not longer than the "
+        f"settling time excluded from each hold ({settle_s:g} s): "
+        f"{'it gives' if one else 'they give'} no reading"
+    )
+
+
+def _ranges(values: list[int]) -> str:
+    """``0–3, 5, 7–9`` from sorted whole numbers."""
+    parts: list[str] = []
+    i = 0
+    while i < len(values):
+        j = i
+        while j + 1 < len(values) and values[j + 1] == values[j] + 1:
+            j += 1
+        parts.append(str(values[i]) if i == j else f"{values[i]}–{values[j]}")
+        i = j + 1
+    return ", ".join(parts)
+
+
 def segment_record(
     record,
     settle_s: float = 300.0,
@@ -185,6 +211,8 @@ def segment_record(
     mm = np.full((n, 2), np.nan)
     msd = np.full((n, 2), np.nan)
     notes: list[str] = []
+    short: list[tuple[int, float]] = []  # (step, length in s) of holds with no settled part
+    unsettled: list[int] = []  # steps with no settled sample after a gap
     for i, s in enumerate(steps):
         start[i], stop[i] = last[s]
     rate = float(record.sample_rate_hz)
@@ -197,14 +225,9 @@ def segment_record(
         if known is not None and not known[a:b].all():
             sel &= known[a:b]
             if not sel.any():
-                notes.append(
-                    f"step {s}: no settled sample after the gap in the record before"
-                    f" t = {tt[-1]:.0f} s (the sensor's state is unknown until it settles)"
-                )
-        if not sel.any() and (known is None or known[a:b].all()):
-            notes.append(
-                f"step {s}: hold of {tt[-1] - tt[0]:.0f} s is shorter than settle_s={settle_s:g}"
-            )
+                unsettled.append(s)
+        elif not sel.any():
+            short.append((s, float(tt[-1] - tt[0])))
         out["t0"][i], out["t1"][i] = tt[0], tt[-1]
         out["tm"][i] = tt[sel].mean() if sel.any() else np.nan
         out["nu"][i] = sel.sum()
@@ -216,6 +239,13 @@ def segment_record(
             use = sel if sel.any() else slice(None)
             out["tx"][i] = np.nanmean(txs[use])
             out["ty"][i] = np.nanmean(tys[use])
+    if short:
+        notes.append(_short_holds_note(short, settle_s))
+    if unsettled:
+        notes.append(
+            f"step{'s' if len(unsettled) > 1 else ''} {_ranges(unsettled)}: no settled sample"
+            " after a gap in the record (the sensor's state is unknown until it settles): not used"
+        )
     mag = np.sqrt(out["tx"] ** 2 + out["ty"] ** 2)
     is_level = mag < np.deg2rad(level_threshold_deg)
     tilts = ~is_level
@@ -311,17 +341,6 @@ def segment_record(
         known=known,
         gaps=gaps,
     )
-
-
-def _ranges(steps: list[int]) -> str:
-    """``[3, 4, 5, 9]`` → ``"3–5, 9"``."""
-    out: list[str] = []
-    for s in steps:
-        if out and out[-1].split("–")[-1] == str(s - 1):
-            out[-1] = f"{out[-1].split('–')[0]}–{s}"
-        else:
-            out.append(str(s))
-    return ", ".join(out)
 
 
 def program_coverage(holds: HoldTable, meta: dict) -> dict | None:

@@ -2,17 +2,20 @@
 
 - :func:`check_outputs` is called by every command *before* it does any work: it refuses
   (:class:`OutputError`, exit status 2) to write over one of the command's own inputs, to
-  write two outputs to one file, to overwrite an existing ``chekan-record/1`` or
-  ``chekan-protocol/1`` file (measurements cannot be recomputed; results can) or an SQLite
-  database (an archive: every session of every instrument), and to overwrite a file that
-  the project reads as input (a ``chekan-result/1`` JSON, a tilt-program TOML) with
-  anything but a file of the same kind (:class:`Output`). The file is named in the message.
+  write two outputs to one file, to write into a folder that does not exist (nothing is
+  created), to overwrite an existing ``chekan-record/1`` or ``chekan-protocol/1`` file
+  (measurements cannot be recomputed; results can) or an SQLite database (an archive:
+  every session of every instrument), to overwrite any other file of a kind chekan reads
+  or writes (a result, a program, a lab file, a DCC, a PDF, …: :mod:`chekan.filekinds`)
+  with anything but a file of the same kind (:class:`Output`), and to write one format
+  under another's suffix (JSON into ``x.pdf``). The file is named in the message.
 - :func:`run_command` runs a command function the same way in every ``main()``: a
   :class:`~chekan.errors.ChekanError` or an :class:`OSError` (a missing input, a folder
   one cannot write to) is one line on stderr naming the file and exit status 2, Ctrl-C is
   130, and a closed standard output (``chekan archive list | head``) ends the command
   quietly with status 141 (128 + SIGPIPE, what a shell reports for a Unix tool killed by
-  SIGPIPE) instead of a ``BrokenPipeError`` traceback.
+  SIGPIPE) instead of a ``BrokenPipeError`` traceback. A warning is one line,
+  ``chekan: warning: …``, without the source line that Python prints.
 
 - :func:`end_process` ends a command-line process once its command has returned: it
   flushes the standard streams and exits without the interpreter's teardown (0.5 s of
@@ -26,29 +29,47 @@ from __future__ import annotations
 
 import errno
 import os
-import re
+import shutil
 import sys
 import threading
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn
 
 from chekan.errors import ChekanError
+from chekan.filekinds import (
+    FOLDER,
+    KNOWN_SUFFIXES,
+    PROGRAM,
+    PROTECTED_FORMATS,
+    RESULT,
+    SQLITE,
+    SUFFIXES,
+    noun,
+    sniff_format,
+    sniff_kind,
+)
 
 PathArg = str | os.PathLike[str]
 
-#: Formats of irreplaceable measurement files that no output option may overwrite.
-PROTECTED_FORMATS = ("chekan-record/1", "chekan-protocol/1", "chekan-angle-calibration/1")
-#: :func:`sniff_kind` of an SQLite database (the archive), which no output option overwrites.
-SQLITE = "SQLite database"
-#: :func:`sniff_kind` of the inputs that an output may replace only with a file of its kind.
-RESULT = "chekan-result/1"
-PROGRAM = "tilt program (TOML)"
-_SQLITE_MAGIC = b"SQLite format 3\x00"
-_SQLITE_SIDECARS = ("-wal", "-shm", "-journal")
-_PROGRAM_KEYS = frozenset({"angles", "dwell_s", "rounds", "settle_s", "axis", "order", "sequence"})
-_SNIFF_BYTES = 1 << 16
+__all__ = [  # the kinds and sniffers of chekan.filekinds are used from here too
+    "FOLDER",
+    "PROGRAM",
+    "PROTECTED_FORMATS",
+    "RESULT",
+    "SQLITE",
+    "SYSTEM_ERRNOS",
+    "Output",
+    "OutputError",
+    "check_outputs",
+    "check_room",
+    "end_process",
+    "run_command",
+    "sniff_format",
+    "sniff_kind",
+]
 
 EXIT_OK = 0
 EXIT_SOME_FAILED = 1
@@ -60,81 +81,27 @@ EXIT_CLOSED_PIPE = 141
 
 
 #: Failures of the system rather than of the input (a full disk, an I/O error): exit 1.
-_SYSTEM_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO})
+SYSTEM_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO})
 
 
 class OutputError(ChekanError):
     """An output option names a file the command must not write."""
 
 
-def sniff_format(path: PathArg) -> str | None:
-    """The ``# format:`` value of the leading ``# key: value`` block, or ``None``.
-
-    Reads at most 64 kB; a file that cannot be read or is not such a file gives ``None``.
-    """
-    try:
-        with open(path, "rb") as f:
-            head = f.read(_SNIFF_BYTES)
-    except OSError:
-        return None
-    if head.startswith(b"\xef\xbb\xbf"):
-        head = head[3:]
-    for raw in head.split(b"\n"):
-        if not raw.startswith(b"#"):
-            return None
-        line = raw.rstrip(b"\r")
-        if line.startswith(b"# format:"):
-            return line[len(b"# format:") :].decode("utf-8", "replace").strip()
-    return None
-
-
-def sniff_kind(path: PathArg) -> str | None:
-    """What an existing file is, as far as the outputs guard cares (``None``: nothing known).
-
-    A ``chekan-record/1`` or ``-protocol/1`` file (:func:`sniff_format`), an SQLite database
-    (:data:`SQLITE`, by its 16-byte header; also its ``-wal``/``-shm``/``-journal`` files), a
-    ``chekan-result/1`` JSON (:data:`RESULT`) or a tilt program (:data:`PROGRAM`: TOML
-    with a program's keys). Reads at most 64 kB.
-    """
-    p = Path(path)
-    try:
-        with open(p, "rb") as f:
-            head = f.read(_SNIFF_BYTES)
-    except OSError:
-        return None
-    if head.startswith(_SQLITE_MAGIC):
-        return SQLITE
-    for suffix in _SQLITE_SIDECARS:
-        if p.name.endswith(suffix) and sniff_kind(p.with_name(p.name[: -len(suffix)])) == SQLITE:
-            return SQLITE
-    fmt = sniff_format(p)
-    if fmt is not None:
-        return fmt
-    text = head.decode("utf-8", "replace").lstrip("\ufeff")
-    if text.lstrip().startswith("{") and re.search(rf'"format"\s*:\s*"{RESULT}"', text):
-        return RESULT
-    if _PROGRAM_KEYS & _toml_keys(text):
-        return PROGRAM
-    return None
-
-
-def _toml_keys(text: str) -> set[str]:
-    """Top-level keys of ``text`` read as TOML (empty when it is not TOML)."""
-    import tomllib
-
-    try:
-        return set(tomllib.loads(text))
-    except (tomllib.TOMLDecodeError, ValueError):
-        return set()
-
-
 @dataclass(frozen=True)
 class Output:
-    """An output file of a command and the kind of file it writes (:func:`sniff_kind`'s
-    names): it may replace an existing file of that kind, e.g. a result over a result."""
+    """An output of a command and the kind of file it writes (:mod:`chekan.filekinds`).
 
-    path: PathArg
+    It may replace an existing file of its kind only (a result over a result); its name
+    must not carry another kind's suffix (:data:`~chekan.filekinds.SUFFIXES`). ``writes=
+    FOLDER``: a folder of outputs, created by the command if missing (its parent must
+    exist); the outputs given inside it need no existing folder. ``makes_folders``: the
+    command creates the missing folders itself (a default location nobody named).
+    """
+
+    path: PathArg | None  # None: the option was not given (skipped)
     writes: str | None = None
+    makes_folders: bool = False
 
 
 def _same(a: Path, b: Path) -> bool:
@@ -154,22 +121,26 @@ def check_outputs(
 
     - is the same file as one of ``inputs`` (also through links or ``..``),
     - is given twice among ``outputs``,
-    - exists and begins like a ``chekan-record/1`` or ``chekan-protocol/1`` file,
+    - is to go into a folder that does not exist (nothing is created: a typo in a path
+      must not leave folders behind),
+    - exists and begins like a ``chekan-record/1``, ``chekan-protocol/1`` or
+      ``chekan-angle-calibration/1`` file,
     - exists and is an SQLite database (or one of its journal files), unless the output
       is the database itself (``Output(path, writes=SQLITE)``: an archive to add to),
-    - exists and is a ``chekan-result/1`` JSON or a tilt program that the output would
-      replace with a file of another kind (a bare path writes an unnamed kind).
+    - exists and is any other kind of file chekan knows (:func:`sniff_kind`: a result, a
+      program, a lab file, a DCC, a PDF, …) that the output would replace with a file of
+      another kind (a bare path writes an unnamed kind),
+    - has a suffix of another kind than the output writes (JSON into ``x.pdf``).
 
     Folders among ``inputs`` protect nothing here (a command that reads a folder checks
-    its files itself); folders among ``outputs`` are left to the command.
+    its files itself).
     """
     ins = [Path(p) for p in inputs if p is not None]
+    given = (o if isinstance(o, Output) else Output(o) for o in outputs if o is not None)
+    specs = [(Path(s.path), s) for s in given if s.path is not None]
+    folders = [p for p, s in specs if s.writes == FOLDER]
     seen: list[Path] = []
-    for o in outputs:
-        if o is None:
-            continue
-        spec = o if isinstance(o, Output) else Output(o)
-        out = Path(spec.path)
+    for out, spec in specs:
         for i in ins:
             if not i.is_dir() and _same(out, i):
                 raise OutputError(
@@ -180,8 +151,36 @@ def check_outputs(
             if _same(out, s):
                 raise OutputError(f"{out}: given for two outputs; choose a file for each")
         seen.append(out)
+        if not spec.makes_folders and not any(_same(out.parent, f) for f in folders):
+            _check_folder(out)
+        if spec.writes == FOLDER:
+            if out.exists() and not out.is_dir():
+                raise OutputError(f"{out}: exists and is not a folder; choose another folder")
+            continue
         if out.is_file():
             _refuse_to_replace(out, sniff_kind(out), spec.writes)
+        _check_suffix(out, spec.writes)
+
+
+def _check_folder(out: Path) -> None:
+    """The folder that is to hold ``out`` must exist (no output creates missing folders)."""
+    parent = out.parent
+    if parent.is_dir():
+        return
+    why = "is not a folder" if parent.exists() else "no such folder"
+    raise OutputError(f"{parent}: {why} (for the output {out}); create it first or choose another")
+
+
+def _check_suffix(out: Path, writes: str | None) -> None:
+    """An output's suffix must not name another format than the one it writes."""
+    suffix = out.suffix.lower()
+    own = SUFFIXES.get(writes or "")
+    if own is None or suffix not in KNOWN_SUFFIXES or suffix in own:
+        return
+    raise OutputError(
+        f"{out}: refusing to write {noun(writes)} under a {suffix} name (the suffix of "
+        f"another format); name it {' or '.join(own)}"
+    )
 
 
 def _refuse_to_replace(out: Path, kind: str | None, writes: str | None) -> None:
@@ -196,11 +195,30 @@ def _refuse_to_replace(out: Path, kind: str | None, writes: str | None) -> None:
             f"{out}: exists and is an SQLite database (a calibration archive?): refusing to "
             "overwrite it; choose another output file"
         )
-    if kind in (RESULT, PROGRAM) and writes != kind:
+    if kind is not None and writes != kind:
         raise OutputError(
-            f"{out}: exists and is a {kind} file, an input of chekan: refusing to overwrite "
-            "it with another kind of file; choose another output file"
+            f"{out}: exists and is {noun(kind)}, which chekan reads or writes: refusing to "
+            f"overwrite it with {noun(writes)}; choose another output file"
         )
+
+
+def check_room(path: PathArg | None, nbytes: int, what: str) -> None:
+    """Before a long computation: an :class:`OSError` (ENOSPC, exit 1) naming ``path`` when
+    the disk of its folder has less than ``nbytes`` free for ``what`` (``None``: no file)."""
+    if path is None:
+        return
+    free = shutil.disk_usage(Path(path).parent).free
+    if free < nbytes:
+        raise OSError(
+            errno.ENOSPC,
+            f"no room for {what}: it needs about {_mb(nbytes)} and its disk has {_mb(free)} "
+            "free (nothing was computed)",
+            str(path),
+        )
+
+
+def _mb(nbytes: int) -> str:
+    return f"{nbytes / 1e6:.1f} MB" if nbytes < 1e9 else f"{nbytes / 1e9:.1f} GB"
 
 
 def _stdout_closed() -> int:
@@ -255,6 +273,8 @@ def run_command(func: Callable[..., int | None], *args, prog: str = "chekan") ->
     """
     guard = _StdoutGuard(sys.stdout)
     sys.stdout = guard  # type: ignore[assignment]
+    formatwarning = warnings.formatwarning
+    warnings.formatwarning = _one_line_warning(prog)
     try:
         try:
             status = int(func(*args) or 0)
@@ -269,13 +289,27 @@ def run_command(func: Callable[..., int | None], *args, prog: str = "chekan") ->
     except OSError as e:  # a missing or unreadable input, a folder one cannot write to
         where = f"{e.filename}: " if e.filename else ""
         print(f"{prog}: error: {where}{e.strerror or e}", file=sys.stderr)
-        return EXIT_SOME_FAILED if e.errno in _SYSTEM_ERRNOS else EXIT_USAGE
+        return EXIT_SOME_FAILED if e.errno in SYSTEM_ERRNOS else EXIT_USAGE
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
+        warnings.formatwarning = formatwarning
         if sys.stdout is guard:
             sys.stdout = guard.stream
+
+
+def _one_line_warning(prog: str) -> Callable[..., str]:
+    """:func:`warnings.formatwarning` for a command: ``prog: warning: message`` on one line,
+    without the source file and line (the message names the input); a category other
+    than a user or runtime warning (a ResourceWarning, …) is named after it."""
+
+    def format_warning(message, category, filename, lineno, line=None) -> str:
+        text = " ".join(str(message).split())
+        ours = issubclass(category, UserWarning | RuntimeWarning)
+        return f"{prog}: warning: {text}{'' if ours else f' ({category.__name__})'}\n"
+
+    return format_warning
 
 
 #: Threads that :func:`end_process` may cut short: background loads of compiled executables

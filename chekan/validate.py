@@ -573,11 +573,12 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
             ap.error("--calibration-scale-u-arcsec needs --calibration-u-arcsec (the table's U)")
         if not 0.0 <= scale <= args.calibration_u_arcsec:
             ap.error("--calibration-scale-u-arcsec must be in [0, U]: a part of the table's U")
-    from chekan.outputs import check_outputs
+    from chekan.outputs import FOLDER, Output, check_outputs
 
     out = Path(args.out)
     names = ("validation.csv", "validation.md", "validation.json", "coverage.png")
-    check_outputs([args.program], [out / n for n in (*names, "z_hist.png", "errors.png")])
+    files = [out / n for n in (*names, "z_hist.png", "errors.png")]
+    check_outputs([args.program], [Output(out, writes=FOLDER), *files])
     program = None
     if args.program:
         from chekan.program import load_program

@@ -23,7 +23,8 @@ import threading
 
 from chekan import argtypes
 from chekan.errors import ChekanError
-from chekan.outputs import check_outputs, run_command
+from chekan.filekinds import RECORD, TRUTH
+from chekan.outputs import Output, check_outputs, run_command
 
 _META_RE = re.compile(r"([a-z0-9_]+)=(.*)", re.DOTALL)
 
@@ -89,7 +90,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from hw.emulator import PtyEmulator
     from hw.faults import parse_faults
 
-    check_outputs([], [args.truth])
+    check_outputs([], [Output(args.truth, writes=TRUTH)])
     if args.random_truth:
         truth = random_truth(np.random.default_rng(args.seed + 10_000), serial=args.serial)
     else:
@@ -252,7 +253,7 @@ def cmd_acquire(args: argparse.Namespace) -> int:
     from hw.progress import StatusLine
 
     if not args.resume:  # a new record must not replace a measurement (or its program)
-        check_outputs([args.program], [args.out])
+        check_outputs([args.program], [Output(args.out, writes=RECORD)])
     check_ports(args.sensor, args.platform)
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _on_sigterm)

@@ -62,6 +62,7 @@ def test_reanalyze_workers_end_when_their_parent_is_killed(tmp_path):
 
 def test_acquire_on_a_port_that_does_not_exist_fails_at_once(tmp_path):
     out = tmp_path / "run" / "rec.csv"
+    out.parent.mkdir()  # a record's folder must exist (none is created: test_outputs_kinds)
     t0 = time.monotonic()
     p = subprocess.run(
         [

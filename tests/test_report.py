@@ -452,6 +452,7 @@ def test_cli_report(paper, tmp_path, capsys):
     ap = argparse.ArgumentParser(prog="chekan")
     add_report_parser(ap.add_subparsers(dest="command"))
     out = tmp_path / "deep" / "c.htm"
+    out.parent.mkdir()  # an output's folder must exist (none is created: test_outputs_kinds)
     args = ap.parse_args(
         ["report", str(path), "--lang", "ru", "--out", str(out), "--tolerance-percent", "0.01"]
     )

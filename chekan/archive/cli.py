@@ -22,33 +22,20 @@ raised an ALARM; 130 interrupted; 141 standard output closed early (``| head``).
 from __future__ import annotations
 
 import argparse
-import datetime as dt
 import json
-import re
 import sys
 from pathlib import Path
 from typing import Any
 
 from chekan import argtypes
 from chekan.errors import ChekanError
+from chekan.filekinds import EXPORT, FOLDER, HISTORY, PDF, PNG, SVG
 from chekan.options import METHODS
 from chekan.outputs import SQLITE, Output, check_outputs, run_command
 
-PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+PLOT_KINDS = {".png": PNG, ".pdf": PDF, ".svg": SVG}
+PLOT_SUFFIXES = tuple(PLOT_KINDS)
 DB_HELP = "archive database (default $CHEKAN_ARCHIVE, else ~/.local/share/chekan/archive.sqlite)"
-
-
-def iso_date(text: str) -> dt.date:
-    """A calendar date written YYYY-MM-DD (argparse's one-line refusal otherwise)."""
-    if not re.fullmatch(r"\d{4}-\d{2}-\d{2}", text):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a date YYYY-MM-DD")
-    try:
-        return dt.date.fromisoformat(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a date YYYY-MM-DD ({e})") from None
-
-
-iso_date.__name__ = "date YYYY-MM-DD"
 
 
 def _db_arg(p: argparse.ArgumentParser) -> None:
@@ -60,7 +47,9 @@ def _db(args: argparse.Namespace) -> Output:
     the outputs are checked so that no output option can name it unnoticed."""
     from chekan.archive.db import default_db_path
 
-    return Output(default_db_path(args.db), writes=SQLITE)
+    # the configured location's folders are made ($CHEKAN_ARCHIVE, the default); a --db
+    # typed on the command line must lie in an existing folder
+    return Output(default_db_path(args.db), writes=SQLITE, makes_folders=args.db is None)
 
 
 # ----------------------------------------------------------------------------- archive
@@ -151,7 +140,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         raise ChekanError("archive export: give the CSV file once, as OUT or as -o/--out")
     out = args.out if args.out is not None else args.out_opt
     db = _db(args)
-    check_outputs([db.path], [out])
+    check_outputs([db.path], [Output(out, writes=EXPORT)])
     with Archive(db.path, readonly=True) as a:
         n = a.export_csv(out, args.serial)
     if not args.quiet:
@@ -203,7 +192,7 @@ def _cmd_reanalyze(args: argparse.Namespace) -> int:
     from chekan.archive.reanalyze import reanalyze
 
     db = _db(args)
-    check_outputs([args.dir], [db, args.results_dir])
+    check_outputs([args.dir], [db, Output(args.results_dir, writes=FOLDER)])
     rep = reanalyze(
         args.dir,
         args.method,
@@ -298,9 +287,11 @@ def _cmd_history(args: argparse.Namespace) -> int:
     )
 
     db = _db(args)
-    check_outputs([db.path], [args.plot, args.json, args.export and args.export[1]])
+    kind = PLOT_KINDS.get(Path(args.plot).suffix.lower()) if args.plot else None
+    outputs = [Output(args.plot, writes=kind), Output(args.json, writes=HISTORY)]
+    check_outputs([db.path], [*outputs, args.export and args.export[1]])
     export = _export_args(args)  # after the guard: a record or an archive gets its message
-    if args.plot and Path(args.plot).suffix.lower() not in PLOT_SUFFIXES:
+    if args.plot and kind is None:
         raise ChekanError(
             f"{args.plot}: a plot is written as {', '.join(PLOT_SUFFIXES)} (from the file's "
             "suffix); choose one of them"
@@ -359,7 +350,9 @@ def add_history_parser(sub: Any) -> argparse.ArgumentParser:
         choices=METHODS,
         help="only this method (default per session: bayes > map > classical)",
     )
-    p.add_argument("--at", type=iso_date, help="date of the prediction, YYYY-MM-DD (default today)")
+    p.add_argument(
+        "--at", type=argtypes.date, help="date of the prediction, YYYY-MM-DD (default today)"
+    )
     p.add_argument(
         "--tolerance-ppm",
         type=argtypes.positive,
@@ -409,7 +402,7 @@ def add_history_parser(sub: Any) -> argparse.ArgumentParser:
     )
     g.add_argument(
         "--valid-until",
-        type=iso_date,
+        type=argtypes.date,
         metavar="DATE",
         help="end of the last period, YYYY-MM-DD (default 2100-01-01, GravTools' open end)",
     )

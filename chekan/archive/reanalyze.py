@@ -252,10 +252,15 @@ def make_executor(
     jobs = max(1, jobs or default_jobs())
     if kind == "local":
         ctx = mp.get_context("spawn")
-        with cf.ProcessPoolExecutor(
+        ex = cf.ProcessPoolExecutor(
             max_workers=jobs, mp_context=ctx, initializer=configure_worker_env
-        ) as ex:
+        )
+        try:
             yield ex
+        except BaseException:  # Ctrl-C (or an error) here: the work in flight is dropped
+            _stop_now(ex)
+            raise
+        ex.shutdown(wait=True)
         return
     if kind != "dask":
         raise ChekanError(f"unknown executor {kind!r}; choose one of {', '.join(EXECUTORS)}")
@@ -275,6 +280,17 @@ def make_executor(
             client = stack.enter_context(Client(cluster))
         client.run(configure_worker_env)
         yield client.get_executor(pure=False)
+
+
+def _stop_now(ex: cf.ProcessPoolExecutor) -> None:
+    """End ``ex`` without waiting for its tasks: a Ctrl-C of the parent alone must not wait
+    for a MAP or a sampler to finish (its shutdown waits for every task, minutes)."""
+    workers = list((getattr(ex, "_processes", None) or {}).values())  # no public API (< 3.14)
+    ex.shutdown(wait=False, cancel_futures=True)
+    for w in workers:
+        w.terminate()
+    for w in workers:
+        w.join(timeout=5.0)
 
 
 class InlineExecutor(cf.Executor):

@@ -23,10 +23,11 @@ from chekan.joint.map import MapFit, compiled_before, fit_map_em, prefetch_em
 from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.reported import map_derived
 from chekan.joint.reported import prefetch as prefetch_map_derived
-from chekan.joint.sampling import sample_posterior
+from chekan.joint.sampling import sample_posterior, sampler_config
 from chekan.joint.start import initial_values
 from chekan.joint.xresponse import horizontal_prior
 from chekan.options import CalibrationOptions
+from chekan.outputs import check_room
 from chekan.parameters import PARAMETER_UNITS
 from chekan.result import param_entry, posterior_entry
 from chekan.settling import settled_items, tau_from_transients
@@ -63,6 +64,8 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         ),
         horizontal_u_pix=horizontal_prior(options.horizontal_u_pix)[0],
     )
+    if options.method == "bayes":  # a full disk shows now, not after the sampling
+        check_room(options.netcdf, netcdf_bytes(model, options), "the posterior NetCDF")
     init = initial_values(classical, record.g_local_mgal)
     if options.progress:
         print(
@@ -98,6 +101,16 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
         sampler_imports.result()  # done before this thread imports more (deadlock-free)
         out = posterior_result(fit, holds, record, base, options, t_start)
     return settled_items(out, holds, record, classical=classical, a_fixed=options.a_fixed)
+
+
+def netcdf_bytes(model, options: CalibrationOptions) -> int:
+    """About the most the posterior NetCDF of ``model`` takes (the draws kept at most, each
+    with its pointwise log-likelihood per bin and system, the per-hold and scalar
+    quantities), plus a megabyte for the result JSON beside it."""
+    cfg = sampler_config(options)
+    draws = cfg.n_chains * (cfg.max_draws or 1000)
+    per_draw = 2 * model.n_bins + 3 * model.n_holds + 64
+    return 8 * draws * per_draw + 16 * model.n_bins + (1 << 20)
 
 
 def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict, dict]:

@@ -238,3 +238,20 @@ class RawLogFollower:
 
     def dropped(self) -> dict[str, dict[str, int]]:
         return {port: {k: v for k, v in p.stats.items() if v} for port, p in self.parsers.items()}
+
+
+def journal_locked(path: str | Path) -> bool | None:
+    """Whether a process holds the ``flock`` that an acquisition keeps on its journal while
+    it runs (:class:`hw.journal.Journal`); ``None``: unknown (no journal, or no
+    ``/proc/locks`` to read). Reads only: the writer's lock is never touched."""
+    try:
+        ino = os.stat(path).st_ino
+        with open("/proc/locks", encoding="ascii", errors="replace") as f:
+            text = f.read()
+    except OSError:
+        return None
+    for line in text.splitlines():
+        parts = line.split()  # id: FLOCK ADVISORY WRITE pid maj:min:inode start end
+        if len(parts) >= 6 and parts[1] == "FLOCK" and parts[5].rsplit(":", 1)[-1] == str(ino):
+            return True
+    return False

@@ -20,13 +20,21 @@ from typing import Any
 import numpy as np
 
 from chekan.live import calib
-from chekan.live.follow import COLUMNS, JournalFollower, RawLogFollower, RecordFollower
+from chekan.live.follow import (
+    COLUMNS,
+    JournalFollower,
+    RawLogFollower,
+    RecordFollower,
+    journal_locked,
+)
 from hw.acquisition.steps import Phase
 from hw.events import Event
 
 STALL_S = 20.0  # wall seconds without a new row (run not stopped) before the stall alarm
 CCD_MARGIN = 0.05  # fraction of the CCD range near either end that raises the alarm
 MOVE_ALARM_S = 180.0  # sample-clock seconds a step may wait for HOLD before the alarm
+GONE_S = 5.0  # wall seconds of a quiet record, its journal unlocked, before "acquisition gone"
+GONE = "acquisition gone (no end journalled)"
 
 _PLOT = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec")
 _READINGS = ("m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "temp_c")
@@ -109,6 +117,7 @@ class LiveState:
             "reply_timeouts": 0,
             "sat_episodes": 0,
             "therm_episodes": 0,
+            "interruptions": 0,  # sessions that ended without a run_stop, then resumed
         }
         self.link_down: dict[str, str] = {}
         self.sensor_status = "OK"
@@ -195,7 +204,10 @@ class LiveState:
                 prog = calib.program_from_plan(self.plan, ev.get("program") or "recorded")
                 self.expected = calib.expected_sd(prog)
         elif kind == Event.RESUME:
+            if self.run_stop is None and self.run_start is not None:
+                h["interruptions"] += 1  # the session before ended without a word (kill -9)
             self.run_stop = None
+            self.link_down.clear()
         elif kind == Event.STEP_START:
             self.current, self.hold = ev, None
         elif kind == Event.HOLD:
@@ -328,6 +340,8 @@ class LiveState:
             return None
         if self.run_stop is not None:
             return 0.0 if not self.run_stop.get("exit_code") else None  # stopped: no time left
+        if self.gone():
+            return None  # nobody runs the program: when it ends is unknown
         left = 0.0
         cur = step["index"] if step else None
         for s in self.plan:
@@ -380,6 +394,14 @@ class LiveState:
         axes.update(self.plan_axes)
         return axes
 
+    def gone(self) -> bool:
+        """The acquisition ended without journalling its end (killed, or the computer
+        stopped): the run never stopped, the record is quiet and nobody holds the journal's
+        lock. Unknown lock (no ``/proc/locks``): not gone (the stall alarm speaks)."""
+        if self.run_stop is not None or self.run_start is None or self.quiet_s() < GONE_S:
+            return False
+        return journal_locked(self.journal.path) is False
+
     def finished(self) -> bool:
         """The run is over: its ``run_stop`` is journalled, or (no journal) the file is quiet."""
         if self.run_stop is not None:
@@ -398,8 +420,28 @@ class LiveState:
                     "(chekan calibrate names them)",
                 }
             )
-        running = self.run_stop is None and self.run_start is not None
+        gone = self.gone()
+        running = self.run_stop is None and self.run_start is not None and not gone
         quiet = self._clock() - self.last_growth
+        if gone:
+            t = f" after t = {self._cols['t_s'][-1]:.0f} s" if self.n else ""
+            out.append(
+                {
+                    "level": "alarm",
+                    "text": f"the acquisition ended without journalling an end (killed, or the "
+                    f"computer stopped): nothing is recorded{t}; continue the run with "
+                    f"chekan acquire --resume {self.path}",
+                }
+            )
+        if self.health["interruptions"]:
+            k = self.health["interruptions"]
+            out.append(
+                {
+                    "level": "warn",
+                    "text": f"the acquisition was interrupted without an end {k} time(s) and "
+                    f"resumed: {self.gaps} gap(s) in the record, {self.lost} sample(s) lost",
+                }
+            )
         if running and self.n and quiet > self.stall_s:
             out.append({"level": "alarm", "text": f"link stalled: no new sample for {quiet:.0f} s"})
         for p, why in self.link_down.items():
@@ -474,6 +516,8 @@ class LiveState:
             state = "not a record"
         elif self.run_stop is not None:
             state = self.run_stop.get("status", "stopped")
+        elif self.gone():
+            state = GONE
         elif self.run_start is None and not self.n:
             state = "waiting for the record"
         elif self.run_start is None:

@@ -96,6 +96,7 @@ def render_report(
     else:
         raise FormatError(source, None, "a result must be a JSON object (dict)")
     from chekan.durable import atomic_output
+    from chekan.outputs import SYSTEM_ERRNOS
 
     if kind == "dcc":
         from chekan.report.dcc import write_dcc
@@ -142,6 +143,8 @@ def render_report(
                 with atomic_output(folder / f"fig{i}-{fig.name}.png", "wb") as g:
                     g.write(fig.png)
     except OSError as e:
+        if e.errno in SYSTEM_ERRNOS:  # a full disk: exit 1, the file named (atomic_output)
+            raise
         raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
     return out
 

@@ -12,7 +12,8 @@ from chekan.report.i18n import LANGS
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from chekan.outputs import check_outputs
+    from chekan.filekinds import report_kind
+    from chekan.outputs import Output, check_outputs
     from chekan.report import render_report
     from chekan.report.dcc_read import read_any_result
 
@@ -21,7 +22,8 @@ def _cmd_report(args: argparse.Namespace) -> int:
     if out is None:
         suffix = {"html": ".html", "dcc": ".xml"}.get(args.format or "pdf", ".pdf")
         out = Path(args.result).with_name(f"calibr_{_safe(str(res['serial']))}{suffix}")
-    check_outputs([args.result, args.record, args.netcdf], [out])
+    kind = report_kind(out, args.format)
+    check_outputs([args.result, args.record, args.netcdf, args.lab], [Output(out, writes=kind)])
     written = render_report(
         res,
         out,

@@ -385,6 +385,7 @@ def write_dcc(
 ) -> Path:
     """The DCC of ``result`` at ``out``; the lab file is read before anything is written."""
     from chekan.durable import atomic_output
+    from chekan.outputs import SYSTEM_ERRNOS
 
     lab = load_lab(lab_path)
     data = dcc_bytes(
@@ -395,5 +396,7 @@ def write_dcc(
         with atomic_output(out, "wb") as f:
             f.write(data)
     except OSError as e:
+        if e.errno in SYSTEM_ERRNOS:  # a full disk: exit 1, the file named (atomic_output)
+            raise
         raise ChekanError(f"{out}: cannot write the certificate: {e.strerror or e}") from None
     return out

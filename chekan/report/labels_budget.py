@@ -131,7 +131,10 @@ BUDGET_LABELS: dict[str, dict[str, str]] = {
         "ru": "Наименьший ESS (должен быть ≥ 400)",
     },
     "n_draws": {"en": "Posterior draws", "ru": "Число выборок"},
-    "seconds": {"en": "Sampling time, s", "ru": "Время выборки, с"},
+    "seconds": {  # the whole estimate's wall time: map samples nothing; compiling is in it
+        "en": "Computing time (compiling included), s",
+        "ru": "Время расчёта (включая компиляцию), с",
+    },
     "sigma_fit": {"en": "Residual sd of the fit σ, mGal", "ru": "СКО остатков подгонки σ, мГал"},
     "problem": {"en": "Problem", "ru": "Проблема"},
     "note": {"en": "Note", "ru": "Примечание"},
