@@ -249,3 +249,18 @@ def test_the_console_names_parameters_as_a_person_reads_them(jump):
     (kappa,) = [ln for ln in table.splitlines() if ln.startswith("κ")]
     assert "0.000 " not in kappa and "e-0" in kappa  # its value, not a rounded zero
     assert "eps1_arcmin" not in text.split("converged:", 1)[1]
+
+
+def test_the_largest_absolute_mean_deviation_is_printed_without_a_sign(jump):
+    """«largest |mean δg| = −0.01 mGal»: an absolute value is never negative (the result's
+    deviations and their mirror image, whose largest is negative, print alike)."""
+    res, _ = jump
+    rs = res["residuals_mgal"]
+    mirrored = {**rs, "mean_delta_g_mgal": [-v for v in rs["mean_delta_g_mgal"]]}
+    lines = []
+    for r in (res, {**res, "residuals_mgal": mirrored}):
+        rep = build_report(r, figures=False)
+        lines += [b.text for b in rep.blocks if isinstance(b, Para) and "|mean δg| =" in b.text]
+    worst = max(abs(v) for v in rs["mean_delta_g_mgal"])
+    assert len(lines) == 2 and lines[0] == lines[1], lines
+    assert f"largest |mean δg| = {worst:.2f} mGal" in lines[0]

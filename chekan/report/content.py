@@ -341,7 +341,7 @@ def _items(
         if rs and rs.get("mean_delta_g_mgal"):
             vals = [abs(v) if is_num(v) else -1.0 for v in rs["mean_delta_g_mgal"]]
             k = max(range(len(vals)), key=vals.__getitem__)
-            m_s, ang = fixed(rs["mean_delta_g_mgal"][k], 2), str(rs["angle_label"][k])
+            m_s, ang = fixed(vals[k], 2), str(rs["angle_label"][k])  # |mean δg|: unsigned
         rep.add(Para(t("reduced_error", v=fixed(rerr, 3), m=m_s, angle=ang), "strong"))
     # г) a, b1, b2
     rep.add(Heading(t("sec_d")), Para(t("sec_d_text")))
