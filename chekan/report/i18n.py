@@ -245,15 +245,17 @@ LABELS: dict[str, dict[str, str]] = {
         "ru": "{name} = {x} {unit}, 2s = {u} {unit} (повторяемость)",
     },
     "statement_typeA": {
-        "en": "2s is the scatter of this record's pair means about the least-squares fit, as "
-        "Calibr.exe prints it: it is not an expanded uncertainty. The systematic error of the "
+        "en": "2s is twice the standard error of b from the scatter of this record's pair means "
+        "about the least-squares fit, as Calibr.exe computes it: a repeatability, not an "
+        "expanded uncertainty. The systematic error of the "
         "platform's angles, the sensor's lag, the drift and the hold offsets are not in it, "
         "and in the project's validation the interval b ± 2s held the true b in about 42 % of "
         "simulated sessions of the paper's program, not 95 %. No statement of conformity rests "
         "on it; the joint model (--method map or bayes) states b with an uncertainty budget "
         "and an expanded uncertainty.",
-        "ru": "2s — разброс средних пар этой записи относительно подгонки МНК, как его печатает "
-        "Calibr.exe; это не расширенная неопределённость. В неё не входят систематическая "
+        "ru": "2s — удвоенная стандартная ошибка b по разбросу средних пар этой записи "
+        "относительно подгонки МНК, как в Calibr.exe: повторяемость, а не расширенная "
+        "неопределённость. В неё не входят систематическая "
         "погрешность углов платформы, запаздывание датчика, дрейф и смещения на стоянках; при "
         "проверке на моделированных записях программы статьи интервал b ± 2s содержал "
         "истинное b примерно в 42 % случаев, а не в 95 %. Заключение о соответствии на ней не "
