@@ -204,7 +204,10 @@ def classical_of(
         if opts.method == "classical":  # a joint result settles its items (settled_items)
             unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
         if unsettled is not None:
-            cres = dataclasses.replace(cres, problems=[*cres.problems, unsettled.problem])
+            flagged = dataclasses.replace(cres, problems=[*cres.problems, unsettled.problem])
+            # the per-axis fits name the certificate's own by identity: keep it the flagged one
+            flagged.by_axis = {a: flagged if f is cres else f for a, f in cres.by_axis.items()}
+            cres = flagged
     else:
         cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)

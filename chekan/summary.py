@@ -19,12 +19,29 @@ def _f(x, fmt: str) -> str:
     return format(x, fmt)
 
 
-def _param_fmt(name: str) -> str:
+def _param_fmt(name: str, value: object = None) -> str:
     if name == "a":
         return ".4e"
     if name.startswith("b"):
         return ".6f"
+    if isinstance(value, int | float) and value and abs(value) < 0.01:
+        return ".3e"  # a small quantity (κ ~ 1e-4) would print as 0.000
     return ".3f"
+
+
+def _name(key: str) -> str:
+    """A result parameter as a person reads it: the certificate's name (ε₁, b₁₀ (CCD
+    centre), κ (slew error, relative)), never the key (eps1_arcmin, b1_0, slew_error)."""
+    from chekan.report.i18n import param_name
+
+    return param_name(key, "en")
+
+
+def _unit(unit: str) -> str:
+    """A parameter's unit for the console: mGal/pix², and "relative" for a ratio."""
+    from chekan.report.i18n import unit_name
+
+    return unit_name(unit, "en") if unit else "(relative)"
 
 
 def format_summary(res: dict) -> str:
@@ -49,24 +66,25 @@ def format_summary(res: dict) -> str:
     lines.append(f"estimates — {scope}:")
     p = res["parameters"]
     hp = round(res["hdi_prob"] * 100)
-    head = f"{'parameter':<15}{'mean':>14}{'sd':>12}{f'{hp}% low':>14}{f'{hp}% high':>14}"
+    names = [n for n in ORDER if n in p] + sorted(n for n in p if n not in ORDER)
+    width = max([15, *(len(_name(n)) + 2 for n in [*names, *res.get("fixed", {})])])
+    head = f"{'parameter':<{width}}{'mean':>14}{'sd':>12}{f'{hp}% low':>14}{f'{hp}% high':>14}"
     has_diag = any("r_hat" in e for e in p.values())
     if has_diag:
         head += f"{'R-hat':>8}{'ESS':>8}"
     lines.append(head + "  unit")
-    names = [n for n in ORDER if n in p] + sorted(n for n in p if n not in ORDER)
     for n in names:
         e = p[n]
-        fmt = _param_fmt(n)
+        fmt = _param_fmt(n, e.get("mean"))
         row = (
-            f"{n:<15}{_f(e.get('mean'), fmt):>14}{_f(e.get('sd'), '.2e'):>12}"
+            f"{_name(n):<{width}}{_f(e.get('mean'), fmt):>14}{_f(e.get('sd'), '.2e'):>12}"
             f"{_f(e.get('hdi_low'), fmt):>14}{_f(e.get('hdi_high'), fmt):>14}"
         )
         if has_diag:
             row += f"{_f(e.get('r_hat'), '.3f'):>8}{_f(e.get('ess_bulk'), '.0f'):>8}"
-        lines.append(row + f"  {e.get('unit', '')}")
+        lines.append(row + f"  {_unit(str(e.get('unit', '')))}")
     for k, v in res.get("fixed", {}).items():
-        lines.append(f"{k:<15}{_f(v, _param_fmt(k)):>14}  (fixed)")
+        lines.append(f"{_name(k):<{width}}{_f(v, _param_fmt(k, v)):>14}  (fixed)")
     if "a" in p or "a" in res.get("fixed", {}):
         lines.append(
             "(a in the record's convention, Δg = b(m − m_h) + a(m − m_h)² with readings growing "
@@ -133,10 +151,12 @@ def format_summary(res: dict) -> str:
                 if isinstance(v, int | float) and k != "converged"
             )
         )
+        from chekan.report.i18n import with_param_names  # ε₁ for eps1_arcmin, as printed above
+
         for msg in d.get("problems", []):
-            lines.append(f"WARNING: {msg}")
+            lines.append(f"WARNING: {with_param_names(str(msg), 'en')}")
         for msg in d.get("notes", []):
-            lines.append(f"note: {msg}")
+            lines.append(f"note: {with_param_names(str(msg), 'en')}")
     return "\n".join(lines)
 
 

@@ -307,3 +307,17 @@ def test_dcc_states_that_the_classical_items_come_from_settled_hold_means(
     assert "τ = 30.0 s" in note and "reduced error 0.096 %" in note
     assert f"b₁ = {raw_b['b1']['mean']:.6f}" in note
     assert read_dcc(out)["hold_transient"] == res["hold_transient"]
+
+
+def test_a_classical_dcc_states_no_expanded_uncertainty(lab, tmp_path, paper_protocol):
+    """Calibr.exe's 2s is a repeatability, not an expanded uncertainty: the classical DCC
+    gives b₁, b₂ without one (before, it wrote 2·sd as si:expandedMU), and it reads back."""
+    res, out = tmp_path / "r.json", tmp_path / "c.xml"
+    assert main(["calibrate", str(paper_protocol), "-q", "-o", str(res)]) == 0
+    assert main(["report", str(res), "--lab", str(lab), "-q", "--out", str(out)]) == 0
+    validate_dcc(out.read_bytes())
+    reals = ET.parse(out).getroot().iter(f"{{{SI_NS}}}real")
+    labels = {r.findtext(f"{{{SI_NS}}}label") for r in reals}
+    assert {"b1", "b2"} <= labels
+    assert not list(ET.parse(out).getroot().iter(f"{{{SI_NS}}}expandedMU"))
+    assert read_dcc(out)["method"] == "classical"

@@ -25,6 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 PAPER_CSV = Path(__file__).resolve().parents[1] / "examples" / "calibr_46_protocol.csv"
 DATA = Path(__file__).resolve().parent / "data" / "report"
 BAYES_JSON = DATA / "bayes_result.json"
+LAB_TOML = DATA / "lab.toml"  # a certificate with its laboratory (without one: a draft)
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
@@ -92,7 +93,7 @@ def pdf_of(kind: str, lang: str, result_path: Path, tmp_root: Path) -> tuple[Pat
     if key not in _PDFS:
         out = tmp_root / f"calibr_{kind}_{lang}.pdf"
         figs = tmp_root / f"figs_{kind}_{lang}"
-        written = render_report(result_path, out, lang=lang, keep_figures=figs)
+        written = render_report(result_path, out, lang=lang, keep_figures=figs, lab=LAB_TOML)
         assert written == out and out.stat().st_size > 10_000
         info = read_pdf(out)
         assert info.n_notdef == 0, "glyphs missing from the fonts (tofu)"
@@ -165,7 +166,8 @@ def test_paper_protocol_certificate(paper, outdir, lang):
             "Приём 1",
             "КС2",
             "Заключение",
-            "СООТВЕТСТВУЕТ",
+            "СООТВЕТСТВИЕ НЕ УСТАНАВЛИВАЕТСЯ (допуск 0.05 %)",
+            "повторяемость Calibr.exe",
         ],
         "en": [
             "Calibration certificate",
@@ -178,7 +180,8 @@ def test_paper_protocol_certificate(paper, outdir, lang):
             "Gyro-platform serial no.",
             "Round 1",
             "Conclusion",
-            "PASSED",
+            "NO STATEMENT OF CONFORMITY (tolerance 0.05 %)",
+            "Calibr.exe's repeatability",
         ],
     }[lang]
     for lab in labels:
@@ -218,23 +221,27 @@ def test_simulated_session_certificate(sim, outdir, lang):
     gal = "Гал" if lang == "ru" else "Gal"
     assert_in(f"{rm['heavy']:.1f} {gal}", text)
     assert_in(f"{rm['light']:.1f} {gal}", text)
-    # the metrology statement with U = 2·sd (classical: type A only)
+    # the classical 2·sd is Calibr.exe's repeatability, named so, never an expanded U
     b1 = res["parameters"]["b1"]
     u = float(f"{2 * b1['sd']:.1e}")
     nd = max(0, 1 - int(f"{u:e}".split("e")[1]))
     unit = "мГал/пикс" if lang == "ru" else "mGal/pix"
-    assert_in(f"b₁ = {b1['mean']:.{nd}f} {unit}, U = {u:.{nd}f} {unit} (k = 2)", text)
-    # the verdict agrees with the JSON and the default tolerance 0.05 %
+    word = "повторяемость" if lang == "ru" else "repeatability"
+    assert_in(f"b₁ = {b1['mean']:.{nd}f} {unit}, 2s = {u:.{nd}f} {unit} ({word})", text)
+    assert ", U = " not in text.split("д) " if lang == "ru" else "e) ")[0]
+    # the verdict agrees with the JSON and the default tolerance 0.05 %: a criterion beyond
+    # it is not passed; within it the classical method makes no statement of conformity
     ok = res["reduced_error_percent"] <= 0.05 and all(
         abs(v) <= 0.05 for v in res["instability_percent"].values()
     )
     word = {
-        ("en", True): "PASSED (tolerance 0.05 %)",
-        ("en", False): "NOT PASSED (tolerance 0.05 %)",
-        ("ru", True): "СООТВЕТСТВУЕТ (допуск 0.05 %)",
-        ("ru", False): "НЕ СООТВЕТСТВУЕТ (допуск 0.05 %)",
+        ("en", True): "NO STATEMENT OF CONFORMITY (tolerance 0.05 %)",
+        ("en", False): "NOT PASSED (tolerance 0.05 %",
+        ("ru", True): "СООТВЕТСТВИЕ НЕ УСТАНАВЛИВАЕТСЯ (допуск 0.05 %)",
+        ("ru", False): "НЕ СООТВЕТСТВУЕТ (допуск 0.05 %",
     }[lang, ok]
     assert_in(word, text)
+    assert "PASSED (tolerance" not in text.replace("NOT PASSED (tolerance", "")
     # figures: the record, the cosinusoid, the residuals — all drawn, all non-empty PNGs
     assert n_img == 3
     names = sorted(p.name for p in figs.glob("*.png"))
@@ -246,8 +253,8 @@ def test_simulated_session_certificate(sim, outdir, lang):
 def test_tolerance_changes_the_verdict(sim):
     res, _ = sim
     worst = max([res["reduced_error_percent"], *map(abs, res["instability_percent"].values())])
-    ok, line = verdict_of(res, worst * 1.01)
-    assert ok is True and line.startswith("PASSED")
+    ok, line = verdict_of(res, worst * 1.01)  # classical: no U, so no pass
+    assert ok is None and line.startswith("NO STATEMENT OF CONFORMITY")
     ok, line = verdict_of(res, worst * 0.99, lang="ru")
     assert ok is False and line.startswith("НЕ СООТВЕТСТВУЕТ")
     assert verdict_of({k: v for k, v in res.items() if k != "reduced_error_percent"})[0] is None
@@ -468,13 +475,20 @@ def test_cli_report(paper, tmp_path, capsys):
         ap.parse_args(["report", str(path), "--lang", "de"])
 
 
-def test_calibrate_report_option(tmp_path):
-    """``chekan calibrate … --report`` (wired by the CLI) renders through render_report."""
+def test_calibrate_report_option(tmp_path, monkeypatch):
+    """``chekan calibrate … --report`` (wired by the CLI) renders through render_report: a
+    certificate with the lab file of ``$CHEKAN_LAB``, a draft without one."""
     from chekan.cli import main
 
     out = tmp_path / "calibr_46.html"
+    monkeypatch.setenv("CHEKAN_LAB", str(LAB_TOML))
     assert main(["calibrate", str(PAPER_CSV), "--quiet", "--report", str(out), "--lang", "ru"]) == 0
-    assert "Свидетельство о калибровке" in out.read_text(encoding="utf-8")
+    html = out.read_text(encoding="utf-8")
+    assert "Свидетельство о калибровке" in html and "ПРОЕКТ" not in html
+    monkeypatch.delenv("CHEKAN_LAB")
+    draft = tmp_path / "draft.html"
+    assert main(["calibrate", str(PAPER_CSV), "-q", "--report", str(draft), "--lang", "ru"]) == 0
+    assert "ПРОЕКТ — не является свидетельством о калибровке" in draft.read_text("utf-8")
 
 
 # --------------------------------------------------------------------------- pdftotext cross-check

@@ -16,10 +16,18 @@ import numpy as np
 
 from chekan.errors import ChekanError, FormatError
 from chekan.report import figures as figs
-from chekan.report.checks import check_certificate_input
+from chekan.report.checks import check_certificate_input, states_expanded_uncertainty
 from chekan.report.document import Figure, Heading, KeyValue, Para, Report
 from chekan.report.expanded import K_NORMAL, b_uncertainty, expanded_of
-from chekan.report.i18n import LABELS, Translator, param_name, tr, unit_name, value_name
+from chekan.report.i18n import (
+    LABELS,
+    Translator,
+    param_name,
+    source_name,
+    tr,
+    unit_name,
+    value_name,
+)
 from chekan.report.numbers import (
     DASH,
     coverage_text,
@@ -30,6 +38,7 @@ from chekan.report.numbers import (
     sci,
     statement,
     unc,
+    value_unc,
 )
 from chekan.report.rounds import deviations_tables, increments_tables, rounds_table
 from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
@@ -39,6 +48,10 @@ from chekan.report.tables import (  # PARAM_ORDER, BUDGET_ORDER: re-exported
     budget_table,
     diagnostics_table,
     param_table,
+)
+from chekan.report.verdict import (  # verdict_of: re-exported
+    verdict_of,  # noqa: F401
+    verdict_paras,
 )
 from chekan.settling import UNSETTLED_PIX, unsettled_transient_pix
 
@@ -116,7 +129,7 @@ def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) ->
         rows.append((t("program"), prog, False))
     method = result["method"]
     rows.append((t("method"), f"{t('method_' + method)} [{method}]", False))
-    sensor = _angle_sensor_text(result, t)
+    sensor = _angle_sensor_text(result, t, lang)
     if sensor:
         rows.append((t("angle_sensor"), sensor, False))
     cal = _angle_calibration_text(result, t)
@@ -191,7 +204,10 @@ def program_text(result: Mapping[str, Any], t: Translator) -> str | None:
 
 def _statements(result: Mapping[str, Any], t: Translator, lang: str) -> list[Para]:
     """The result lines "b₁ = … , U = … (k = 2)" for b1, b2, b1_0, b2_0 (k = t₉₅.₄₅(ν_eff)
-    where the result states ν_eff: :mod:`chekan.report.expanded`)."""
+    where the result states ν_eff: :mod:`chekan.report.expanded`); the classical method's
+    "b₁ = …, 2s = …": Calibr.exe's repeatability, named so, not an expanded uncertainty."""
+    if not states_expanded_uncertainty(result):
+        return _repeatability_statements(result, t, lang)
     out: list[Para] = [Para(t("statement_title"), "strong")]
     params = result["parameters"]
     budget_used = False
@@ -231,14 +247,35 @@ def _statements(result: Mapping[str, Any], t: Translator, lang: str) -> list[Par
     return out
 
 
-def _angle_sensor_text(result: Mapping[str, Any], t: Translator) -> str | None:
+def _repeatability_statements(result: Mapping[str, Any], t: Translator, lang: str) -> list[Para]:
+    """The classical b with 2s, the repeatability Calibr.exe prints (twice the least-squares
+    standard error), and what it leaves out."""
+    out: list[Para] = [Para(t("statement_title_repeat"), "strong")]
+    params = result["parameters"]
+    unit = unit_name("mGal/pix", lang)
+    for name in ("b1", "b2", "b1_0", "b2_0"):
+        if name not in params:
+            continue
+        sd = params[name].get("sd")
+        xs, us = value_unc(params[name]["mean"], 2.0 * sd if is_num(sd) else None)
+        out.append(
+            Para(
+                t("statement_repeat", name=param_name(name, lang), x=xs, u=us, unit=unit), "strong"
+            )
+        )
+    out.append(Para(t("statement_typeA"), "warn"))
+    return out
+
+
+def _angle_sensor_text(result: Mapping[str, Any], t: Translator, lang: str) -> str | None:
     """The platform angle sensor's model from ``result["angle_sensor"]`` (None without it)."""
     a = result.get("angle_sensor")
     if not isinstance(a, Mapping):
         return None
     if a.get("model") == "independent":
         return t("angle_sensor_independent")
-    source = f"; {t('angle_source', src=a['source'])}" if a.get("source") else ""
+    src = source_name(str(a["source"]), lang) if a.get("source") else ""
+    source = f"; {t('angle_source', src=src)}" if src else ""
     if isinstance(a.get("calibration"), Mapping):
         stated = a.get("axis") in (a["calibration"].get("scale_U_arcsec") or {})
         return t(
@@ -267,68 +304,6 @@ def _angle_calibration_text(result: Mapping[str, Any], t: Translator) -> str | N
         return None
     lab = f", {c['laboratory']}" if c.get("laboratory") else ""
     return t("angle_calibration_text", id=c["id"], date=c.get("date", "?"), lab=lab)
-
-
-def _verdict(
-    result: Mapping[str, Any], t: Translator, tol: float
-) -> tuple[bool | None, list[Para]]:
-    crit: list[str] = []
-    ok = True
-    tol_s = plain(tol)
-    rerr = result.get("reduced_error_percent")
-    if not is_num(rerr):
-        return None, [Para(t("verdict_none"), "warn")]
-    passed = rerr <= tol
-    ok &= passed
-    crit.append(t("crit_reduced", v=fixed(rerr, 3), op="≤" if passed else ">", tol=tol_s))
-    inst = result.get("instability_percent") or {}
-    have_inst = False
-    for name in ("b1", "b2"):
-        v = inst.get(name)
-        if is_num(v):
-            have_inst = True
-            passed = abs(v) <= tol
-            ok &= passed
-            crit.append(
-                t(
-                    "crit_instab",
-                    name=param_name(name, "en"),
-                    v=fixed(abs(v), 3),
-                    op="≤" if passed else ">",
-                    tol=tol_s,
-                )
-            )
-    un = result.get("unsettled_hold_means")  # the classical method's precondition fails
-    if isinstance(un, Mapping):
-        ok = False
-        shift = un.get("shift_percent") or []
-        b1 = fixed(shift[0], 3, sign=True) + " %" if shift and is_num(shift[0]) else DASH
-        crit.append(t("crit_unsettled", pix=fixed(un["max_pix"], 2), b1=b1))
-    is_bayes = result["method"] == "bayes"
-    conv = (result.get("diagnostics") or {}).get("converged")
-    if is_bayes or conv is False:
-        if conv is False:
-            ok = False
-            crit.append(t("crit_noconv"))
-        elif conv is True:
-            crit.append(t("crit_conv"))
-    line = t("verdict_pass" if ok else "verdict_fail", tol=tol_s, crit="; ".join(crit))
-    paras = [Para(line, "pass" if ok else "fail")]
-    paras.append(
-        Para(t("verdict_criteria", conv=t("verdict_conv_clause") if is_bayes else ""), "note")
-    )
-    paras.append(Para(t("decision_rule"), "note"))
-    if not have_inst:
-        paras.append(Para(t("verdict_no_instab"), "note"))
-    return ok, paras
-
-
-def verdict_of(
-    result: Mapping[str, Any], tolerance_percent: float = 0.05, lang: str = "en"
-) -> tuple[bool | None, str]:
-    """``(passed, verdict line)``; ``passed`` is None when there is nothing to judge."""
-    ok, paras = _verdict(result, tr(lang), tolerance_percent)
-    return ok, paras[0].text
 
 
 def _items(
@@ -366,7 +341,7 @@ def _items(
         if rs and rs.get("mean_delta_g_mgal"):
             vals = [abs(v) if is_num(v) else -1.0 for v in rs["mean_delta_g_mgal"]]
             k = max(range(len(vals)), key=vals.__getitem__)
-            m_s, ang = fixed(vals[k], 2), str(rs["angle_label"][k])  # |mean δg|: not signed
+            m_s, ang = fixed(vals[k], 2), str(rs["angle_label"][k])  # |mean δg|: unsigned
         rep.add(Para(t("reduced_error", v=fixed(rerr, 3), m=m_s, angle=ang), "strong"))
     # г) a, b1, b2
     rep.add(Heading(t("sec_d")), Para(t("sec_d_text")))
@@ -381,10 +356,25 @@ def _items(
     a, _ = _a_value(result)
     if a is not None:
         rep.add(Para(t("a_convention", v=sci(-a, 4) if a else "0"), "note"))
+    cert_axis = certified_axis(result)
     for axis, entry in by_axis.items():
-        if not entry.get("used_by_certificate"):
+        if axis != cert_axis:  # the certificate's own rounds are items a)–d) above
             _other_axis(rep, axis, entry, t)
     _rest_of_items(rep, result, t, lang, tol, figures)
+
+
+def certified_axis(result: Mapping[str, Any]) -> str | None:
+    """The axis ("y", "x") of ``classical_by_axis`` whose rounds the certificate's items are:
+    the entry marked ``used_by_certificate``, else the result's ``classical_axis`` (a result
+    whose marks were lost: a classical fit flagged with unsettled hold means)."""
+    by_axis = result.get("classical_by_axis") or {}
+    marked = [
+        a for a, e in by_axis.items() if isinstance(e, Mapping) and e.get("used_by_certificate")
+    ]
+    if marked:
+        return marked[0]
+    axis = str(result.get("classical_axis") or "").lower()
+    return axis if axis in by_axis else None
 
 
 def _other_axis(rep: Report, axis: str, entry: Mapping[str, Any], t: Translator) -> None:
@@ -402,7 +392,9 @@ def _other_axis(rep: Report, axis: str, entry: Mapping[str, Any], t: Translator)
         rep.add(rounds_table(rounds, t, t("cap_rounds") + about))
     p = entry.get("parameters") or {}
     parts = [
-        f"{n} = {fixed(p[n]['mean'], 6)} ± {unc(p[n].get('sd'))}" for n in ("b1", "b2") if n in p
+        f"{param_name(n, 'en')} = {fixed(p[n]['mean'], 6)} ± {unc(p[n].get('sd'))}"
+        for n in ("b1", "b2")
+        if n in p
     ]
     if "a" in p:
         parts.append(f"a = {sci(p['a']['mean'], 4)} ± {sci(p['a'].get('sd'), 1)}")
@@ -431,10 +423,11 @@ def _rest_of_items(
         u, k = expanded_of(result, name)
         p = prior.get(name)
         big_u = 100.0 * u / p if u is not None and is_num(p) and p else None
+        repeat = not states_expanded_uncertainty(result)  # 2s: Calibr.exe's repeatability
         rep.add(
             Para(
                 t(
-                    "instability",
+                    "instability_repeat" if repeat else "instability",
                     name=param_name(name, lang),
                     v=fixed(v, 3, sign=True),
                     u=unc(big_u) if big_u is not None else DASH,
@@ -615,11 +608,15 @@ def build_report(
     meta = result.get("metadata") or {}
     inst = value_name(str(meta.get("instrument", "Chekan-AM")), lang)
     serial = str(result["serial"])
+    draft = not (lab and lab.get("lab"))  # no issuing laboratory: a draft on every page
     rep = Report(
         lang=lang,
-        title=t("title"),
+        title=t("title_draft" if draft else "title"),
         subtitle=t("subtitle", instrument=inst, serial=serial),
-        running_head=t("running_head", instrument=inst, serial=serial),
+        running_head=t(
+            "running_head_draft" if draft else "running_head", instrument=inst, serial=serial
+        ),
+        draft=draft,
     )
     try:
         _header(rep, result, t, lang)
@@ -628,9 +625,9 @@ def build_report(
             _record_figures(result, record_path, source, t) if figures else ([], None, [])
         )
         rep.add(*rec_figs, *notes, *settled_note(result, t))
-        ok, verdict = _verdict(result, t, tolerance_percent)
+        conf, verdict = verdict_paras(result, t, tolerance_percent)
         rep.add(Heading(t("sec_summary")), *_statements(result, t, lang), verdict[0])
-        if ok is not None:  # a pass/fail said here states its decision rule (17025 7.8.6)
+        if conf.outcome is not None:  # a verdict said here states its decision rule (7.8.6)
             rep.add(Para(t("decision_rule_ref"), "note"))
         _items(rep, result, t, lang, tolerance_percent, cos_fig, figures)
         budget_table(rep, result, t, lang)

@@ -129,11 +129,16 @@ def _nonempty(v: Any) -> bool:
 
 def expanded_uncertainties(result: Mapping[str, Any]) -> dict[str, tuple[float, float]]:
     """(U, k) of each result parameter, as the PDF certificate states it
-    (:func:`chekan.report.expanded.expanded_of`)."""
+    (:func:`chekan.report.expanded.expanded_of`); none for a result whose sds are no
+    expanded uncertainty (the classical method's repeatability:
+    :func:`chekan.report.checks.states_expanded_uncertainty`)."""
+    from chekan.report.checks import states_expanded_uncertainty
     from chekan.report.expanded import expanded_of
 
     params = result["parameters"]
     out: dict[str, tuple[float, float]] = {}
+    if not states_expanded_uncertainty(result):
+        return out
     for name in RESULT_PARAMS:
         if name not in params:
             continue

@@ -7,8 +7,8 @@ by ILAC-G8:09/2019: a criterion with an expanded uncertainty U is judged with gu
 w = U (4.2.3), one without on its measured value (4.2.1); a problem of the diagnostics
 bars a pass.
 
-A stand-in for the certificate's own decision (``chekan.report.checks``), to be joined
-with it: same rules, DCC words.
+The decisions are the certificate's own (:mod:`chekan.report.checks`); this module gives
+them in the DCC's values and words.
 """
 
 from __future__ import annotations
@@ -17,9 +17,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from chekan.report.checks import conformity, traceability
 from chekan.report.dcc_words import words
-from chekan.report.expanded import expanded_of
-from chekan.report.numbers import is_num
 
 #: the DCC's conformity values (dcc:stringConformityStatementStatusType), worst last
 RANK = ("pass", "conditionalPass", "conditionalFail", "fail")
@@ -59,48 +58,11 @@ class Trace:
         return {k: f"{head[k]}: {angle[k]}; {g[k]}." for k in head}
 
 
-def _sensors(result: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
-    """The platform angle sensors of the result's model, by axis."""
-    both = result.get("angle_sensors")
-    if isinstance(both, Mapping) and both:
-        return {str(a): v for a, v in both.items() if isinstance(v, Mapping)}
-    one = result.get("angle_sensor")
-    if isinstance(one, Mapping) and one.get("model") != "independent":
-        return {str(one.get("axis", "y")): one}
-    return {}
-
-
-def g_source_of(result: Mapping[str, Any], lab: Mapping[str, Any] | None) -> str | None:
-    """The named source of the site gravity: the lab file's ``[site] gravity_survey``, else
-    the result's ``metadata.g_source``; None when neither names one."""
-    site = (lab or {}).get("site")
-    for v in (
-        site.get("gravity_survey") if isinstance(site, Mapping) else None,
-        (result.get("metadata") or {}).get("g_source"),
-    ):
-        if isinstance(v, str) and v.strip():
-            return v.strip()
-    return None
-
-
 def trace(result: Mapping[str, Any], lab: Mapping[str, Any] | None = None) -> Trace:
-    """The traceability of ``result`` (issued with ``lab``)."""
-    cal = result.get("angle_calibration")
-    sensors = _sensors(result)
-    uncal = tuple(
-        sorted(
-            a.upper() for a, v in sensors.items() if not isinstance(v.get("calibration"), Mapping)
-        )
-    )
-    if not sensors:
-        angle = "unstated"
-    elif uncal or not (isinstance(cal, Mapping) and cal.get("id")):
-        angle = "specification"
-        uncal = uncal or tuple(sorted(a.upper() for a in sensors))
-    else:
-        angle = "calibration"
-    calib = cal if angle == "calibration" and isinstance(cal, Mapping) else None
-    return Trace(angle, calib, uncal, g_source_of(result, lab))
+    """The traceability of ``result`` (issued with ``lab``): the certificate's own
+    (:func:`chekan.report.checks.traceability`), in the DCC's words."""
+    t = traceability(result, lab)
+    return Trace(t.angle, t.calibration, t.uncalibrated, t.g_source)
 
 
 # ----------------------------------------------------------------------------- conformity
@@ -123,60 +85,37 @@ class Decision:
     why: dict[str, str] | None
 
 
-def guarded(value: float, big_u: float, tol: float) -> str:
-    """|value| against ``tol`` with guard band w = U (ILAC-G8:09/2019, 4.2.3)."""
-    v = abs(value)
-    if v - big_u > tol:
-        return "fail"
-    if v > tol:
-        return "conditionalFail"
-    if v + big_u > tol:
-        return "conditionalPass"
-    return "pass"
+#: the certificate's outcomes (:class:`chekan.report.checks.Conformity`) in the DCC's values
+_DCC_OUTCOME = {
+    "pass": "pass",
+    "conditional_pass": "conditionalPass",
+    "conditional_fail": "conditionalFail",
+    "fail": "fail",
+}
 
 
 def decide(result: Mapping[str, Any], tolerance_percent: float) -> Decision:
-    """The conformity of ``result`` with the tolerance, by the rule above."""
-    tol = float(tolerance_percent)
-    rerr = result.get("reduced_error_percent")
-    if not is_num(rerr):
-        return Decision(None, (), words("why_nothing"))
-    has_u = result.get("method") != "classical"
-    crits = [Criterion("reduced_error", float(rerr), None, "pass" if rerr <= tol else "fail")]
-    inst = result.get("instability_percent") or {}
-    for name in ("b1", "b2"):
-        v = inst.get(name)
-        if not is_num(v):
-            continue
-        big_u = None
-        prior = (result.get("b_prior") or {}).get(name)
-        u, _k = expanded_of(result, name)
-        if has_u and u is not None and is_num(prior) and prior:
-            big_u = 100.0 * float(u) / abs(float(prior))
-        out = (
-            guarded(float(v), big_u, tol)
-            if big_u is not None
-            else ("pass" if abs(v) <= tol else "fail")
-        )
-        crits.append(Criterion(f"instability_{name}", float(v), big_u, out))
-    worst = max((c.outcome for c in crits), key=RANK.index)
-    diag = result.get("diagnostics") or {}
-    problems = [str(p) for p in diag.get("problems") or []]
-    if diag.get("converged") is False:
-        problems.append("not converged")
-    if worst == "fail":
-        return Decision("fail", tuple(crits), None)
-    if not has_u:
-        return Decision(None, tuple(crits), words("why_no_u"))
-    if problems and worst in ("pass", "conditionalPass"):
-        from chekan.report.i18n import with_param_names
+    """The conformity of ``result`` with the tolerance: the certificate's own decision
+    (:func:`chekan.report.checks.conformity`, the rule above), in the DCC's values; no
+    statement, with why, where the certificate makes none."""
+    conf = conformity(result, float(tolerance_percent))
+    crits = tuple(
+        Criterion(c.key, c.value_percent, c.u_percent, _DCC_OUTCOME[c.outcome])
+        for c in conf.criteria
+    )
+    if conf.outcome in _DCC_OUTCOME:
+        return Decision(_DCC_OUTCOME[conf.outcome], crits, None)
+    if conf.outcome is None:
+        return Decision(None, crits, words("why_nothing"))
+    if conf.outcome == "no_statement":
+        return Decision(None, crits, words("why_no_u"))
+    from chekan.report.i18n import with_param_names
 
-        why = {
-            lang: text.format(p="; ".join(with_param_names(x, lang) for x in problems))
-            for lang, text in words("why_problems", p="{p}").items()
-        }
-        return Decision(None, tuple(crits), why)
-    return Decision(worst, tuple(crits), None)
+    why = {
+        lang: text.format(p="; ".join(with_param_names(x, lang) for x in conf.problems))
+        for lang, text in words("why_problems", p="{p}").items()
+    }
+    return Decision(None, crits, why)
 
 
 def criteria_text(decision: Decision) -> dict[str, str]:

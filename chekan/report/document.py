@@ -73,6 +73,7 @@ class Report:
     running_head: str
     blocks: list[Block] = field(default_factory=list)
     certificate_id: str = ""  # printed on every page (ISO/IEC 17025 7.8.2.1 b)
+    draft: bool = False  # no issuing laboratory: title, running head and identifier say so
 
     @property
     def figures(self) -> list[Figure]:

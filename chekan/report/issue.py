@@ -34,28 +34,35 @@ def issue_rows(
     lab: Mapping[str, Any] | None,
     customer: str | None,
     issued: _dt.date,
+    lang: str = "en",
 ) -> list[tuple[str, str, bool]]:
-    """The key–value rows of the certificate's issue block."""
+    """The key–value rows of the certificate's issue block ("not stated" agreeing with
+    each row's noun in Russian)."""
+    from chekan.report.checks import traceability
+
     meta = result.get("metadata") or {}
-    not_stated = t("not_stated")
     rows = [
         (t("cert_id"), certificate_id(result, lab, issued), True),
         (t("issue_date"), issued.isoformat(), False),
     ]
     labt = (lab or {}).get("lab")
-    rows.append((t("issuer"), _address(labt) if labt else not_stated, False))
+    rows.append((t("issuer"), _address(labt) if labt else t("not_stated_f"), False))
     if labt:
         rows.append((t("accreditation"), str(labt.get("accreditation")), False))
     cust = (lab or {}).get("customer")
-    cust_text = customer or (_address(cust) if cust else not_stated)
+    cust_text = customer or (_address(cust) if cust else t("not_stated_m"))
     rows.append((t("customer"), cust_text, False))
-    rows.append((t("item_condition"), str(meta.get("item_condition") or not_stated), False))
+    condition = meta.get("item_condition") or t("not_stated")
+    rows.append((t("item_condition"), str(condition), False))
     temp = temperature_text(result, meta)
-    env = t("env_conditions", temp=temp or not_stated)
-    rows.append((t("environment"), env, False))
+    # the record's temp_c is the thermostatted sensor's, not the room's: no room is recorded
+    rows.append((t("environment"), t("env_not_recorded") if temp else t("not_recorded_pl"), False))
+    if temp:
+        rows.append((t("sensor_temperature"), temp, False))
+    rows.append((t("traceability"), traceability(result, lab).statement(lang), False))
     resp = (lab or {}).get("responsible")
     who = f"{resp['name']}" + (f", {resp['role']}" if resp.get("role") else "") if resp else None
-    rows.append((t("authoriser"), who or not_stated, False))
+    rows.append((t("authoriser"), who or t("not_stated_m"), False))
     return rows
 
 
@@ -68,16 +75,23 @@ def add_issue_block(
     customer: str | None = None,
     issued: _dt.date | None = None,
 ) -> None:
-    """Set ``rep.certificate_id`` and add the issue rows and the item-only statement."""
+    """Set ``rep.certificate_id`` and add the issue rows and the item-only statement; a
+    report without its laboratory (``lab`` None) is a draft: its identifier, printed on every
+    page, says so, and a warning under the rows says why."""
     issued = issued or _dt.datetime.now(_dt.UTC).date()
-    rows = issue_rows(result, t, lab=lab, customer=customer, issued=issued)
+    rows = issue_rows(result, t, lab=lab, customer=customer, issued=issued, lang=rep.lang)
+    if rep.draft:
+        rows[0] = (rows[0][0], t("draft_id", id=rows[0][1]), True)
     rep.certificate_id = rows[0][1]
-    rep.add(KeyValue(rows), Para(t("only_item"), "note"))
+    rep.add(KeyValue(rows))
+    if rep.draft:
+        rep.add(Para(t("draft_note"), "warn"))
+    rep.add(Para(t("only_item"), "note"))
 
 
 def add_end(rep: Report, t: Translator) -> None:
-    """The certificate's clear end."""
-    rep.add(Para(t("cert_end", id=rep.certificate_id), "strong"))
+    """The certificate's (or draft's) clear end."""
+    rep.add(Para(t("draft_end" if rep.draft else "cert_end", id=rep.certificate_id), "strong"))
 
 
 def temperature_text(result: Mapping[str, Any], meta: Mapping[str, Any]) -> str | None:
