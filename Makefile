@@ -27,11 +27,12 @@ docs: $(BIN)/chekan
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --quiet -d site
 
 # Debian's chromium for the live page's end-to-end test (playwright drives it; it never
-# downloads a browser). Needs root or sudo; without it the test is skipped with the reason.
+# downloads a browser) and poppler-utils (pdftotext: the certificates' text as a second
+# reader beside pypdf). Needs root or sudo; without it those tests are skipped with the reason.
 browser:
-	@command -v chromium >/dev/null 2>&1 || { \
-	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq chromium; \
-	  elif sudo -n true 2>/dev/null; then sudo -n apt-get update -qq && sudo -n apt-get install -y -qq chromium; \
+	@{ command -v chromium && command -v pdftotext; } >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq chromium poppler-utils; \
+	  elif sudo -n true 2>/dev/null; then sudo -n apt-get update -qq && sudo -n apt-get install -y -qq chromium poppler-utils; \
 	  else echo "browser: no chromium and no root (or password-less sudo): the live-page browser test will be skipped"; fi; }
 
 demo: venv
