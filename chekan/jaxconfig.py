@@ -13,13 +13,14 @@ cache and no stored executables; anything else — that folder. Compiled executa
 
 from __future__ import annotations
 
-import functools
 import os
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
+
+from chekan.runtime import cached
 
 
 def cache_dir() -> Path | None:
@@ -57,7 +58,7 @@ def single_threaded_blas():
     return _blas_controller().limit(limits=1, user_api="blas")
 
 
-@functools.cache
+@cached
 def _blas_controller():
     """The BLAS libraries of this process, found once: ``threadpool_limits`` searches the
     loaded libraries on every call (7 ms, a twentieth of a short session's MAP). SciPy is
@@ -68,7 +69,7 @@ def _blas_controller():
     return ThreadpoolController()
 
 
-@functools.cache
+@cached
 def executable_store():
     """The store of compiled executables of the estimation code (:mod:`inference.aot`),
     fingerprinted by the source of ``chekan`` and ``inference`` and the versions of the

@@ -17,11 +17,11 @@ holds the problem and the compiled functions, built on first use and kept in the
 executable store (:mod:`inference.aot`, scoped by the structure), so that records of one
 structure share them and a new process loads instead of tracing. Per-record numbers
 (duration, counts) are arguments of the compiled functions, never part of their keys.
-:func:`clear_caches` forgets them all (as equinox's ``clear_caches``). The model modules
-stay pure maths: each gives the function to compile, the engine compiles it; what runs them
-on a record stands above the engine (:func:`chekan.joint.map.between_passes`,
-:mod:`chekan.joint.reported`, :mod:`chekan.joint.predictive`), so no module that the
-engine compiles from imports it.
+:func:`chekan.runtime.clear_caches` forgets them, with every other registered cache. The
+model modules stay pure maths: each gives the function to compile, the engine compiles it;
+what runs them on a record stands above the engine (:func:`chekan.joint.map.between_passes`,
+:mod:`chekan.joint.reported`, :mod:`chekan.joint.predictive`), so no module that the engine
+compiles from imports it.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ import numpy as np
 from chekan.jaxconfig import executable_store
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.problem import CalibrationProblem, build_problem, default_hyper
+from chekan.runtime import cached, clear_caches
 
 EM_PASS = "em_between_passes"
 EM_NEWTON = "em_newton"
@@ -102,7 +103,7 @@ class Engine:
         return (np.zeros(self.problem.map_space.size), default_hyper(), data, *extra)
 
 
-@functools.cache
+@cached
 def engine_for(structure: ModelStructure) -> Engine:
     """The :class:`Engine` of ``structure``, built once per process (until
     :func:`clear_caches`)."""
@@ -115,8 +116,4 @@ def problem_for(structure: ModelStructure) -> CalibrationProblem:
     return engine_for(structure).problem
 
 
-def clear_caches() -> None:
-    """Forget every engine (their problems and compiled functions) and the executable
-    store's handle; files in the store stay on disk."""
-    engine_for.cache_clear()
-    executable_store.cache_clear()
+__all__ = ["Engine", "clear_caches", "engine_for", "problem_for"]

@@ -1,0 +1,16 @@
+"""The runtime of the estimation code: what is compiled, kept, loaded and cleared.
+
+=================  ==========================================================
+module             what it does
+=================  ==========================================================
+``caches``         every cache registered; one :func:`clear_caches`; ``jit``
+=================  ==========================================================
+
+The maths (``inference``, ``chekan.joint``'s model modules) compiles nothing of its own:
+what runs it jits it here. This package's ``__init__`` imports only the registry, so that
+any module may register a cache without importing JAX.
+"""
+
+from chekan.runtime.caches import cached, clear_caches, jit, register
+
+__all__ = ["cached", "clear_caches", "jit", "register"]
