@@ -8,7 +8,7 @@ so estimation is float64 throughout.
 ``CHEKAN_JAX_CACHE``: unset, empty or ``1`` — the default folder
 (``$XDG_CACHE_HOME/chekan/jax``, else ``~/.cache/chekan/jax``); ``0`` — no persistent
 cache and no stored executables; anything else — that folder. Compiled executables
-(:mod:`inference.aot`) are kept in its ``executables`` sub-folder.
+(:mod:`chekan.runtime.store`) are kept in its ``executables`` sub-folder.
 """
 
 from __future__ import annotations
@@ -71,10 +71,10 @@ def _blas_controller():
 
 @cached
 def executable_store():
-    """The store of compiled executables of the estimation code (:mod:`inference.aot`),
+    """The store of compiled executables of the estimation code (:mod:`chekan.runtime.store`),
     fingerprinted by the source of ``chekan`` and ``inference`` and the versions of the
     libraries they trace through; in memory only when the cache is off."""
-    from inference.aot import ExecutableStore, source_fingerprint
+    from chekan.runtime.store import ExecutableStore, source_fingerprint
 
     root = Path(__file__).resolve().parents[1]
     libs = tuple(f"{n}=={_installed_version(n)}" for n in ("equinox", "optimistix", "lineax"))

@@ -8,7 +8,7 @@ The solve (optimistix Levenberg–Marquardt or Gauss–Newton), the residuals an
 solution (from the solver's last accepted linearisation, materialised; kept in the result for
 budgets by row) and its thin SVD run in one compiled function, cached per problem object:
 repeated fits with the same data shapes do not retrace; with ``problem.executables``
-(:mod:`inference.aot`) a new process loads it instead of tracing and compiling.
+(an executable store) a new process loads it instead of tracing and compiling.
 :func:`fit_map_batch` vmaps the same function over a leading batch axis of the data (lanes run
 in lock step: a batch costs its slowest member; failures are reported per lane, never raised).
 """

@@ -17,16 +17,23 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import jax.numpy as jnp
 from jax import Array
 from jax.typing import ArrayLike
 
-from .aot import ExecutableStore
 from .params import ParamSpace
 
-__all__ = ["LeastSquaresProblem"]
+__all__ = ["Executables", "LeastSquaresProblem"]
+
+
+class Executables(Protocol):
+    """The caller's compiler: ``jit(name, fn)`` returns ``fn`` compiled (and kept, where the
+    caller keeps executables: ``chekan.runtime.store.ExecutableStore``). This package
+    compiles nothing of its own through it."""
+
+    def jit(self, name: str, fn: Callable) -> Callable: ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,9 +49,9 @@ class LeastSquaresProblem:
 
     space: ParamSpace
     residuals: Callable[[dict[str, Array], Any], Array]
-    executables: ExecutableStore | None = None
-    """Where the compiled solvers are kept across processes (:mod:`inference.aot`; its
-    fingerprint must cover the code of ``residuals``); None: compiled in every process."""
+    executables: Executables | None = None
+    """What compiles the solvers and keeps them across processes (an executable store,
+    whose fingerprint must cover the code of ``residuals``); None: compiled in every process."""
     _compiled: dict = field(default_factory=dict, init=False, repr=False)
     """Compiled solvers of :mod:`inference.map`, keyed by solver settings (lives and dies with
     the problem)."""

@@ -40,11 +40,11 @@ import numpy as np
 from jax import Array
 from numpy.typing import ArrayLike
 
-from .aot import ExecutableStore
 from .autocorr import burn_thin, integrated_time, mean_tau
 from .chunks import map_chunks
 from .mode import refine_mode
 from .moves import IndependenceMove, SnookerMove, moves_for
+from .problem import Executables
 from .proposal import fit_proposal
 
 BatchMode = Literal["vmap", "map"]
@@ -219,7 +219,7 @@ def _batched(fn: Callable, cached: Callable) -> Callable:
 def _host_logp(
     log_density: Callable,
     data: Any,
-    executables: ExecutableStore | None = None,
+    executables: Executables | None = None,
     batch_mode: BatchMode = "vmap",
 ) -> Callable[[np.ndarray], np.ndarray]:
     if batch_mode == "map":  # a loop over the points, compiled as one function
@@ -338,7 +338,7 @@ def sample(
     config: SamplerConfig | None = None,
     *,
     blob_fn: Callable[[Array, Any], Any] | None = None,
-    executables: ExecutableStore | None = None,
+    executables: Executables | None = None,
     batch_mode: BatchMode = "vmap",
     prior_sd: ArrayLike | None = None,
     derived: Derived | None = None,
@@ -350,7 +350,7 @@ def sample(
     an isotropic variance). ``blob_fn(z, data)`` (a pytree of
     arrays, e.g. a dict) is evaluated on the retained draws only. Never raises for lack of
     convergence: ``converged``/``message`` say why and a ``RuntimeWarning`` is emitted.
-    ``executables``: keep the compiled log-density there (:mod:`inference.aot`; its
+    ``executables``: compile the log-density there and keep it (an executable store; its
     fingerprint must cover the code of ``log_density``). ``batch_mode``: how the walkers
     are evaluated together, ``"vmap"`` (vectorised) or ``"map"`` (``jax.lax.map``, a
     compiled loop: on CPU the faster for models whose evaluation holds a factorisation —

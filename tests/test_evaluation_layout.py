@@ -100,8 +100,8 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
     from chekan.joint.engine import PREDICTIVE
     from chekan.joint.predictive import _equilibria, equilibria_of
     from chekan.joint.problem import K_DESIGN
+    from chekan.runtime.store import ExecutableStore
     from chekan.units import ARCMIN_PER_RAD
-    from inference.aot import ExecutableStore
 
     g = 981_600.0
     flat = {

@@ -202,7 +202,7 @@ def test_a_solved_problem_and_its_store_are_freed_with_their_last_reference(tmp_
     import gc
     import weakref
 
-    from inference.aot import ExecutableStore
+    from chekan.runtime.store import ExecutableStore
 
     base, data, mean, _ = _linreg(seed=4)
     store = ExecutableStore(tmp_path, "freed-test") if stored else None

@@ -18,8 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from chekan.runtime.store import ExecutableStore
 from inference import LeastSquaresProblem, Param, ParamSpace, fit_map
-from inference.aot import ExecutableStore
 from inference.map import _SUCCESS, jacobian_once
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,7 +98,7 @@ PROGRAM = textwrap.dedent(
     import numpy as np
     import jax.numpy as jnp
     from inference import LeastSquaresProblem, Param, ParamSpace, fit_map
-    from inference.aot import ExecutableStore
+    from chekan.runtime.store import ExecutableStore
 
     T = np.linspace(0.0, 6.0, 60)
     space = ParamSpace([Param("amp", loc=2.0, scale=1.0), Param("tau", loc=1.0, scale=1.0)])

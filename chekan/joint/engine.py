@@ -14,7 +14,7 @@ stored name                 what it computes                            maths in
 
 An :class:`Engine` per structure (:func:`engine_for`, the one cache of the joint model)
 holds the problem and the compiled functions, built on first use and kept in the
-executable store (:mod:`inference.aot`, scoped by the structure), so that records of one
+executable store (:mod:`chekan.runtime.store`, scoped by the structure), so that records of one
 structure share them and a new process loads instead of tracing. Per-record numbers
 (duration, counts) are arguments of the compiled functions, never part of their keys.
 :func:`chekan.runtime.clear_caches` forgets them, with every other registered cache. The
@@ -51,7 +51,7 @@ class Engine:
 
     structure: ModelStructure
     problem: CalibrationProblem
-    store: Any  # inference.aot.ExecutableStore, scoped by the structure
+    store: Any  # chekan.runtime.store.ExecutableStore, scoped by the structure
 
     @functools.cached_property
     def em_pass(self) -> Callable:

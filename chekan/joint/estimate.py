@@ -81,7 +81,7 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
     if options.method == "map":
         prefetch_map_derived(model)
     else:  # the sampler's imports (emcee → scipy.stats, ≈ 1 s) while the MAP runs
-        from inference.background import imports_in_background, initialise_lapack
+        from chekan.runtime.background import imports_in_background, initialise_lapack
 
         initialise_lapack()  # its import of scipy.linalg first: the MAP's thread imports no more
         sampler_imports = imports_in_background(["emcee", "inference.sampling"], "imports")

@@ -1,5 +1,5 @@
 """Loads of compiled executables in background threads, with jaxlib's LAPACK kernels bound
-first (:mod:`inference.aot` starts them), and slow imports started ahead of their use."""
+first (:mod:`chekan.runtime.store` starts them), and slow imports started ahead of their use."""
 
 from __future__ import annotations
 
@@ -32,7 +32,10 @@ def loads_in_background(jobs: list[tuple[Callable, tuple]], threads: int, label:
     if jobs:
         from jax.experimental import serialize_executable  # noqa: F401  (the loader, too)
 
+        from chekan.runtime.xla import guard_jax_compiles
+
         initialise_lapack()
+        guard_jax_compiles()  # here, before a load runs beside this thread's compiles
     return in_background(jobs, threads, label)
 
 
