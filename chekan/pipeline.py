@@ -77,7 +77,7 @@ def calibrate(
     # once the input has been read (a bad file fails at once, not after the loads), before
     # the heavy imports: a new process starts loading, in the background, the compiled
     # functions that the last calibration of this method and program ran
-    from chekan.jaxconfig import executable_store
+    from chekan.runtime.process import executable_store
 
     store = executable_store()
     label = preload_label(result, opts)

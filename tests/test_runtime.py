@@ -14,16 +14,16 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_clear_caches_forgets_every_cache_of_the_package():
-    from chekan import jaxconfig
     from chekan import model as fm
     from chekan.archive import history
     from chekan.design import information
     from chekan.joint import engine_for
     from chekan.joint.layout import ModelStructure
+    from chekan.runtime import process
     from chekan.simulate import Truth
 
     st = ModelStructure(4, 12, 5)
-    engine, store, kernels = engine_for(st), jaxconfig.executable_store(), history._compiled()
+    engine, store, kernels = engine_for(st), process.executable_store(), history._compiled()
     sens = information.sensitivities(Truth())
     p = fm.make_params(
         g_mgal=981_000.0, K_pix_per_rad=1e5, b_mgal_per_pix=(1.0, 1.0), m_level_pix=(1e3, 1e3)
@@ -32,7 +32,7 @@ def test_clear_caches_forgets_every_cache_of_the_package():
     assert fm.scale_factor_at_centre._cache_size() == 1
     assert information.sensitivities(Truth()) is sens  # kept until cleared
     runtime.clear_caches()
-    assert engine_for(st) is not engine and jaxconfig.executable_store() is not store
+    assert engine_for(st) is not engine and process.executable_store() is not store
     assert history._compiled() is not kernels
     assert information.sensitivities(Truth()) is not sens
     assert fm.scale_factor_at_centre._cache_size() == 0

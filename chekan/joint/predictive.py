@@ -12,9 +12,9 @@ import numpy as np
 from chekan import model as fm
 from chekan.classical import fit_by_axis, increments_of_readings
 from chekan.joint.derived import equilibria_of
-from chekan.joint.engine import engine_for
 from chekan.joint.problem import K_DESIGN
 from chekan.runtime import jit
+from chekan.runtime.engine import engine_for
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
 

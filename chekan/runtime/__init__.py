@@ -4,6 +4,12 @@
 module             what it does
 =================  ==========================================================
 ``caches``         every cache registered; one :func:`clear_caches`; ``jit``
+``store``          executables compiled once, kept on disk, loaded ever after
+``xla``            compiles apart from loads (the store's and JAX's own)
+``background``     loads and slow imports in background threads
+``process``        the process's executable store and its BLAS threads
+``engine``         what is compiled for a joint-model structure; prefetch; first run
+``padding``        shape buckets: records of similar size share executables
 =================  ==========================================================
 
 The maths (``inference``, ``chekan.joint``'s model modules) compiles nothing of its own:

@@ -25,7 +25,7 @@ def loads_in_background(jobs: list[tuple[Callable, tuple]], threads: int, label:
 
     Binding imports ``scipy.linalg`` (jaxlib takes the kernels from its Cython capsules).
     Done by a loading thread it raced the caller's own ``import scipy.linalg`` (threadpoolctl
-    in :func:`chekan.jaxconfig.single_threaded_blas`): the two imports can lock each other's
+    in :func:`chekan.runtime.process.single_threaded_blas`): the two imports can lock each other's
     submodules, and Python then raises ``_DeadlockError`` in one of them (seen once in a
     ``calibrate_file`` loop). Here the import happens once, before any thread starts.
     """
