@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from chekan.runtime.compiler import Compiler
 from chekan.runtime.store import ExecutableStore
 from inference import LeastSquaresProblem, Param, ParamSpace, fit_map
 from inference.map import _SUCCESS, jacobian_once
@@ -72,7 +73,7 @@ def test_a_solve_through_it_is_stored_and_loaded_with_the_same_numbers(tmp_path)
         return _residuals(jnp.stack([v["amp"], v["tau"]]), d)
 
     def problem(store):
-        return LeastSquaresProblem(space, residuals, executables=store)
+        return LeastSquaresProblem(space, residuals, Compiler() if store is None else store)
 
     data = _data()
     plain = fit_map(problem(None), data, solver="gn")  # equinox's jit, no store

@@ -65,23 +65,44 @@ _FORBIDDEN = {
 }
 
 
+_JITS = {("jax", "jit"), ("eqx", "filter_jit"), ("equinox", "filter_jit")}
+
+
 def test_only_the_runtime_caches_or_jits():
     """No module of chekan outside chekan/runtime calls jax.jit, equinox's filter_jit or
-    functools' caches (chekan/report is another engineer's room, left as it is)."""
+    functools' caches (chekan/report is another engineer's room, left as it is), and none of
+    inference (pure: the caller jits) jits (its fusion barrier's primitive is defined once,
+    not a cache)."""
     offenders = []
-    for p in sorted((ROOT / "chekan").rglob("*.py")):
-        rel = p.relative_to(ROOT / "chekan").parts
-        if rel[0] in ("runtime", "report"):
+    files = [*sorted((ROOT / "chekan").rglob("*.py")), *sorted((ROOT / "inference").rglob("*.py"))]
+    for p in files:
+        rel = p.relative_to(ROOT).parts
+        if rel[:2] in (("chekan", "runtime"), ("chekan", "report")):
             continue
+        forbidden = _FORBIDDEN if rel[0] == "chekan" else _JITS
         for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
             if (
                 isinstance(node, ast.Attribute)
                 and isinstance(node.value, ast.Name)
-                and (node.value.id, node.attr) in _FORBIDDEN
+                and (node.value.id, node.attr) in forbidden
             ):
                 offenders.append(f"{'/'.join(rel)}:{node.lineno}: {node.value.id}.{node.attr}")
             if isinstance(node, ast.ImportFrom) and any(
-                (node.module, a.name) in _FORBIDDEN for a in node.names
+                (node.module, a.name) in forbidden for a in node.names
             ):
                 offenders.append(f"{'/'.join(rel)}:{node.lineno}: from {node.module} import")
     assert offenders == []
+
+
+def test_a_compiler_keeps_one_function_per_name_and_counts_its_traces():
+    from chekan.runtime.compiler import Compiler
+
+    c = Compiler()
+    f = c.jit("double", lambda x: 2.0 * x)
+    assert c.jit("double", lambda x: 3.0 * x) is f  # one per name: the first stays
+    assert float(f(np.float64(2.0))) == 4.0 and float(f(np.float64(5.0))) == 10.0
+    assert c.traces == 1
+    f(np.ones(3))  # a new shape: traced again
+    assert c.traces == 2
+    runtime.clear_caches()
+    assert float(c.jit("double", lambda x: 3.0 * x)(np.float64(2.0))) == 6.0

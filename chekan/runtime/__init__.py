@@ -4,6 +4,7 @@
 module             what it does
 =================  ==========================================================
 ``caches``         every cache registered; one :func:`clear_caches`; ``jit``
+``compiler``       the plain compiler handed to ``inference`` (this process only)
 ``store``          executables compiled once, kept on disk, loaded ever after
 ``xla``            compiles apart from loads (the store's and JAX's own)
 ``background``     loads and slow imports in background threads

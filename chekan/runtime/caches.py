@@ -55,6 +55,15 @@ def jit(fn: Callable | None = None, **options: Any) -> Any:
     return wrap if fn is None else wrap(fn)
 
 
+def register_weak(owner: Any) -> Any:
+    """Add ``owner.clear`` to what :func:`clear_caches` calls, for as long as ``owner`` lives
+    (a compiler that a problem holds goes with the problem); returns ``owner``."""
+    ref = weakref.ref(owner)
+    with _LOCK:
+        _CLEARS.append(lambda: getattr(ref(), "clear", None))
+    return owner
+
+
 def clear_caches() -> None:
     """Forget every registered cache (compiled functions, engines, stores' handles; files
     on disk stay). Call before ``jax.clear_caches()`` where JAX's own should go too."""
