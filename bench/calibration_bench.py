@@ -44,7 +44,7 @@ def _best_of(fn, repeat: int) -> float:
 def run(seed: int = 0, skip_bayes: bool = True, quick: bool = False) -> list[Row]:
     """Measure the figures; returns the rows (see the module docstring). ``skip_bayes`` is
     kept for old callers: the posterior moved to ``bench/nuts_bench.py``."""
-    from chekan.jaxconfig import single_threaded_blas
+    from chekan.runtime.process import single_threaded_blas
 
     with single_threaded_blas():  # as chekan's estimation runs (the scipy reference too)
         return _run(seed, quick)

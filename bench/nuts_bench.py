@@ -207,7 +207,7 @@ def run(
     n_eval: int = 2000,
 ) -> list[Row]:
     """Measure the figures (see the module docstring); returns the rows."""
-    from chekan.jaxconfig import single_threaded_blas
+    from chekan.runtime.process import single_threaded_blas
 
     with single_threaded_blas():  # as chekan's estimation runs (NUTS too)
         return _run(seed, quick, chains, warmup, draws, n_eval)

@@ -452,7 +452,7 @@ def run(
 def nuts_agreement(path: Path, case: str, seed: int, quick: bool) -> Row:
     """emcee (as ``calibrate --method bayes`` samples) against NUTS on the same posterior of
     the record at ``path``, the model built as ``calibrate`` builds it."""
-    from chekan.jaxconfig import single_threaded_blas
+    from chekan.runtime.process import single_threaded_blas
 
     with single_threaded_blas():
         return _nuts_agreement(path, case, seed, quick)

@@ -1,5 +1,5 @@
-"""JAX set-up shared by every module that computes: float64, the persistent cache and the
-store of compiled executables.
+"""JAX set-up shared by every module that computes: float64 and the persistent cache (the
+store of compiled executables and the BLAS threads: :mod:`chekan.runtime.process`).
 
 Import this module before creating any JAX array (``import chekan.jaxconfig``).
 1″ is 4.8e-6 rad and 1 − cos θ at small angles is below float32 resolution,
@@ -8,12 +8,11 @@ so estimation is float64 throughout.
 ``CHEKAN_JAX_CACHE``: unset, empty or ``1`` — the default folder
 (``$XDG_CACHE_HOME/chekan/jax``, else ``~/.cache/chekan/jax``); ``0`` — no persistent
 cache and no stored executables; anything else — that folder. Compiled executables
-(:mod:`inference.aot`) are kept in its ``executables`` sub-folder.
+(:mod:`chekan.runtime.store`) are kept in its ``executables`` sub-folder.
 """
 
 from __future__ import annotations
 
-import functools
 import os
 from pathlib import Path
 from typing import Any
@@ -45,53 +44,9 @@ if _CACHE is not None:
         _CACHE = None
 
 
-def single_threaded_blas():
-    """A context in which OpenBLAS (NumPy's, SciPy's, and the LAPACK kernels JAX's CPU
-    Cholesky and SVD call) runs on one thread.
-
-    The model's matrices are small (≈ 134 × 134): OpenBLAS's thread pool costs more than it
-    gives, and with another process on the cores it stalls. Measured on 2 cores under
-    load: one Cholesky 5 ms with the pool, 0.08 ms without; a MAP residual 17 → 3 ms.
-    Scoped (``threadpoolctl``), not a process-wide setting: estimation enters it.
-    """
-    return _blas_controller().limit(limits=1, user_api="blas")
-
-
-@functools.cache
-def _blas_controller():
-    """The BLAS libraries of this process, found once: ``threadpool_limits`` searches the
-    loaded libraries on every call (7 ms, a twentieth of a short session's MAP). SciPy is
-    imported first so that its OpenBLAS (the one JAX's LAPACK kernels call) is among them."""
-    import scipy.linalg  # noqa: F401
-    from threadpoolctl import ThreadpoolController
-
-    return ThreadpoolController()
-
-
-@functools.cache
-def executable_store():
-    """The store of compiled executables of the estimation code (:mod:`inference.aot`),
-    fingerprinted by the source of ``chekan`` and ``inference`` and the versions of the
-    libraries they trace through; in memory only when the cache is off."""
-    from inference.aot import ExecutableStore, source_fingerprint
-
-    root = Path(__file__).resolve().parents[1]
-    libs = tuple(f"{n}=={_installed_version(n)}" for n in ("equinox", "optimistix", "lineax"))
-    fingerprint = source_fingerprint(root / "chekan", root / "inference", extra=libs)
-    folder = None if _CACHE is None else _CACHE / "executables"
-    return ExecutableStore(folder, fingerprint)
-
-
-def _installed_version(name: str) -> str:
-    """The installed version of distribution ``name``, from its METADATA's ``Version:`` line:
-    ``importlib.metadata.version`` parses the whole file as e-mail headers (≈ 15 ms for
-    these three, a new process's start-up); it is the fallback where that line is missing."""
-    from importlib.metadata import distribution
-
-    dist = distribution(name)
-    text = dist.read_text("METADATA") or ""
-    found = (line[9:].strip() for line in text.splitlines() if line.startswith("Version: "))
-    return next(found, None) or dist.version
+def cache_folder() -> Path | None:
+    """The persistent cache folder in use (None: off, or not writable)."""
+    return _CACHE
 
 
 def device_array(x, dtype=None) -> jax.Array:

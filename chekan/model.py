@@ -45,6 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import chekan.jaxconfig  # noqa: F401  (x64 before any array)
+from chekan.runtime import jit
 
 NEWTON_STEPS = 4
 SECONDS_PER_HOUR = 3600.0
@@ -208,7 +209,7 @@ def _deflection_root_jvp(newton_steps: int, primals, tangents):
     return delta, -dF / _residual_derivative(delta, *primals)
 
 
-@jax.jit
+@jit
 def equilibrium_readings(params: SensorParams, tx_rad, ty_rad):
     """Equilibrium readings (…, 2) of both systems at platform attitude (tx, ty), pixels."""
     return jnp.moveaxis(equilibrium_by_system(params, tx_rad, ty_rad), 0, -1)
@@ -250,7 +251,7 @@ def equilibrium_readings_host(params: SensorParams, tx_rad, ty_rad) -> np.ndarra
     return np.moveaxis(m_level + host.K_pix_per_rad * delta, 0, -1)
 
 
-@jax.jit
+@jit
 def reading_sensitivity_to_tilt(params: SensorParams, tx_rad, ty_rad):
     """∂m/∂ty (…, 2) in pixels per radian, by forward-mode autodiff."""
 
@@ -263,7 +264,7 @@ def reading_sensitivity_to_tilt(params: SensorParams, tx_rad, ty_rad):
 # ---------------------------------------------------------------- characteristic G(m)
 
 
-@jax.jit
+@jit
 def felt_gravity_derivatives(params: SensorParams, m_pix):
     """G(φ) − G_h, G'(φ), G''(φ) of each system at reading(s) m (…, 2), φ = (m − m₀)/K.
 
@@ -283,28 +284,28 @@ def felt_gravity_derivatives(params: SensorParams, m_pix):
     return dG, G1, G2
 
 
-@jax.jit
+@jit
 def scale_factor(params: SensorParams, m_pix):
     """Local scale factor b(m) = dG/dm = G'(φ)/K of each system, mGal/pix."""
     _, G1, _ = felt_gravity_derivatives(params, m_pix)
     return G1 / params.K_pix_per_rad
 
 
-@jax.jit
+@jit
 def quadratic_coefficient(params: SensorParams, m_pix):
     """Local quadratic coefficient a(m) = G''(φ)/(2K²) of each system, mGal/pix² (eq. 10)."""
     _, _, G2 = felt_gravity_derivatives(params, m_pix)
     return G2 / (2.0 * params.K_pix_per_rad**2)
 
 
-@jax.jit
+@jit
 def scale_factor_at_centre(params: SensorParams):
     """b₀ = b + 2a(m₀ − m_h) (eq. 24), with a taken at the level reading."""
     a = quadratic_coefficient(params, params.m_level_pix)
     return params.b_mgal_per_pix + 2.0 * a * (params.m0_pix - params.m_level_pix)
 
 
-@jax.jit
+@jit
 def coefficients_at_horizontal(params: SensorParams, horizontal_offset_pix):
     """a(m_h) of each system (eq. 10, G''(φ_h)/(2K²)) with its pendulum's horizontal at
     m₀ + Δm₀ⱼ, and b₀ = b + 2a(m₀ − m_h) at the CCD centre m₀ (eq. 24): the centre is the
@@ -314,7 +315,7 @@ def coefficients_at_horizontal(params: SensorParams, horizontal_offset_pix):
     return a, params.b_mgal_per_pix + 2.0 * a * (params.m0_pix - params.m_level_pix)
 
 
-@jax.jit
+@jit
 def characteristic(params: SensorParams, m_pix):
     """Exact gravity change G(m) − G(m_h) that a reading m stands for (…, 2), mGal."""
     dG, _, _ = felt_gravity_derivatives(params, m_pix)
@@ -324,7 +325,7 @@ def characteristic(params: SensorParams, m_pix):
 # ---------------------------------------------------------------- time: drift and damping lag
 
 
-@partial(jax.jit, static_argnames=("t_ref_s",))
+@jit(static_argnames=("t_ref_s",))
 def drift_pix(coeffs_pix, t_s, t_ref_s: float = 0.0):
     """Polynomial drift Σₖ cₖ ((t − t_ref)/3600)^(k+1), k = 0…; coeffs (…, 2, deg), pixels.
 
@@ -336,7 +337,7 @@ def drift_pix(coeffs_pix, t_s, t_ref_s: float = 0.0):
     return jnp.einsum("...k,jk->...j", powers, coeffs_pix)
 
 
-@jax.jit
+@jit
 def lag_filter(x, dt_s, tau_s, y0=None):
     """First-order damping lag τ ẏ = x − y with x held over each interval (exact ZOH).
 

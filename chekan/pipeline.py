@@ -77,7 +77,7 @@ def calibrate(
     # once the input has been read (a bad file fails at once, not after the loads), before
     # the heavy imports: a new process starts loading, in the background, the compiled
     # functions that the last calibration of this method and program ran
-    from chekan.jaxconfig import executable_store
+    from chekan.runtime.process import executable_store
 
     store = executable_store()
     label = preload_label(result, opts)
@@ -91,7 +91,7 @@ def calibrate(
 
 def preload_label(result: dict, opts: CalibrationOptions) -> str:
     """The label under which the executable store keeps and preloads the executables of
-    this calibration (:meth:`~inference.aot.ExecutableStore.preload`): the method and a hash
+    this calibration (:meth:`~chekan.runtime.store.ExecutableStore.preload`): the method and a hash
     of what shapes the joint model — the tilt program as the classical result states it
     (axes, angles, rounds, dwell; not its name) and the options that add or drop model
     terms — so that a process preloads what the last calibration of the *same* program ran,

@@ -12,11 +12,12 @@ The contract: a model supplies
 * and/or a log-density ``log_density(z, data) -> scalar`` (prior + likelihood; linear-Gaussian
   parameters can be integrated out with :func:`marginal_loglik`) for :func:`sample`.
 
-:mod:`inference` does the rest: compiled and cached solves, Laplace covariances that flag
-unidentified directions instead of crashing, emcee with several independent ensembles and an
-autocorrelation-based stopping rule, R̂/ESS diagnostics, ArviZ/NetCDF output (ArviZ is touched
-only in :mod:`inference.arviz_io`) and simulation-based-calibration helpers
-(:mod:`inference.sbc`). It knows nothing about any particular instrument.
+:mod:`inference` does the rest: solves (compiled by the compiler the caller hands it: this
+package compiles nothing), Laplace covariances that flag unidentified directions instead of
+crashing, emcee with several independent ensembles and an autocorrelation-based stopping rule,
+R̂/ESS diagnostics, ArviZ/NetCDF output (ArviZ is touched only in :mod:`inference.arviz_io`)
+and simulation-based-calibration helpers (:mod:`inference.sbc`). It knows nothing about any
+particular instrument.
 
 All arrays are float64 (``jax_enable_x64`` is switched on when this package is imported).
 """

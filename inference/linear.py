@@ -23,8 +23,8 @@ Evaluated in :math:`O(np^2)` by Woodbury in the prior-whitened coordinates
 
 ``prior_var`` must be finite and > 0 (an improper flat prior has no normalisable marginal;
 use a wide prior — the log-determinant then carries a large constant, harmless for sampling
-θ). Rows with ``mask == False`` (padding) are ignored exactly. The public functions are jitted
-(eager JAX would compile every primitive separately) and vmap/grad-safe.
+θ). Rows with ``mask == False`` (padding) are ignored exactly. The public functions are pure
+and jit/vmap/grad-safe: jit them where they run (eager JAX compiles every primitive apart).
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 # isort: split
 
 import math
-from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -74,7 +73,6 @@ def _prepare(resid, A, noise_var, prior_mean, prior_var, mask):
     return rw, b, L, Mt, sp, prior_mean, logdet_n, n_eff
 
 
-@jax.jit
 def marginal_loglik(
     resid: ArrayLike,
     A: ArrayLike,
@@ -97,7 +95,6 @@ def marginal_loglik(
     return -0.5 * (quad + logdet + n_eff * _LOG_2PI)
 
 
-@jax.jit
 def conditional_beta(
     resid: ArrayLike,
     A: ArrayLike,
@@ -124,7 +121,6 @@ def conditional_beta(
     return mean, sp[:, None] * chol_minv
 
 
-@partial(jax.jit, static_argnames="n")
 def draw_beta(
     key: Array,
     resid: ArrayLike,

@@ -6,9 +6,10 @@ r"""Maximum a posteriori estimate by nonlinear least squares, with a Laplace cov
 
 The solve (optimistix Levenberg–Marquardt or Gauss–Newton), the residuals and Jacobian at the
 solution (from the solver's last accepted linearisation, materialised; kept in the result for
-budgets by row) and its thin SVD run in one compiled function, cached per problem object:
-repeated fits with the same data shapes do not retrace; with ``problem.executables``
-(:mod:`inference.aot`) a new process loads it instead of tracing and compiling.
+budgets by row) and its thin SVD run in one function, which the problem's compiler
+(``problem.executables``, the caller's: this package compiles nothing) compiles and keeps:
+repeated fits with the same data shapes do not retrace; with an executable store a new
+process loads it instead of tracing and compiling.
 :func:`fit_map_batch` vmaps the same function over a leading batch axis of the data (lanes run
 in lock step: a batch costs its slowest member; failures are reported per lane, never raised).
 """
@@ -20,6 +21,7 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 # isort: split
 
 import functools
+import hashlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -129,8 +131,9 @@ class MapResult:
 
 # --------------------------------------------------------------------------- compiled core
 def trace_count(problem: LeastSquaresProblem) -> int:
-    """How many times the compiled MAP functions of ``problem`` have been traced (for tests)."""
-    return problem._compiled.get("traces", [0])[0]
+    """How many times the problem's compiler has traced (for tests; 0 where it does not
+    count)."""
+    return int(getattr(problem.executables, "traces", 0))
 
 
 def _check_solver(solver: SolverName) -> None:
@@ -183,13 +186,11 @@ def _core(
     # static ``run``, the residual function) in process-wide caches, and the problem would
     # keep its store and every executable in it alive there
     space, residuals = problem.space, problem.residuals
-    traces = problem._compiled.setdefault("traces", [0])
 
     def run(z0, data):
         import optimistix as optx
 
         solver_ = _make_solver(solver, rtol, atol, sd_tol)
-        traces[0] += 1  # Python side effect: counts traces
         fn: Callable[..., Any] = functools.partial(stacked_residuals_of, space, residuals)
         if solver == "gn":
             # LM keeps its linearisation as before: the regression snapshot was taken with
@@ -222,28 +223,22 @@ def _core(
 def _compiled(
     problem, solver, rtol, atol, max_steps, batched: bool, data_axes=0, sd_tol=None
 ) -> Callable:
+    """The solve compiled by the problem's compiler (``problem.executables``: this package
+    compiles nothing itself), under a name that says what it computes."""
     if not isinstance(problem, LeastSquaresProblem):
         raise TypeError(f"problem must be a LeastSquaresProblem, got {type(problem).__name__}")
+    _check_solver(solver)  # an unknown name fails here, before any tracing
+    _check_sd_tol(solver, sd_tol)
     sd_key = None if sd_tol is None else float(sd_tol)
-    key = (solver, float(rtol), float(atol), int(max_steps), batched, _axes_key(data_axes), sd_key)
-    per_problem = problem._compiled  # cached on the problem: freed with it
-    if key not in per_problem:
-        _check_solver(solver)  # an unknown name fails here, before any tracing
-        _check_sd_tol(solver, sd_tol)
-        run = _core(problem, solver, rtol, atol, int(max_steps), sd_key)
-        if batched:
-            run = jax.vmap(run, in_axes=(0, data_axes))
-        store = problem.executables
-        if store is None:
-            import equinox as eqx  # tracing only: a process that loads executables skips it
-
-            per_problem[key] = eqx.filter_jit(run)
-        else:  # kept across processes: no tracing in a new process
-            name = f"map_{solver}_{rtol:g}_{atol:g}_{max_steps}_{'batch' if batched else 'one'}"
-            if sd_key is not None:
-                name += f"_sd{sd_key:g}"
-            per_problem[key] = store.jit(name, run)
-    return per_problem[key]
+    run = _core(problem, solver, rtol, atol, int(max_steps), sd_key)
+    if batched:
+        run = jax.vmap(run, in_axes=(0, data_axes))
+    name = f"map_{solver}_{rtol:g}_{atol:g}_{max_steps}_{'batch' if batched else 'one'}"
+    if sd_key is not None:
+        name += f"_sd{sd_key:g}"
+    if batched and _axes_key(data_axes) != _axes_key(0):  # other axes: another function
+        name += f"_axes{hashlib.sha256(repr(_axes_key(data_axes)).encode()).hexdigest()[:12]}"
+    return problem.executables.jit(name, run)
 
 
 def _axes_key(axes) -> Any:
@@ -326,8 +321,9 @@ def fit_map(
     """MAP estimate of ``problem`` given ``data`` (any pytree ``residuals`` accepts).
 
     ``z0``: initial working vector (default: the prior loc, z = 0) or a dict of named values.
-    Compiled once per problem object, solver settings and data shapes; Python scalars inside
-    ``data`` are static under ``eqx.filter_jit`` (a new value recompiles): pass arrays.
+    Compiled by the problem's compiler (``problem.executables``), once per solver settings
+    and data shapes; a plain compiler (``equinox.filter_jit``) makes Python scalars inside
+    ``data`` static (a new value recompiles): pass arrays.
     Never raises on solver failure: check ``converged``/``message``. Near-singular directions
     (s < rcond·s_max) get infinite sd and their coordinates are listed in ``degenerate``.
 

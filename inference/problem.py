@@ -16,17 +16,24 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 # isort: split
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import jax.numpy as jnp
 from jax import Array
 from jax.typing import ArrayLike
 
-from .aot import ExecutableStore
 from .params import ParamSpace
 
-__all__ = ["LeastSquaresProblem"]
+__all__ = ["Executables", "LeastSquaresProblem"]
+
+
+class Executables(Protocol):
+    """The caller's compiler: ``jit(name, fn)`` returns ``fn`` compiled (and kept, where the
+    caller keeps executables: ``chekan.runtime.store.ExecutableStore``). This package
+    compiles nothing of its own through it."""
+
+    def jit(self, name: str, fn: Callable) -> Callable: ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -36,18 +43,15 @@ class LeastSquaresProblem:
 
     ``residuals(values, data)`` returns the whitened data residual vector (fixed length for
     given data shapes; padded entries must be exactly 0). It must be a pure JAX function.
-    Equality and hashing are by identity: compiled solvers are cached per problem object, so
-    build the problem once and reuse it.
+    Equality and hashing are by identity. Its compiler keeps the compiled solvers: build the
+    problem once and reuse it.
     """
 
     space: ParamSpace
     residuals: Callable[[dict[str, Array], Any], Array]
-    executables: ExecutableStore | None = None
-    """Where the compiled solvers are kept across processes (:mod:`inference.aot`; its
-    fingerprint must cover the code of ``residuals``); None: compiled in every process."""
-    _compiled: dict = field(default_factory=dict, init=False, repr=False)
-    """Compiled solvers of :mod:`inference.map`, keyed by solver settings (lives and dies with
-    the problem)."""
+    executables: Executables
+    """What compiles the solvers and keeps them (the caller's: a compiler of its own per
+    problem, or an executable store whose fingerprint covers the code of ``residuals``)."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.space, ParamSpace):

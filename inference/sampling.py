@@ -40,11 +40,11 @@ import numpy as np
 from jax import Array
 from numpy.typing import ArrayLike
 
-from .aot import ExecutableStore
 from .autocorr import burn_thin, integrated_time, mean_tau
 from .chunks import map_chunks
 from .mode import refine_mode
 from .moves import IndependenceMove, SnookerMove, moves_for
+from .problem import Executables
 from .proposal import fit_proposal
 
 BatchMode = Literal["vmap", "map"]
@@ -195,31 +195,10 @@ class SamplingResult:
 
 
 # --------------------------------------------------------------------------- JAX side
-# ``log_density`` is a static argument: hashing by identity (bound methods by (self, func))
-# lets repeated calls of ``sample`` with the same function reuse the compiled code.
-@partial(jax.jit, static_argnums=0)
-def _logp_batch(log_density: Callable, zs: Array, data: Any) -> Array:
-    return jax.vmap(log_density, in_axes=(0, None))(zs, data)
-
-
-@partial(jax.jit, static_argnums=0)
-def _blob_batch(blob_fn: Callable, zs: Array, data: Any) -> Any:
-    return jax.vmap(blob_fn, in_axes=(0, None))(zs, data)
-
-
-def _batched(fn: Callable, cached: Callable) -> Callable:
-    """``cached`` (shared compile cache) when ``fn`` is hashable, else a fresh jit of vmap."""
-    try:
-        hash(fn)
-    except TypeError:  # e.g. an equinox Module holding arrays: compile once for this call
-        return jax.jit(jax.vmap(fn, in_axes=(0, None)))
-    return partial(cached, fn)
-
-
 def _host_logp(
     log_density: Callable,
     data: Any,
-    executables: ExecutableStore | None = None,
+    executables: Executables,
     batch_mode: BatchMode = "vmap",
 ) -> Callable[[np.ndarray], np.ndarray]:
     if batch_mode == "map":  # a loop over the points, compiled as one function
@@ -230,12 +209,8 @@ def _host_logp(
         fn = looped
     else:
         fn = jax.vmap(log_density, in_axes=(0, None))
-    if executables is not None:  # compiled once per batch size and kept across processes
-        batched = executables.jit(f"log_density_{batch_mode}", fn)
-    elif batch_mode == "map":
-        batched = jax.jit(fn)
-    else:
-        batched = _batched(log_density, _logp_batch)
+    # compiled by the caller's compiler, once per batch size (kept across processes by a store)
+    batched = executables.jit(f"log_density_{batch_mode}", fn)
 
     def lnp(zs: np.ndarray) -> np.ndarray:
         # NumPy in, NumPy out: jnp.asarray on the input alone costs ~4x the call itself.
@@ -338,7 +313,7 @@ def sample(
     config: SamplerConfig | None = None,
     *,
     blob_fn: Callable[[Array, Any], Any] | None = None,
-    executables: ExecutableStore | None = None,
+    executables: Executables,
     batch_mode: BatchMode = "vmap",
     prior_sd: ArrayLike | None = None,
     derived: Derived | None = None,
@@ -350,8 +325,9 @@ def sample(
     an isotropic variance). ``blob_fn(z, data)`` (a pytree of
     arrays, e.g. a dict) is evaluated on the retained draws only. Never raises for lack of
     convergence: ``converged``/``message`` say why and a ``RuntimeWarning`` is emitted.
-    ``executables``: keep the compiled log-density there (:mod:`inference.aot`; its
-    fingerprint must cover the code of ``log_density``). ``batch_mode``: how the walkers
+    ``executables``: the caller's compiler of the log-density (and ``blob_fn``) and keeper
+    of what it compiles (a compiler of its own per density, or an executable store whose
+    fingerprint covers the code of ``log_density``). ``batch_mode``: how the walkers
     are evaluated together, ``"vmap"`` (vectorised) or ``"map"`` (``jax.lax.map``, a
     compiled loop: on CPU the faster for models whose evaluation holds a factorisation —
     for the Chekan model of a 9 h record, 26 walkers, one BLAS thread: a whole warm
@@ -384,7 +360,8 @@ def sample(
     cov0 = _regularised_cov(init_cov, ndim)
     samplers, states = _ensembles(lnp, z_init, cov0, nw, config, rng, psd)
     n_steps, tau, ess, converged, extra, why = _run(samplers, states, config, nw, derived)
-    res = _result(samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0, why)
+    blobs_of = None if blob_fn is None else partial(_eval_blobs, blob_fn, executables=executables)
+    res = _result(samplers, n_steps, tau, ess, converged, config, nw, blobs_of, data, t0, why)
     if derived is not None:
         res.derived = extra if extra is not None else derived(res.draws)
         res.seconds = time.perf_counter() - t0
@@ -541,7 +518,7 @@ def _retained_diagnostics(samplers, tau, n_steps: int, config: SamplerConfig, nw
 
 
 def _result(
-    samplers, n_steps, tau, ess, converged, config, nw, blob_fn, data, t0, why: str = ""
+    samplers, n_steps, tau, ess, converged, config, nw, blobs_of, data, t0, why: str = ""
 ) -> SamplingResult:
     """The retained draws (burn-in cut, thinned), the blobs and the verdict."""
     burn, thin, draws = _retained(samplers, tau, n_steps, config, nw)
@@ -561,7 +538,7 @@ def _result(
             "parameters"
         )
         warnings.warn(message, RuntimeWarning, stacklevel=3)
-    blobs = None if blob_fn is None else _eval_blobs(blob_fn, draws, data, nw // 2)
+    blobs = None if blobs_of is None else blobs_of(draws, data, nw // 2)
     return SamplingResult(
         draws=draws,
         log_prob=log_prob,
@@ -585,10 +562,12 @@ def _advance(job: tuple[emcee.EnsembleSampler, emcee.State, int, bool]) -> emcee
     return sampler.run_mcmc(state, k, progress=False, skip_initial_state_check=started)
 
 
-def _eval_blobs(blob_fn: Callable, draws: np.ndarray, data: Any, chunk: int) -> dict:
+def _eval_blobs(
+    blob_fn: Callable, draws: np.ndarray, data: Any, chunk: int, *, executables: Executables
+) -> dict:
     nc, nd, ndim = draws.shape
     flat = draws.reshape(nc * nd, ndim)
-    batched = _batched(blob_fn, _blob_batch)
+    batched = executables.jit("blobs", jax.vmap(blob_fn, in_axes=(0, None)))
     size = max(chunk, min(4096, flat.shape[0]))
     joined = map_chunks(lambda z: batched(z, data), [flat], size, threads=1)
     if not isinstance(joined, Mapping):

@@ -8,10 +8,10 @@ import pytest
 from chekan import joint
 from chekan.classical import calibrate_record
 from chekan.joint import likelihood as cm
-from chekan.joint.layout import padded_shape
 from chekan.joint.map import between_passes
 from chekan.joint.reported import map_derived
 from chekan.pipeline import CalibrationOptions, calibrate_file
+from chekan.runtime.padding import padded_shape
 from inference.linear import marginal_loglik
 from inference.normal_eq import marginal_loglik_normal
 

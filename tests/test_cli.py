@@ -326,12 +326,12 @@ def test_validate_short_options(tmp_path, capsys, record):
 def test_a_bad_input_starts_no_background_loads(tmp_path, monkeypatch):
     """The stored executables are preloaded only once the input has been read: a bad file
     fails at once instead of waiting, at exit, for loads it will never use."""
-    from chekan import jaxconfig
     from chekan.errors import ChekanError
     from chekan.pipeline import CalibrationOptions, calibrate_file
+    from chekan.runtime import process
 
     started = []
-    store = jaxconfig.executable_store()
+    store = process.executable_store()
     monkeypatch.setattr(type(store), "preload", lambda self, label: started.append(label) or 0)
     bad = tmp_path / "bad.csv"
     bad.write_text("# format: chekan-record/1\n# garbage\nx,y\n1,2\n", encoding="utf-8")

@@ -15,9 +15,9 @@ from chekan import joint
 from chekan.classical import calibrate_record
 from chekan.joint import em
 from chekan.joint.angles import AngleSensorSpec
-from chekan.joint.layout import padded_shape
 from chekan.joint.likelihood import solve_beta
 from chekan.joint.map import between_passes
+from chekan.runtime.padding import padded_shape
 
 
 def _fit(rec, solver="gn"):

@@ -22,7 +22,7 @@ def test_one_engine_per_structure_until_cleared():
 
 
 def test_only_the_engine_caches_or_compiles():
-    """No module of chekan/joint but the engine uses functools.cache or inference.aot."""
+    """No module of chekan/joint but the engine uses functools.cache or the executable store."""
     offenders = []
     for p in sorted((ROOT / "chekan" / "joint").glob("*.py")):
         if p.name == "engine.py":
@@ -31,6 +31,8 @@ def test_only_the_engine_caches_or_compiles():
         for node in ast.walk(tree):
             if isinstance(node, ast.Attribute) and node.attr in ("cache", "lru_cache"):
                 offenders.append(f"{p.name}: functools.{node.attr}")
-            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("inference.aot"):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith(
+                "chekan.runtime.store"
+            ):
                 offenders.append(f"{p.name}: imports {node.module}")
     assert offenders == []

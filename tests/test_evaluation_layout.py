@@ -97,11 +97,11 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
     draw with a ≤ 0, which takes the design K), at the record's CCD centre ``m0``."""
     from types import SimpleNamespace
 
-    from chekan.joint.engine import PREDICTIVE
     from chekan.joint.predictive import _equilibria, equilibria_of
     from chekan.joint.problem import K_DESIGN
+    from chekan.runtime.engine import PREDICTIVE
+    from chekan.runtime.store import ExecutableStore
     from chekan.units import ARCMIN_PER_RAD
-    from inference.aot import ExecutableStore
 
     g = 981_600.0
     flat = {

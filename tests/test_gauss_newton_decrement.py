@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from chekan.runtime.compiler import Compiler
 from inference import LeastSquaresProblem, Param, ParamSpace, fit_map, fit_map_batch
 
 T = np.linspace(0.0, 6.0, 80)
@@ -27,7 +28,7 @@ def _problem() -> LeastSquaresProblem:
     def residuals(v, d):
         return (d["y"] - v["A"] * jnp.exp(-d["t"] / v["tau"])) / NOISE
 
-    return LeastSquaresProblem(space, residuals)
+    return LeastSquaresProblem(space, residuals, Compiler())
 
 
 def _data(seed: int) -> dict:

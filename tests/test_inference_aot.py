@@ -1,4 +1,4 @@
-"""inference.aot: executables compiled once and loaded by later processes, never stale."""
+"""chekan.runtime.store: executables compiled once and loaded by later processes, never stale."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from inference.aot import ExecutableStore, source_fingerprint
+from chekan.runtime.store import ExecutableStore, source_fingerprint
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,7 +27,7 @@ PROGRAM = textwrap.dedent(
     import numpy as np
     import jax, jax.numpy as jnp
     jax.config.update("jax_enable_x64", True)
-    from inference.aot import ExecutableStore
+    from chekan.runtime.store import ExecutableStore
 
     def fn(x, data):
         m = x @ x.T + data["shift"] * jnp.eye(x.shape[0]) * float(sys.argv[3])
@@ -116,7 +116,7 @@ SPY = textwrap.dedent(
     import numpy as np
     import jax
     jax.config.update("jax_enable_x64", True)
-    from inference.aot import ExecutableStore
+    from chekan.runtime.store import ExecutableStore
     assert "scipy.linalg" not in sys.modules  # else the check below proves nothing
     seen = []
     start = threading.Thread.start
@@ -212,7 +212,7 @@ def test_an_executable_that_cannot_be_stored_says_so_and_still_runs(tmp_path, mo
 def test_a_store_keeps_the_newest_preload_manifests(tmp_path, monkeypatch):
     """One manifest per label (a tilt program and its options): past MAX_MANIFESTS the
     oldest go when a process remembers, the one it wrote and the newest others stay."""
-    from inference import aot
+    from chekan.runtime import store as aot
 
     monkeypatch.setattr(aot, "MAX_MANIFESTS", 3)
     store = aot.ExecutableStore(tmp_path, "fp")
@@ -235,7 +235,7 @@ def test_a_store_keeps_the_newest_preload_manifests(tmp_path, monkeypatch):
 def test_a_store_over_its_cap_deletes_the_least_recently_used(tmp_path):
     """Over ``max_bytes`` the store deletes the oldest executables down to PRUNE_TO of the
     cap; the newest stay, and so does one this process has loaded, however old."""
-    from inference.aot import PRUNE_TO
+    from chekan.runtime.store import PRUNE_TO
 
     store = ExecutableStore(tmp_path, "code-v1", max_bytes=10_000)
     ages = {f"k{i}": 1_000_000 + 1000 * i for i in range(8)}  # k0 the oldest
@@ -262,7 +262,7 @@ def test_past_the_map_budget_the_least_recently_used_executables_are_let_go(tmp_
     store over its ``map_budget`` lets go of other stores' executables, then of its own
     least recently used ones (never the one in hand), and one let go is loaded again from
     its file, same numbers."""
-    from inference import aot
+    from chekan.runtime import store as aot
 
     in_use = aot._maps_in_use()
     if in_use is None:  # pragma: no cover - not Linux
@@ -397,7 +397,7 @@ def _tree_static_sig(args):
     """(treedef, static, signature) of ``args`` as the store builds them."""
     import jax
 
-    from inference.aot import _aval, _is_array
+    from chekan.runtime.store import _aval, _is_array
 
     leaves, treedef = jax.tree_util.tree_flatten(args)
     dyn = [i for i, v in enumerate(leaves) if _is_array(v)]
@@ -482,11 +482,11 @@ def test_jax_own_compiles_wait_for_the_loads_in_flight(tmp_path, monkeypatch):
 
     import jax
 
-    from inference.aot import JAX_GUARDED
+    from chekan.runtime.xla import guard_jax_compiles
 
     # CI crashed again with the store's compiles guarded: JAX's own (a jax.jit outside the
     # store, an eager operation) still ran beside a load
-    assert "jax._src.compiler.backend_compile_and_load" in JAX_GUARDED
+    assert "jax._src.compiler.backend_compile_and_load" in guard_jax_compiles()
     first = ExecutableStore(tmp_path, "code-v1")
     first.jit("a", lambda x: x + 1)(jnp.ones(3))
     spans: list = []
@@ -504,3 +504,52 @@ def test_jax_own_compiles_wait_for_the_loads_in_flight(tmp_path, monkeypatch):
     assert float(store.jit("a", lambda x: x + 1)(jnp.ones(3))[0]) == 2.0
     ((_, load_start, load_end),) = [s for s in spans if s[0] == "load"]
     assert load_start < started and ended >= load_end  # the compile waited for the load
+
+
+def test_two_threads_asking_for_one_key_compile_it_once():
+    """One lock per key: a second thread waits for the first one's compile and uses it (a
+    first ``bayes`` compiled its draws twice, one per chunk thread)."""
+    import threading
+    import time
+
+    store = ExecutableStore(None, "fp")
+
+    def slow(x):
+        time.sleep(0.5)  # at trace time: both threads ask before either has it
+        return x * 2.0
+
+    f = store.jit("slow", slow)
+    start = threading.Barrier(2)
+    outs: list[float] = []
+
+    def work() -> None:
+        start.wait()
+        outs.append(float(f(jnp.ones(3))[0]))
+
+    threads = [threading.Thread(target=work) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert outs == [2.0, 2.0]
+    assert [e for _, e in store.events] == ["compiled"]
+
+
+def test_nothing_is_patched_at_import_and_the_store_guards_jax_when_first_used(tmp_path):
+    code = textwrap.dedent(
+        """
+        import jax, jax.numpy as jnp
+        from jax._src import compiler
+        from chekan.runtime.store import ExecutableStore
+        before = getattr(compiler.backend_compile_and_load, "guarded_by_chekan", False)
+        ExecutableStore(None, "fp").jit("f", lambda x: x + 1)(jnp.ones(2))
+        after = getattr(compiler.backend_compile_and_load, "guarded_by_chekan", False)
+        print(before, after)
+        """
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "JAX_PLATFORMS": "cpu"}
+    proc = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split() == ["False", "True"]

@@ -1,4 +1,4 @@
-"""Imports started ahead of their use (:func:`inference.background.imports_in_background`)."""
+"""Imports started ahead of their use (:func:`chekan.runtime.background.imports_in_background`)."""
 
 import os
 import subprocess
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from inference.background import imports_in_background
+from chekan.runtime.background import imports_in_background
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -24,7 +24,7 @@ def test_background_imports_are_in_the_process_once_the_future_is_done():
     code = textwrap.dedent(
         """
         import sys
-        from inference.background import imports_in_background
+        from chekan.runtime.background import imports_in_background
         assert "emcee" not in sys.modules and "scipy.stats" not in sys.modules
         fut = imports_in_background(["emcee", "inference.sampling"], "imports")
         assert fut.result(timeout=120) is None

@@ -6,6 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from chekan.runtime.compiler import Compiler
 from inference import (
     LeastSquaresProblem,
     Param,
@@ -26,7 +27,9 @@ def _linreg(seed: int = 0, n: int = 40, p: int = 3):
     beta = np.array([1.0, -2.0, 0.5])[:p]
     y = X @ beta + SIGMA * rng.normal(size=n)
     space = ParamSpace([Param("beta", loc=0.0, scale=PRIOR_SD, shape=(p,))])
-    problem = LeastSquaresProblem(space, lambda v, d: (d["y"] - d["X"] @ v["beta"]) / SIGMA)
+    problem = LeastSquaresProblem(
+        space, lambda v, d: (d["y"] - d["X"] @ v["beta"]) / SIGMA, Compiler()
+    )
     precision = X.T @ X / SIGMA**2 + np.eye(p) / PRIOR_SD**2
     cov = np.linalg.inv(precision)
     mean = cov @ (X.T @ y) / SIGMA**2
@@ -74,7 +77,7 @@ def _decay_problem() -> LeastSquaresProblem:
     def residuals(v, d):
         return (d["y"] - v["A"] * jnp.exp(-d["t"] / v["tau"])) / NOISE
 
-    return LeastSquaresProblem(space, residuals)
+    return LeastSquaresProblem(space, residuals, Compiler())
 
 
 def _decay_data(seed: int, truth=TRUTH) -> dict:
@@ -145,7 +148,7 @@ def test_degenerate_model_is_flagged_not_crashed() -> None:
     y = 2.0 * t + 0.5 + 0.1 * rng.normal(size=t.size)
     space = ParamSpace([Param("p1"), Param("p2"), Param("c", scale=5.0)])
     problem = LeastSquaresProblem(
-        space, lambda v, d: (d["y"] - (v["p1"] + v["p2"]) * d["t"] - v["c"]) / 0.1
+        space, lambda v, d: (d["y"] - (v["p1"] + v["p2"]) * d["t"] - v["c"]) / 0.1, Compiler()
     )
     res = fit_map(problem, {"t": t, "y": y})
     assert res.degenerate == ["p1", "p2"]
@@ -202,10 +205,10 @@ def test_a_solved_problem_and_its_store_are_freed_with_their_last_reference(tmp_
     import gc
     import weakref
 
-    from inference.aot import ExecutableStore
+    from chekan.runtime.store import ExecutableStore
 
     base, data, mean, _ = _linreg(seed=4)
-    store = ExecutableStore(tmp_path, "freed-test") if stored else None
+    store = ExecutableStore(tmp_path, "freed-test") if stored else Compiler()
     problem = LeastSquaresProblem(base.space, base.residuals, executables=store)
     res = fit_map(problem, data, solver="gn")
     np.testing.assert_allclose(res.values["beta"], mean, atol=1e-8)

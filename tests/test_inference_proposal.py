@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
+from chekan.runtime.compiler import Compiler
 from inference import SamplerConfig, sample, summarize_draws
 from inference.proposal import MixtureProposal, fit_proposal
 
@@ -109,7 +110,7 @@ def test_adaptive_independence_samples_a_non_gaussian_target() -> None:
         progress=False,
         seed=3,
     )
-    res = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    res = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler())
     assert res.converged, res.message
     assert res.tau.max() < 8
     flat = res.draws.reshape(-1, 3)
@@ -121,7 +122,7 @@ def test_adaptive_independence_samples_a_non_gaussian_target() -> None:
         assert abs(flat[:, i].var() / var - 1) < 0.15, (i, flat[:, i].var())
     # the same draws whether the ensembles advance in one thread or several
     cfg.threads = 1
-    again = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    again = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler())
     np.testing.assert_array_equal(again.draws, res.draws)
 
 

@@ -7,6 +7,7 @@ import warnings
 import numpy as np
 import pytest
 
+from chekan.runtime.compiler import Compiler
 from inference import (
     LeastSquaresProblem,
     Param,
@@ -28,7 +29,7 @@ X = np.c_[np.ones(30), np.linspace(-1, 1, 30), np.linspace(-1, 1, 30) ** 2]
 Y = X @ np.array([0.3, -1.0, 0.8]) + SIGMA * rng.normal(size=30)
 DATA = {"X": X, "y": Y}
 SPACE = ParamSpace([Param("beta", scale=PRIOR_SD, shape=(3,))])
-PROBLEM = LeastSquaresProblem(SPACE, lambda v, d: (d["y"] - d["X"] @ v["beta"]) / SIGMA)
+PROBLEM = LeastSquaresProblem(SPACE, lambda v, d: (d["y"] - d["X"] @ v["beta"]) / SIGMA, Compiler())
 COV = np.linalg.inv(X.T @ X / SIGMA**2 + np.eye(3) / PRIOR_SD**2)
 MEAN = COV @ X.T @ Y / SIGMA**2
 
@@ -45,7 +46,7 @@ def run():
     cfg = SamplerConfig(
         n_chains=4, min_steps=200, tau_factor=30, check_every=100, progress=False, seed=1
     )
-    return sample(PROBLEM.log_density, DATA, z0, cov_z, cfg, blob_fn=_blob)
+    return sample(PROBLEM.log_density, DATA, z0, cov_z, cfg, blob_fn=_blob, executables=Compiler())
 
 
 def test_emcee_matches_analytic_posterior(run) -> None:
@@ -103,7 +104,7 @@ def test_short_run_is_flagged() -> None:
     """A deliberately short run: not converged, warned, and the report says why."""
     cfg = SamplerConfig(max_steps=30, check_every=15, min_steps=0, progress=False, seed=2)
     with pytest.warns(RuntimeWarning, match="NOT converged"):
-        res = sample(PROBLEM.log_density, DATA, np.full(3, 3.0), 1e-4, cfg)
+        res = sample(PROBLEM.log_density, DATA, np.full(3, 3.0), 1e-4, cfg, executables=Compiler())
     assert not res.converged
     ok, problems = convergence_report(summarize_draws({"z": res.draws}, hdi_prob=0.9))
     assert not ok
@@ -117,7 +118,14 @@ def test_sampler_input_errors() -> None:
         SamplerConfig(n_walkers=4).walkers(3)
     assert SamplerConfig().walkers(3) == 16 and SamplerConfig().walkers(10) == 22
     with pytest.raises(ValueError, match="not finite"):
-        sample(lambda z, d: -np.inf * z.sum(), None, np.ones(2), np.eye(2), SamplerConfig())
+        sample(
+            lambda z, d: -np.inf * z.sum(),
+            None,
+            np.ones(2),
+            np.eye(2),
+            SamplerConfig(),
+            executables=Compiler(),
+        )
 
 
 def test_vectorised_tau_equals_emcee() -> None:
@@ -168,7 +176,7 @@ def test_independence_moves_sample_a_non_gaussian_target() -> None:
         progress=False,
         seed=3,
     )
-    res = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    res = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler())
     assert res.converged, res.message
     assert res.tau.max() < 10  # DE alone: ~30 steps on this target
     flat = res.draws.reshape(-1, 3)
@@ -242,7 +250,11 @@ def test_concurrent_ensembles_give_the_same_draws() -> None:
             )
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # short run: not converged
-                runs.append(sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg))
+                runs.append(
+                    sample(
+                        _banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler()
+                    )
+                )
         np.testing.assert_array_equal(runs[0].draws, runs[1].draws)
         np.testing.assert_array_equal(runs[0].log_prob, runs[1].log_prob)
         assert runs[0].n_steps == runs[1].n_steps
@@ -319,11 +331,11 @@ def test_bulk_rule_ranks_for_r_hat_only_where_every_ess_passes(monkeypatch) -> N
     retained = sampling._retained_diagnostics
     monkeypatch.setattr(mcmc_stats, "rhat_rank", counted_rhat)
     monkeypatch.setattr(sampling, "_retained_diagnostics", watched)
-    fast = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    fast = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler())
     assert fast.converged and len(passes) >= 2 and not passes[0]
     assert sorted(set(ranked)) == [k + 1 for k, ok in enumerate(passes) if ok]
     monkeypatch.setattr(sampling, "_retained_diagnostics", every_check)
-    full = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    full = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler())
     assert full.n_steps == fast.n_steps
     np.testing.assert_array_equal(full.draws, fast.draws)
 
@@ -348,16 +360,20 @@ def test_bulk_rule_holds_for_the_derived_quantities_too() -> None:
         n = draws.shape[1]
         return {"slow": np.repeat(draws[:, ::16, 0], 16, axis=1)[:, :n], **same(draws)}
 
-    plain = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg)
+    plain = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler())
     calls.clear()
-    with_same = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, derived=same)
+    with_same = sample(
+        _banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, derived=same, executables=Compiler()
+    )
     assert len(calls) == 1 and calls[0] == plain.draws.shape
     assert with_same.n_steps == plain.n_steps
     np.testing.assert_array_equal(with_same.draws, plain.draws)
     assert with_same.derived is not None
     np.testing.assert_array_equal(with_same.derived["x0"], 2.0 * plain.draws[..., 0])
 
-    slow = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, derived=held)
+    slow = sample(
+        _banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, derived=held, executables=Compiler()
+    )
     assert slow.converged and slow.derived is not None
     assert slow.n_steps > plain.n_steps
     assert mcmc_stats.ess_bulk(slow.derived["slow"]) >= 300.0
@@ -372,7 +388,15 @@ def test_bulk_rule_holds_for_the_derived_quantities_too() -> None:
 
     short = _bulk_config(max_steps=300)
     with pytest.warns(RuntimeWarning, match="the derived level has"):
-        stuck = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, short, derived=never)
+        stuck = sample(
+            _banana_t,
+            None,
+            np.zeros(3),
+            np.eye(3) * 0.1,
+            short,
+            derived=never,
+            executables=Compiler(),
+        )
     assert not stuck.converged and stuck.n_steps == 300 and stuck.derived is not None
     # the final draws are evaluated once: the last check's evaluation is the one returned
     assert sum(d.shape == stuck.draws.shape and np.array_equal(d, stuck.draws) for d in seen) == 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from chekan.runtime.compiler import Compiler
 from inference import LeastSquaresProblem, Param, ParamSpace, fit_map_batch, sbc
 
 N_SIM = 300
@@ -60,7 +61,9 @@ def test_map_laplace_calibration_over_prior_draws() -> None:
     n_obs, sigma = 12, 0.4
     t = np.linspace(-1, 1, n_obs)
     space = ParamSpace([Param("a", scale=1.5), Param("b", loc=0.5, scale=0.8)])
-    problem = LeastSquaresProblem(space, lambda v, d: (d["y"] - v["a"] - v["b"] * d["t"]) / sigma)
+    problem = LeastSquaresProblem(
+        space, lambda v, d: (d["y"] - v["a"] - v["b"] * d["t"]) / sigma, Compiler()
+    )
     z_true = space.sample_prior_z(rng, N_SIM)
     truth = space.to_values(z_true)
     y = truth["a"][:, None] + truth["b"][:, None] * t + sigma * rng.normal(size=(N_SIM, n_obs))

@@ -18,8 +18,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from chekan.runtime.compiler import Compiler
+from chekan.runtime.store import ExecutableStore
 from inference import LeastSquaresProblem, Param, ParamSpace, fit_map
-from inference.aot import ExecutableStore
 from inference.map import _SUCCESS, jacobian_once
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,7 +73,7 @@ def test_a_solve_through_it_is_stored_and_loaded_with_the_same_numbers(tmp_path)
         return _residuals(jnp.stack([v["amp"], v["tau"]]), d)
 
     def problem(store):
-        return LeastSquaresProblem(space, residuals, executables=store)
+        return LeastSquaresProblem(space, residuals, Compiler() if store is None else store)
 
     data = _data()
     plain = fit_map(problem(None), data, solver="gn")  # equinox's jit, no store
@@ -98,7 +99,7 @@ PROGRAM = textwrap.dedent(
     import numpy as np
     import jax.numpy as jnp
     from inference import LeastSquaresProblem, Param, ParamSpace, fit_map
-    from inference.aot import ExecutableStore
+    from chekan.runtime.store import ExecutableStore
 
     T = np.linspace(0.0, 6.0, 60)
     space = ParamSpace([Param("amp", loc=2.0, scale=1.0), Param("tau", loc=1.0, scale=1.0)])

@@ -50,8 +50,8 @@ def test_the_preload_label_follows_the_program_not_the_instrument(short_session,
     import copy
     import dataclasses
 
-    from chekan import jaxconfig
     from chekan.pipeline import classical_of, preload_label
+    from chekan.runtime import process
 
     path, rec, _ = short_session
     opts = CalibrationOptions(method="map", progress=False)
@@ -69,7 +69,7 @@ def test_the_preload_label_follows_the_program_not_the_instrument(short_session,
     assert preload_label(result, dataclasses.replace(opts, method="bayes")) != label
 
     asked: list = []
-    store = jaxconfig.executable_store()
+    store = process.executable_store()
     monkeypatch.setattr(type(store), "preload", lambda self, lab: asked.append(("p", lab)) or 0)
     monkeypatch.setattr(type(store), "remember", lambda self, lab: asked.append(("r", lab)))
     calibrate(rec, opts)

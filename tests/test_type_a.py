@@ -18,7 +18,6 @@ from chekan import joint
 from chekan.classical import calibrate_record
 from chekan.joint import em, typea
 from chekan.joint.angles import AngleSensorSpec
-from chekan.joint.engine import engine_for
 from chekan.joint.likelihood import (
     apply_A,
     beta_prior_var,
@@ -27,6 +26,7 @@ from chekan.joint.likelihood import (
 )
 from chekan.joint.map import _solve_pass
 from chekan.joint.reported import map_derived
+from chekan.runtime.engine import engine_for
 from inference.dof import coverage_factor
 
 

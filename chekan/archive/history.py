@@ -81,7 +81,6 @@ slip.
 from __future__ import annotations
 
 import datetime as _dt
-import functools
 import itertools
 import json
 import math
@@ -92,6 +91,7 @@ from typing import Any
 import numpy as np
 
 from chekan.errors import ChekanError
+from chekan.runtime import cached, jit
 
 METHOD_PREFERENCE = ("bayes", "map", "classical")
 DEFAULT_PARAMS = ("b1", "b2", "a")
@@ -215,13 +215,13 @@ def _posterior(d, q, v, tq):
     return {"beta": beta, "beta_cov": beta_cov, "ll": ll, "mean": mean, "var": var}
 
 
-@functools.cache
+@cached
 def _compiled() -> dict[str, Any]:
     """The two jitted kernels (compiled once per padded size; compiling dominates run time)."""
     jax, _, _ = _jax()
     return {
-        "value_and_grad": jax.jit(jax.value_and_grad(_neg_ll), static_argnums=2),
-        "posterior": jax.jit(_posterior),
+        "value_and_grad": jit(jax.value_and_grad(_neg_ll), static_argnums=2),
+        "posterior": jit(_posterior),
     }
 
 

@@ -89,6 +89,7 @@ from chekan.joint.problem import nonlinear_params
 from chekan.joint.slews import slew_types, types_about
 from chekan.joint.xresponse import M0_TOLERANCE_PIX, horizontal_prior, x_response_terms
 from chekan.program import TiltProgram
+from chekan.runtime import cached, jit
 from chekan.simulate import Truth
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
@@ -117,7 +118,7 @@ def _sensor_params(u, fixed, c=None) -> fm.SensorParams:
     )
 
 
-@jax.jit
+@jit
 def _grid_sensitivities(u, fixed, theta_rad, direction):
     """E (n, 2), ∂E/∂u (n, 2, 6) and ∂E/∂θ (n, 2) along the program axis."""
 
@@ -131,7 +132,7 @@ def _grid_sensitivities(u, fixed, theta_rad, direction):
     return E, dE_du, S
 
 
-@jax.jit
+@jit
 def _derived(u, fixed):
     """(a, b₁,₀, b₂,₀) at the design values and their gradient in (u, c, Δm₀), (3,), (3, 10).
 
@@ -164,7 +165,8 @@ class Sensitivities:
         return v[..., 0:2], v[..., 2:14].reshape(*sh, 2, 6), v[..., 14:16]
 
 
-_SENS_CACHE: dict = {}
+#: instruments whose sensitivities are kept (a design search asks for one or two)
+MAX_SENSITIVITIES = 16
 
 
 def _instrument_vectors(truth: Truth):
@@ -186,21 +188,25 @@ def _instrument_vectors(truth: Truth):
 
 
 def sensitivities(truth: Truth, axis: str = "y") -> Sensitivities:
-    """Grid of the exact equilibrium and its derivatives (one JAX call, cached)."""
+    """Grid of the exact equilibrium and its derivatives (one JAX call, cached: the last
+    ``MAX_SENSITIVITIES`` instruments, cleared by :func:`chekan.runtime.clear_caches`)."""
     u, fixed = _instrument_vectors(truth)
-    key = (tuple(u), tuple(fixed), axis)
-    if key not in _SENS_CACHE:
-        grid = np.linspace(-_GRID_HALF_WIDTH_RAD, _GRID_HALF_WIDTH_RAD, _GRID_N)
-        direction = np.array([0.0, 1.0]) if axis == "y" else np.array([1.0, 0.0])
-        E, dE, S = (np.asarray(x) for x in _grid_sensitivities(u, fixed, grid, direction))
-        cols = np.concatenate([E, dE.reshape(_GRID_N, 12), S], axis=1)
-        dval, dgrad = (np.asarray(x) for x in _derived(u, fixed))
-        _SENS_CACHE[key] = Sensitivities(
-            spline=CubicSpline(grid, cols, axis=0),
-            derived_grad=dgrad,
-            derived_value=dval,
-        )
-    return _SENS_CACHE[key]
+    return _sensitivities(tuple(u), tuple(fixed), axis)
+
+
+@cached(maxsize=MAX_SENSITIVITIES)
+def _sensitivities(u_key: tuple, fixed_key: tuple, axis: str) -> Sensitivities:
+    u, fixed = np.array(u_key, dtype=float), np.array(fixed_key, dtype=float)
+    grid = np.linspace(-_GRID_HALF_WIDTH_RAD, _GRID_HALF_WIDTH_RAD, _GRID_N)
+    direction = np.array([0.0, 1.0]) if axis == "y" else np.array([1.0, 0.0])
+    E, dE, S = (np.asarray(x) for x in _grid_sensitivities(u, fixed, grid, direction))
+    cols = np.concatenate([E, dE.reshape(_GRID_N, 12), S], axis=1)
+    dval, dgrad = (np.asarray(x) for x in _derived(u, fixed))
+    return Sensitivities(
+        spline=CubicSpline(grid, cols, axis=0),
+        derived_grad=dgrad,
+        derived_value=dval,
+    )
 
 
 # ----------------------------------------------------------------------------- information

@@ -4,7 +4,6 @@
 module             what it does
 =================  ==========================================================
 ``layout``         the static structure (what compiles) and the data pytree
-``engine``         what is compiled for a structure, its one cache, ``clear_caches``
 ``binning``        record → holds → bin means and slews (the data)
 ``likelihood``     f(θ) + A(θ)β, normal equations, β̂ (the physics of the bins)
 ``problem``        parameters and priors; MAP least squares; marginal density
@@ -19,15 +18,19 @@ module             what it does
 ``estimate``       the ``map`` and ``bayes`` results
 ``legacy``         the joint model of a legacy protocol (per-round characteristic)
 =================  ==========================================================
+
+What is compiled for a structure, kept, loaded and cleared lives in :mod:`chekan.runtime`
+(``engine_for``, ``problem_for`` and ``clear_caches`` are re-exported here).
 """
 
 from chekan.joint.binning import BIN_EDGES_S, prepare, prepare_record
-from chekan.joint.engine import clear_caches, engine_for, problem_for
 from chekan.joint.estimate import estimate, map_result, posterior_result
-from chekan.joint.layout import ModelStructure, RecordData, RecordModel, padded_shape
+from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.map import MapFit, fit_map_em
 from chekan.joint.problem import CalibrationProblem, default_hyper
 from chekan.joint.start import initial_values
+from chekan.runtime.engine import clear_caches, engine_for, problem_for
+from chekan.runtime.padding import padded_shape
 from chekan.settling import tau_from_transients
 
 __all__ = [

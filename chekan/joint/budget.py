@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 
 from chekan.errors import ChekanError
-from chekan.joint.engine import problem_for
 from chekan.joint.map import MapFit
 from chekan.joint.problem import nonlinear_params
+from chekan.runtime.engine import problem_for
 
 #: Prior sds of the angles that a record may not inform (their prior's scale, one source:
 #: :func:`chekan.joint.problem.nonlinear_params`).

@@ -6,7 +6,7 @@ bayes and design.
 
 :func:`map_derived_fn` adds what the delta-method sds at the MAP need; :func:`draws_fn`
 evaluates them for a posterior draw, with β drawn given θ. The engine compiles both
-(:mod:`chekan.joint.engine`); :mod:`chekan.joint.reported` runs them on a fit.
+(:mod:`chekan.runtime.engine`); :mod:`chekan.joint.reported` runs them on a fit.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def equilibria_of(sp: fm.SensorParams, tx, ty):
 
 def map_derived_fn(structure: ModelStructure, space) -> Callable:
     """``(z, h, data, dur_h) → (g, ∂g/∂z total, ∂g/∂β, M⁻¹, β̂, Ã, base, transient, Λ)``,
-    traceable; compiled once per structure by :class:`chekan.joint.engine.Engine` (eager
+    traceable; compiled once per structure by :class:`chekan.runtime.engine.Engine` (eager
     ``jacfwd`` would compile op by op in every new process, uncached). Ã (N, 2, p): the
     whitened design of β; base (N, 2): the bins' noise variance (sⱼσⱼ)²/n and transient
     (N, 2) the amplitude that κ scales, Λ (p,) β's prior variances: what
@@ -118,7 +118,7 @@ def map_derived_fn(structure: ModelStructure, space) -> Callable:
 def draws_fn(structure: ModelStructure, space) -> Callable:
     """``(z_bayes, key, data, duration h) →`` named draws of everything reported (β drawn
     given θ), traceable; the record's duration is an argument, so records of one structure
-    share the compiled function (:class:`chekan.joint.engine.Engine`)."""
+    share the compiled function (:class:`chekan.runtime.engine.Engine`)."""
     blocks = structure.beta_blocks
     bands = structure.hold_bands
 

@@ -193,7 +193,7 @@ def em_pass_fn(structure: ModelStructure, space) -> Callable:
     """``(z, h, data) → (m_ref, h, updates, change)``: the level moved to its estimate, then
     up to ``EM_UPDATES_BEFORE_NEWTON`` EM updates with θ integrated in the E-step
     (``change``: the last update's largest move in log h; at least ``HYPER_TOL`` where EM
-    has not converged), traceable; compiled by :class:`chekan.joint.engine.Engine`."""
+    has not converged), traceable; compiled by :class:`chekan.runtime.engine.Engine`."""
 
     def fn(z, h: Hyper, data: RecordData):
         v = space.to_values(z)

@@ -13,16 +13,13 @@ import warnings
 import numpy as np
 
 from chekan.holds import HoldTable
-from chekan.jaxconfig import single_threaded_blas
 from chekan.joint import em
 from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
 from chekan.joint.binning import prepare
 from chekan.joint.budget import budget_entries, flag_prior_dominated, uncertainty_budget
-from chekan.joint.layout import padded_shape
-from chekan.joint.map import MapFit, compiled_before, fit_map_em, prefetch_em
+from chekan.joint.map import MapFit, fit_map_em
 from chekan.joint.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.joint.reported import map_derived
-from chekan.joint.reported import prefetch as prefetch_map_derived
 from chekan.joint.sampling import sample_posterior, sampler_config
 from chekan.joint.start import initial_values
 from chekan.joint.xresponse import horizontal_prior
@@ -30,17 +27,20 @@ from chekan.options import CalibrationOptions
 from chekan.outputs import check_room
 from chekan.parameters import PARAMETER_UNITS
 from chekan.result import param_entry, posterior_entry
-from chekan.settling import settled_items, tau_from_transients
-
-FIRST_RUN_NOTICE = (
-    "compiling the joint model for this record's shape, its first run with this code (up to "
-    "a minute or two on 2 cores; later runs load it)"
+from chekan.runtime.engine import (
+    FIRST_RUN_NOTICE,
+    compiled_before,
+    prefetch_after_map,
+    prefetch_em,
 )
+from chekan.runtime.padding import padded_for
+from chekan.runtime.process import single_threaded_blas
+from chekan.settling import settled_items, tau_from_transients
 
 
 def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOptions) -> dict:
     """Run ``map`` or ``bayes`` on a record or protocol; return the result dict (BLAS on
-    one thread: :func:`chekan.jaxconfig.single_threaded_blas`)."""
+    one thread: :func:`chekan.runtime.process.single_threaded_blas`)."""
     with single_threaded_blas():
         return _estimate(data, kind=kind, classical=classical, base=base, options=options)
 
@@ -72,22 +72,12 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
             f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
             f"{model.n_beta} marginalised linear parameters"
         )
-    if options.method == "map":
-        # padded to a shape bucket (exact: padding carries zero weight), so that records of
-        # similar size share one compiled solver; bayes keeps the record's own shape (its
-        # per-hold outputs would carry the padding)
-        model = model.pad(*padded_shape([model]))
+    model = padded_for(model, options.method)
     # a new process loads the stored executables it will need next while the MAP runs
     prefetch_em(model)
     if options.progress and not compiled_before(model):
         print(FIRST_RUN_NOTICE)
-    if options.method == "map":
-        prefetch_map_derived(model)
-    else:  # the sampler's imports (emcee → scipy.stats, ≈ 1 s) while the MAP runs
-        from inference.background import imports_in_background, initialise_lapack
-
-        initialise_lapack()  # its import of scipy.linalg first: the MAP's thread imports no more
-        sampler_imports = imports_in_background(["emcee", "inference.sampling"], "imports")
+    sampler_imports = prefetch_after_map(model, options.method)
     fit = fit_map_em(
         model,
         init,
@@ -98,6 +88,7 @@ def _estimate(data, *, kind: str, classical, base: dict, options: CalibrationOpt
     if options.method == "map":
         out = map_result(fit, base, options, t_start)
     else:
+        assert sampler_imports is not None
         sampler_imports.result()  # done before this thread imports more (deadlock-free)
         out = posterior_result(fit, holds, record, base, options, t_start)
     return settled_items(out, holds, record, classical=classical, a_fixed=options.a_fixed)

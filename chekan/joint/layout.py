@@ -248,17 +248,3 @@ class RecordModel:
     def with_level(self, m_ref: Any) -> RecordModel:
         """This record with the level reference reading moved to ``m_ref`` (pix)."""
         return dataclasses.replace(self, data=self.data.with_level(m_ref))
-
-
-def padded_shape(models: list[RecordModel]) -> tuple[int, int, int, int]:
-    """(H, N, M, S) that holds every model, rounded up (H and S to 4, N and M to 16) so
-    that chunks of similar records share one compiled solver."""
-
-    def up(x: int, m: int) -> int:
-        return -(-x // m) * m
-
-    H = max(m.structure.n_holds for m in models)
-    N = max(m.structure.n_bins for m in models)
-    M = max(m.structure.n_moves for m in models)
-    S = max(m.structure.n_systematic for m in models)
-    return up(H, 4), up(N, 16), up(M, 16), up(S, 4)

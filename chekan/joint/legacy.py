@@ -60,6 +60,7 @@ from chekan.joint.angles import AngleSensorSpec, angle_sensor_entry, commanded_g
 from chekan.joint.budget import budget_entries
 from chekan.parameters import unit_of
 from chekan.result import param_entry, posterior_entry
+from chekan.runtime.compiler import Compiler
 from chekan.units import ARCSEC_PER_RAD
 from inference.map import fit_map
 from inference.params import Param, ParamSpace
@@ -255,7 +256,7 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     """The ``map`` or ``bayes`` result of a legacy protocol (module docstring)."""
     t0 = time.perf_counter()
     pm = protocol_model(protocol, options)
-    lsq = LeastSquaresProblem(pm.theta_space, _whitened_residuals)
+    lsq = LeastSquaresProblem(pm.theta_space, _whitened_residuals, Compiler())
     init = {
         p.name: float(classical.b[int(p.name[3]) - 1, int(p.name[6]) - 1])
         for p in pm.theta_space.params
@@ -315,7 +316,13 @@ def _bayes_parameters(out: dict, pm: ProtocolModel, res, options) -> tuple[dict,
     from inference.diagnostics import convergence_report, summarize_draws
     from inference.sampling import sample
 
-    samp = sample(_log_density(pm), pm.data, *_sampler_start(pm, res), _sampler_config(options))
+    samp = sample(
+        _log_density(pm),
+        pm.data,
+        *_sampler_start(pm, res),
+        _sampler_config(options),
+        executables=Compiler(),
+    )
     draws = {k: np.asarray(v) for k, v in pm.full_space.to_values(samp.draws).items()}
     for j in range(2):
         draws[f"b{j + 1}"] = np.mean(

@@ -20,9 +20,9 @@ import numpy as np
 
 from chekan.jaxconfig import device_array
 from chekan.joint.em import HYPER_TOL
-from chekan.joint.engine import EM_PASS, engine_for, problem_for
 from chekan.joint.layout import RecordModel
 from chekan.joint.problem import Hyper, default_hyper
+from chekan.runtime.engine import engine_for, problem_for
 from inference.map import MapResult, SolverName, fit_map
 
 MAP_PASSES = 3  # solves; between them the hyperparameters are converged at fixed θ
@@ -101,18 +101,6 @@ def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper,
     if float(change) >= HYPER_TOL:
         h_new, n, change = engine.em_newton(device_array(z), h_new, n, change, moved.data)
     return moved, h_new, int(n), bool(float(change) < HYPER_TOL)
-
-
-def prefetch_em(model: RecordModel) -> None:
-    """Start loading this structure's stored EM pass (:func:`between_passes`) in the
-    background."""
-    engine_for(model.structure).prefetch(EM_PASS, model.data)
-
-
-def compiled_before(model: RecordModel) -> bool:
-    """Whether this structure's EM pass is stored (or loaded): False on the first run of a
-    program (a new model structure), which compiles its executables before it computes."""
-    return engine_for(model.structure).stored(EM_PASS, model.data)
 
 
 def _apart(tau_s: float, tried_tau_s: Sequence[float]) -> bool:

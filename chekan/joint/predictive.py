@@ -6,15 +6,15 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from chekan import model as fm
 from chekan.classical import fit_by_axis, increments_of_readings
 from chekan.joint.derived import equilibria_of
-from chekan.joint.engine import engine_for
 from chekan.joint.problem import K_DESIGN
+from chekan.runtime import jit
+from chekan.runtime.engine import engine_for
 from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
 
@@ -79,7 +79,7 @@ def _equilibria(g: float, m0: float, flat: dict, take, holds, compiled: Callable
     return np.asarray(E), np.asarray(S)
 
 
-_equilibria_jit = jax.jit(equilibria_of)
+_equilibria_jit = jit(equilibria_of)
 
 
 def drift_curve(draws, model, hp: float, n: int = 60) -> dict:

@@ -93,7 +93,7 @@ def default_hyper(
 @dataclass(frozen=True, eq=False)
 class CalibrationProblem:
     """The joint model of one structure as a MAP least-squares problem and as a marginal
-    log-density. Built once per structure (:func:`chekan.joint.engine.problem_for`)."""
+    log-density. Built once per structure (:func:`chekan.runtime.engine.problem_for`)."""
 
     structure: ModelStructure
     theta_space: ParamSpace
@@ -122,7 +122,7 @@ class CalibrationProblem:
 
 def build_problem(structure: ModelStructure, store=None) -> CalibrationProblem:
     """Both views of the model for one structure (built once per structure by
-    :func:`chekan.joint.engine.engine_for`, whose ``store`` keeps the compiled solvers, so
+    :func:`chekan.runtime.engine.engine_for`, whose ``store`` keeps the compiled solvers, so
     records of one shape share them: batch re-analysis, validation).
 
     MAP: LM over θ only; for each θ the linear block β is solved in closed form

@@ -1,5 +1,5 @@
 """The reported quantities of a fit, evaluated by the engine's compiled functions
-(:mod:`chekan.joint.engine`; their maths: :mod:`chekan.joint.derived`): at the MAP with
+(:mod:`chekan.runtime.engine`; their maths: :mod:`chekan.joint.derived`): at the MAP with
 delta-method sds and the hyperparameters' Type A (:mod:`chekan.joint.typea`), and for every
 posterior draw, with β drawn given θ."""
 
@@ -10,18 +10,11 @@ from typing import Any
 import numpy as np
 
 from chekan.jaxconfig import device_array
-from chekan.joint.engine import MAP_DERIVED, engine_for
-from chekan.joint.layout import RecordModel
 from chekan.joint.map import MapFit
 from chekan.joint.typea import reliabilities
 from chekan.parameters import PHYSICAL
+from chekan.runtime.engine import engine_for
 from inference.chunks import map_chunks
-
-
-def prefetch(model: RecordModel) -> None:
-    """Start loading the stored executable of :func:`map_derived` for this model's
-    structure in the background."""
-    engine_for(model.structure).prefetch(MAP_DERIVED, model.data, model.duration_h)
 
 
 def map_derived(fit: MapFit) -> dict:

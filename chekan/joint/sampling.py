@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from chekan.joint.engine import problem_for
 from chekan.joint.map import MapFit
 from chekan.options import CalibrationOptions
+from chekan.runtime.engine import problem_for
 
 
 def sampler_config(options: CalibrationOptions, **overrides):

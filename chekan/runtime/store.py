@@ -1,4 +1,4 @@
-r"""Compiled functions kept across processes: trace and compile once, load ever after.
+r"""Compiled executables kept across processes: trace and compile once, load ever after.
 
 JAX's persistent compilation cache keeps XLA's output, but every new process still traces
 and lowers the Python function to compute the cache key: for an optimistix solve over a
@@ -33,12 +33,7 @@ loads it is a failed load there: recompiled, never a wrong answer.
 
 from __future__ import annotations
 
-from . import _jax  # noqa: F401  (float64 before any array exists)
-
-# isort: split
-
 import contextlib
-import functools
 import hashlib
 import os
 import pickle
@@ -54,7 +49,9 @@ from typing import Any
 import jax
 import numpy as np
 
-from .background import initialise_lapack, loads_in_background
+from chekan.runtime.background import initialise_lapack, loads_in_background
+from chekan.runtime.caches import cached
+from chekan.runtime.xla import XLA
 
 __all__ = ["ExecutableStore", "source_fingerprint"]
 
@@ -74,107 +71,23 @@ PRELOAD_THREADS = 2
 MAX_MANIFESTS = 64
 
 
-class _LoadsOrCompile:
-    """Many loads at once, or one compile (or serialisation) alone.
-
-    Test workers died inside XLA's deserialiser and compiler, beside a compile and beside
-    another load; the cause was the process's memory maps running out (``map_budget``,
-    docs/tuning.md), not the overlap. Loads share again: 320 loads of the eight largest
-    stored executables, two at a time, all succeeded, and a new ``map`` process's three
-    loads overlap on two cores (wall ratio 0.89). Compiles stay apart from loads as a
-    precaution (XLA's CPU client is not documented to be safe there). A thread that holds
-    the compile side may compile again inside it (a store's compile passes through JAX's).
-    It guards the library, so there is one per process.
-    """
+class KeyLocks:
+    """One lock per key, made on first use under one lock: a thread that loads or compiles
+    an executable holds its key's, so a second thread asking for the same key waits and
+    uses it rather than compiling it again (the draws' chunks, two threads)."""
 
     def __init__(self) -> None:
-        self._cond = threading.Condition()
-        self._loads = 0
-        self._owner: int | None = None  # the thread compiling, if any
-        self._depth = 0
+        self._guard = threading.Lock()
+        self._locks: dict[str, threading.RLock] = {}
 
-    @contextlib.contextmanager
-    def load(self):
-        me = threading.get_ident()
-        with self._cond:
-            self._cond.wait_for(lambda: self._owner in (None, me))
-            self._loads += 1
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._loads -= 1
-                self._cond.notify_all()
-
-    @contextlib.contextmanager
-    def alone(self):
-        me = threading.get_ident()
-        with self._cond:
-            if self._owner != me:
-                self._cond.wait_for(lambda: self._owner is None and self._loads == 0)
-                self._owner = me
-            self._depth += 1
-        try:
-            yield
-        finally:
-            with self._cond:
-                self._depth -= 1
-                if self._depth == 0:
-                    self._owner = None
-                    self._cond.notify_all()
+    def __call__(self, key: str) -> threading.RLock:
+        with self._guard:
+            return self._locks.setdefault(key, threading.RLock())
 
 
-_XLA = _LoadsOrCompile()
 #: every live store: the memory maps that their executables hold are the process's, so a
 #: store over its budget may let go of another's (a store that a cache somewhere keeps alive)
 _STORES: weakref.WeakSet[ExecutableStore] = weakref.WeakSet()
-
-
-#: where JAX itself reaches XLA to compile (``jax.jit``, eager operations, ``Lowered.compile``;
-#: older JAX names it ``backend_compile``), to serialise for its persistent cache, and to
-#: load from it: (module, function, side of ``_XLA``)
-_JAX_XLA_CALLS = (
-    ("jax._src.compiler", "backend_compile_and_load", "alone"),
-    ("jax._src.compiler", "backend_compile", "alone"),
-    ("jax._src.compilation_cache", "put_executable_and_time", "alone"),
-    ("jax._src.compilation_cache", "get_executable_and_time", "load"),
-)
-
-
-def _guard_jax() -> tuple[str, ...]:
-    """Put JAX's own compiles and cache writes (alone) and cache loads (shared with loads)
-    under ``_XLA`` as the store's are (:class:`_LoadsOrCompile`): JAX offers no hook, so its
-    module functions are wrapped, once per process. Returns the names guarded (none where
-    this JAX has none of them: then only the store's own calls are)."""
-    import importlib
-
-    done = []
-    for module_name, name, side in _JAX_XLA_CALLS:
-        module = importlib.import_module(module_name)
-        inner = getattr(module, name, None)
-        if inner is None:
-            continue
-        done.append(f"{module_name}.{name}")
-        if not getattr(inner, "guarded_by_chekan", False):
-            setattr(module, name, _guarded(inner, side))
-    return tuple(done)
-
-
-def _guarded(inner: Callable, side: str) -> Callable:
-    """``inner`` run under ``_XLA``: ``side`` "alone" (a compile, a serialisation) or
-    "load" (a deserialisation, shared with other loads)."""
-    enter = getattr(_XLA, side)
-
-    @functools.wraps(inner)
-    def guarded(*args, **kwargs):
-        with enter():
-            return inner(*args, **kwargs)
-
-    guarded.guarded_by_chekan = True  # type: ignore[attr-defined]
-    return guarded
-
-
-JAX_GUARDED = _guard_jax()
 
 
 def _is_array(x: Any) -> bool:
@@ -232,7 +145,7 @@ def _maps_in_use() -> int | None:
         return None
 
 
-@functools.cache
+@cached
 def _default_map_budget() -> int | None:
     """``MAP_SHARE`` of the system's limit on memory maps; None where it cannot be read."""
     try:
@@ -242,7 +155,7 @@ def _default_map_budget() -> int | None:
     return int(MAP_SHARE * limit) if _maps_in_use() is not None else None
 
 
-@functools.cache
+@cached
 def _machine() -> str:
     """What makes machine code unsafe to share: versions, backend, CPU model and flags."""
     import jaxlib
@@ -322,6 +235,8 @@ class ExecutableStore:
     test worker holding every structure's executables reached (56 000 seen). A let-go
     executable is loaded again from its file (or compiled again, in memory only) when called.
     """
+    locks: KeyLocks = field(default_factory=KeyLocks, repr=False)
+    """One lock per key (shared with its scoped stores): no executable compiles twice."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_machine", _machine())
@@ -342,6 +257,7 @@ class ExecutableStore:
             self.keys,
             self.max_bytes,
             self.map_budget,
+            self.locks,
         )
 
     def jit(self, name: str, fn: Callable) -> Callable:
@@ -354,15 +270,16 @@ class ExecutableStore:
 
         def call(*args):
             key, leaves, treedef, dyn = self._signature(name, args)
-            if key in self.pending:  # a load started by prefetch: wait for it
-                loaded = self.pending.pop(key).result()
-                if loaded is not None:
-                    self.loaded[key] = loaded
-            exe = self.loaded.pop(key, None)
-            fresh = exe is None or key in self.unproven  # new in this process's memory
-            if exe is None:
-                exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn)
-            self.loaded[key] = exe  # last: the dict's order is the order of last use
+            with self.locks(key):  # one thread loads or compiles it, the others wait
+                if key in self.pending:  # a load started by prefetch: wait for it
+                    loaded = self.pending.pop(key).result()
+                    if loaded is not None:
+                        self.loaded[key] = loaded
+                exe = self.loaded.pop(key, None)
+                fresh = exe is None or key in self.unproven  # new in this process's memory
+                if exe is None:
+                    exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn)
+                self.loaded[key] = exe  # last: the dict's order is the order of last use
             compiled, out_tree = exe
             try:
                 outs = compiled(*[leaves[i] for i in dyn])
@@ -374,8 +291,9 @@ class ExecutableStore:
                 # a stored executable that loads but cannot run: compile afresh (and
                 # overwrite it, under its key and under its program)
                 self.events.append((name, "discarded"))
-                exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn, reuse=False)
-                self.loaded[key] = exe
+                with self.locks(key):
+                    exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn, reuse=False)
+                    self.loaded[key] = exe
                 compiled, out_tree = exe
                 outs = compiled(*[leaves[i] for i in dyn])
             self.unproven.discard(key)
@@ -547,7 +465,7 @@ class ExecutableStore:
                     _link_or_copy(by_program, path)
                     self.prune()
                 return loaded
-        with _XLA.alone(), _compilation_cache_off():
+        with XLA.alone(), _compilation_cache_off():
             compiled = lowered.compile()
         self.events.append((name, "compiled"))
         if path is not None and by_program is not None:
@@ -594,7 +512,7 @@ class ExecutableStore:
         initialise_lapack()
         try:
             payload, in_tree, out_tree = pickle.loads(path.read_bytes())
-            with _XLA.load():
+            with XLA.load():
                 compiled = se.deserialize_and_load(payload, in_tree, out_tree[0])
         except Exception:  # unreadable or from another build: recompile, never guess
             path.unlink(missing_ok=True)
@@ -614,7 +532,7 @@ class ExecutableStore:
         from jax.experimental import serialize_executable as se
 
         try:
-            with _XLA.alone():
+            with XLA.alone():
                 payload, in_tree, flat_out_tree = se.serialize(compiled)
             _write_atomic(path, pickle.dumps((payload, in_tree, (flat_out_tree, out_tree))))
         except Exception as e:

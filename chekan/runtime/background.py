@@ -1,5 +1,5 @@
 """Loads of compiled executables in background threads, with jaxlib's LAPACK kernels bound
-first (:mod:`inference.aot` starts them), and slow imports started ahead of their use."""
+first (:mod:`chekan.runtime.store` starts them), and slow imports started ahead of their use."""
 
 from __future__ import annotations
 
@@ -25,14 +25,17 @@ def loads_in_background(jobs: list[tuple[Callable, tuple]], threads: int, label:
 
     Binding imports ``scipy.linalg`` (jaxlib takes the kernels from its Cython capsules).
     Done by a loading thread it raced the caller's own ``import scipy.linalg`` (threadpoolctl
-    in :func:`chekan.jaxconfig.single_threaded_blas`): the two imports can lock each other's
+    in :func:`chekan.runtime.process.single_threaded_blas`): the two imports can lock each other's
     submodules, and Python then raises ``_DeadlockError`` in one of them (seen once in a
     ``calibrate_file`` loop). Here the import happens once, before any thread starts.
     """
     if jobs:
         from jax.experimental import serialize_executable  # noqa: F401  (the loader, too)
 
+        from chekan.runtime.xla import guard_jax_compiles
+
         initialise_lapack()
+        guard_jax_compiles()  # here, before a load runs beside this thread's compiles
     return in_background(jobs, threads, label)
 
 
