@@ -74,23 +74,53 @@ def test_strict_exits_3_on_a_record_missing_part_of_its_program(one_round, tmp_p
         assert main([*args, "--strict"]) == 3
 
 
-def test_an_em_stopped_at_its_cap_is_not_converged(short_session, monkeypatch) -> None:
-    """The MAP converged but EM did not: before, the result said "converged: yes"."""
+def _map_with_em_stopping(monkeypatch, short_session, moving) -> dict:
+    """The short session's MAP with every EM pass reported stopped at its cap, ``moving``
+    still moving."""
     from chekan.joint import map as joint_map
 
     real = joint_map.between_passes
 
     def capped(model, z, h):
         moved, h_new, n, _ = real(model, z, h)
-        return moved, h_new, n, False
+        return moved, h_new, n, moving
 
     monkeypatch.setattr(joint_map, "between_passes", capped)
     _, rec, _ = short_session
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        res = calibrate(rec, CalibrationOptions(method="map", progress=False))
+        return calibrate(rec, CalibrationOptions(method="map", progress=False))
+
+
+def test_an_em_stopped_at_its_cap_is_not_converged(short_session, monkeypatch) -> None:
+    """The MAP converged but EM did not: before, the result said "converged: yes"."""
+    res = _map_with_em_stopping(monkeypatch, short_session, (("σ_θ", 0.003),))
     d = res["diagnostics"]
     assert d["converged"] is False
     assert any("stopped at its cap" in p for p in d["problems"]), d["problems"]
     assert [p.get("hyper_converged", True) for p in d["map_passes"]][:-1] == [False, False]
     assert "converged: NO" in format_summary(res)
+
+
+def test_an_em_creeping_to_a_variance_of_zero_is_converged_with_a_note(
+    short_session, monkeypatch
+) -> None:
+    """EM converges slowly to a boundary (a variance the data do not show): its cap may stop
+    it on the way down, which is no failure to converge, but is said."""
+    res = _map_with_em_stopping(monkeypatch, short_session, (("slew error κ", -0.002),))
+    d = res["diagnostics"]
+    assert d["converged"] is True
+    assert not any("stopped at its cap" in p for p in d.get("problems", []))
+    assert any("slew error κ still falling towards zero" in n for n in d["notes"]), d["notes"]
+
+
+def test_what_still_moves_at_the_cap() -> None:
+    from chekan.joint.em import HYPER_TOL, still_moving, to_zero
+
+    step = [0.0, 2 * HYPER_TOL, -0.5 * HYPER_TOL, 0.0, -3 * HYPER_TOL]
+    moving = still_moving(step)
+    assert [n for n, _ in moving] == ["noise scale s₂", "slew error κ"]
+    assert not to_zero(moving)  # a noise scale still moves: not converged
+    assert to_zero(still_moving([0.0, 0.0, -2 * HYPER_TOL, 0.0, -3 * HYPER_TOL]))
+    assert not to_zero(still_moving([0.0, 0.0, 2 * HYPER_TOL, 0.0, -3 * HYPER_TOL]))
+    assert not to_zero(())

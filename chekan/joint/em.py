@@ -143,6 +143,24 @@ def implausible_angle_error(h: Hyper, bound_arcsec: float) -> list[str]:
     ]
 
 
+HYPER_NAMES = ("noise scale s₁", "noise scale s₂", "σ_θ", "σ_o", "slew error κ")  # _log_hyper's
+
+
+def still_moving(step) -> tuple[tuple[str, float], ...]:
+    """The log-hyperparameters that an EM update still moves by ``HYPER_TOL`` or more, with
+    their move (``step`` from :func:`em_newton_fn`'s output, in :data:`HYPER_NAMES` order)."""
+    d = np.asarray(step, dtype=float).reshape(-1)
+    return tuple((n, float(v)) for n, v in zip(HYPER_NAMES, d, strict=True) if abs(v) >= HYPER_TOL)
+
+
+def to_zero(moving: tuple[tuple[str, float], ...]) -> bool:
+    """Whether an EM that stopped at its cap was creeping down to a variance of zero: every
+    hyperparameter that still moves falls (EM converges slowly to a boundary, where the data
+    show none of that variance; its clip bound stops it there). Anything else still moving
+    (rising, or a scale of the noise) is an EM that has not converged."""
+    return bool(moving) and all(v < 0.0 and not n.startswith("noise") for n, v in moving)
+
+
 def capped_passes(passes: list[int]) -> list[str]:
     """The problem of EM passes that stopped at ``HYPER_MAX_UPDATES`` still moving: the
     hyperparameters (and so the weights of the MAP after them) are not at their fixed point."""
@@ -211,15 +229,19 @@ def em_pass_fn(structure: ModelStructure, space) -> Callable:
 
 
 def em_newton_fn(structure: ModelStructure, space) -> Callable:
-    """``(z, h, updates, change, data) → (h, updates, change)``: where :func:`em_pass_fn`
-    stopped unconverged (``data`` with the level already moved), the fixed point by Newton
-    (:func:`_newton`), then EM on to convergence or ``HYPER_MAX_UPDATES`` updates (where
-    Newton failed; ``change`` ≥ ``HYPER_TOL`` then), traceable."""
+    """``(z, h, updates, change, data) → (h, updates, change, step)``: where
+    :func:`em_pass_fn` stopped unconverged (``data`` with the level already moved), the fixed
+    point by Newton (:func:`_newton`), then EM on to convergence or ``HYPER_MAX_UPDATES``
+    updates (where Newton failed; ``change`` ≥ ``HYPER_TOL`` then); ``step``: the next
+    update's move of each log-hyperparameter (:data:`HYPER_NAMES`), which tells an EM
+    creeping to a variance of zero from one that has not converged (:func:`still_moving`),
+    traceable."""
 
     def fn(z, h: Hyper, n, change, data: RecordData):
         update = _em_stage(z, h, structure, data, space)
         c = _newton(update, data, (h, n, change))
-        return jax.lax.while_loop(_em_until(HYPER_MAX_UPDATES), _em_body(update, data), c)
+        h, n, change = jax.lax.while_loop(_em_until(HYPER_MAX_UPDATES), _em_body(update, data), c)
+        return h, n, change, _log_hyper(update(h, data)) - _log_hyper(h)
 
     return fn
 

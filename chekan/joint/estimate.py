@@ -124,6 +124,7 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         }
     out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2") if k in base["parameters"]}
     capped = [p["iteration"] + 1 for p in fit.history if p.get("hyper_converged") is False]
+    to_zero = sorted({n for p in fit.history for n in p.get("hyper_to_zero", [])})
     diag = {
         "converged": bool(res.converged) and not capped,
         "map_steps": int(res.num_steps),
@@ -138,6 +139,11 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         + em.residual_misfit(fit.hyper)
         + em.implausible_angle_error(fit.hyper, _specified_accuracy(model)),
     }
+    if to_zero:  # EM converging to a boundary: slowly, so its cap may stop it on the way
+        diag["notes"] = [
+            f"the EM of the hyperparameters stopped at its cap with {', '.join(to_zero)} still"
+            " falling towards zero: the data show none of that variance"
+        ]
     return out, diag
 
 

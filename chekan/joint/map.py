@@ -15,11 +15,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
 from chekan.jaxconfig import device_array
-from chekan.joint.em import HYPER_TOL
+from chekan.joint.em import HYPER_TOL, still_moving, to_zero
 from chekan.joint.layout import RecordModel
 from chekan.joint.problem import Hyper, default_hyper
 from chekan.runtime.engine import engine_for, problem_for
@@ -71,20 +72,23 @@ def fit_map_em(
     for it in range(MAP_PASSES):
         if it > 0:  # from the previous pass's θ̂, with its solver (LM where GN failed)
             res, pass_solver = _solve_pass(prob.lsq, (model.data, h), res.z, pass_solver)
-        updates, em_converged = 0, True
+        updates, moving = 0, cast(tuple[tuple[str, float], ...], ())
         if it < MAP_PASSES - 1:
-            model, h, updates, em_converged = between_passes(model, res.z, h)
+            model, h, updates, moving = between_passes(model, res.z, h)
         history.append(
-            pass_entry(it, res.converged, res.num_steps, res.cost, progress, updates, em_converged)
+            pass_entry(it, res.converged, res.num_steps, res.cost, progress, updates, moving)
         )
     return MapFit(res, h, tuple(history), model)
 
 
-def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper, int, bool]:
+def between_passes(
+    model: RecordModel, z, h: Hyper
+) -> tuple[RecordModel, Hyper, int, tuple[tuple[str, float], ...]]:
     """What follows every MAP pass but the last, compiled (:func:`chekan.joint.em.em_pass_fn`):
     the model with its level moved to the estimate (m_ref ← m_ref + ĉ), the hyperparameters
-    at their EM fixed point given θ = z, the number of EM updates, and whether EM converged
-    (False: it stopped at ``HYPER_MAX_UPDATES`` still moving).
+    at their EM fixed point given θ = z, the number of EM updates, and the hyperparameters
+    that EM still moved where it stopped at ``HYPER_MAX_UPDATES`` (name and move in log;
+    empty: converged; :func:`chekan.joint.em.still_moving`).
 
     The equilibrium Eₖ is computed about m_ref (b is dG/dm there) while c only shifts the
     readings; the classical m_h that m_ref starts from is biased where the level holds have
@@ -98,9 +102,11 @@ def between_passes(model: RecordModel, z, h: Hyper) -> tuple[RecordModel, Hyper,
     engine = engine_for(model.structure)
     m_ref, h_new, n, change = engine.em_pass(device_array(z), h, model.data)
     moved = model.with_level(np.asarray(m_ref))
+    moving: tuple[tuple[str, float], ...] = ()
     if float(change) >= HYPER_TOL:
-        h_new, n, change = engine.em_newton(device_array(z), h_new, n, change, moved.data)
-    return moved, h_new, int(n), bool(float(change) < HYPER_TOL)
+        h_new, n, change, step = engine.em_newton(device_array(z), h_new, n, change, moved.data)
+        moving = still_moving(step) if float(change) >= HYPER_TOL else ()
+    return moved, h_new, int(n), moving
 
 
 def _apart(tau_s: float, tried_tau_s: Sequence[float]) -> bool:
@@ -227,13 +233,22 @@ def pass_entry(
     cost,
     progress: bool,
     hyper_updates: int,
-    hyper_converged: bool = True,
+    moving: tuple[tuple[str, float], ...] = (),
 ) -> dict:
-    """One MAP pass as the result's ``diagnostics.map_passes`` lists it (printed on request);
-    ``hyper_converged`` False (EM stopped at its cap still moving) adds that to the entry."""
+    """One MAP pass as the result's ``diagnostics.map_passes`` lists it (printed on request).
+    ``moving``: what EM still moved at its cap; creeping down to a variance of zero
+    (:func:`chekan.joint.em.to_zero`) adds ``hyper_to_zero`` (their names), anything else
+    ``hyper_converged`` False."""
+    down = to_zero(moving)
     if progress:
         tail = f", then {hyper_updates} EM updates of the hyperparameters" if hyper_updates else ""
-        tail += "" if hyper_converged else " (EM NOT converged: stopped at its cap)"
+        if moving:
+            names = ", ".join(n for n, _ in moving)
+            tail += (
+                f" ({names} creeping to zero at the cap)"
+                if down
+                else f" (EM NOT converged: stopped at its cap, {names} still moving)"
+            )
         print(
             f"  MAP pass {it + 1}: {'converged' if converged else 'NOT converged'} "
             f"in {int(steps)} steps, cost {float(cost):.1f}{tail}"
@@ -245,4 +260,6 @@ def pass_entry(
         "cost": float(cost),
         "hyper_updates": int(hyper_updates),
     }
-    return entry if hyper_converged else {**entry, "hyper_converged": False}
+    if down:
+        return {**entry, "hyper_to_zero": [n for n, _ in moving]}
+    return {**entry, "hyper_converged": False} if moving else entry
