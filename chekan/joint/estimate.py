@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import time
 import warnings
+from typing import cast
 
 import numpy as np
 
@@ -139,10 +140,12 @@ def _common(fit: MapFit, base: dict, options: CalibrationOptions) -> tuple[dict,
         + em.residual_misfit(fit.hyper)
         + em.implausible_angle_error(fit.hyper, _specified_accuracy(model)),
     }
-    if to_zero:  # EM converging to a boundary: slowly, so its cap may stop it on the way
-        diag["notes"] = [
+    if to_zero:  # EM converging to a boundary, slowly: as at a clip bound (hyper_at_bounds)
+        diag["problems"] = [
+            *cast(list[str], diag["problems"]),
             f"the EM of the hyperparameters stopped at its cap with {', '.join(to_zero)} still"
-            " falling towards zero: the data show none of that variance"
+            " falling towards zero, its lower bound: the data did not determine it, and the"
+            " uncertainty that rests on it may be wrong",
         ]
     return out, diag
 
