@@ -1,7 +1,7 @@
 """How far a change moves the MAP figures, checkout against checkout, on simulated sessions.
 
-Made for issue 28 (one EM: the host SciPy EM of ``map_solver="lm"`` replaced by the
-compiled one). Run ``run`` once with each checkout on ``PYTHONPATH`` (from outside both,
+Made when one compiled EM replaced the host SciPy EM of ``map_solver="lm"``.
+Run ``run`` once with each checkout on ``PYTHONPATH`` (from outside both,
 so that the checkout is what gets imported), then ``compare``::
 
     git worktree add --detach /tmp/before-em main

@@ -10,7 +10,7 @@ instrument drawn by :func:`chekan.validate_scenario.session_truth` with the defa
 
 - ``typical``, ``misaligned`` (|ε| 8–10′, |Δγ| 15–20′) and ``slow`` (τ = 90 s): the paper's
   9 h program (``--quick``: the same angles with 300 s dwells, 3 h);
-- ``dual-axis``: issue 30's 9 h program about both axes (the designer's former best; the
+- ``dual-axis``: the 9 h program about both axes (the designer's former best; the
   angles 4°30′, 4°51′, 5°10′, rounds alternating Y and X, ± order alternating, 20 rounds of
   188 s dwells, 120 s settling; ``--quick``: 6 rounds), a ``typical`` instrument.
 
@@ -98,7 +98,7 @@ class Run:
 
 
 def dual_axis_program(quick: bool):
-    """Issue 30's 9 h program about both axes (6 rounds, ≈ 2.6 h, for ``quick``)."""
+    """The 9 h program about both axes (6 rounds, ≈ 2.6 h, for ``quick``)."""
     from chekan.program import build_program
 
     return build_program(

@@ -313,7 +313,7 @@ def _one_line_warning(prog: str) -> Callable[..., str]:
 
 
 #: Threads that :func:`end_process` may cut short: background loads of compiled executables
-#: (:meth:`inference.aot.ExecutableStore.preload`) that the command turned out not to need.
+#: (:meth:`chekan.runtime.store.ExecutableStore.preload`) that the command turned out not to need.
 DISPOSABLE_THREAD_PREFIX = "aot-"
 
 

@@ -3,7 +3,7 @@
     python -m chekan.validate_compare A/validation.csv B/validation.csv [--method map]
         [--target 0.5] [-o compare.md]
 
-Issue 30 asks the designer's best program for an RMS error of b at most half the paper
+The designer's target: its best program gives an RMS error of b at most half the paper
 program's *on the same platforms*. Two studies (:mod:`chekan.validate`) with the same seed
 and cases simulate the same instrument and platform in session i whatever the program, so
 their rows are paired by (session, case, seed); the paired rows' true b₁ must agree, or the
@@ -181,7 +181,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("b", help="the second study's validation.csv, on the same platforms")
     ap.add_argument("--method", default="map", help="the estimator compared (default map)")
     ap.add_argument(
-        "--target", type=float, default=0.5, help="the ratio asked for (default 0.5: issue 30)"
+        "--target",
+        type=float,
+        default=0.5,
+        help="the ratio asked for (default 0.5: the designer's target)",
     )
     ap.add_argument("-o", "--out", help="also write the table here (markdown; a new file)")
     from chekan.outputs import run_command

@@ -24,7 +24,7 @@ Both extremes are carried, each with the full u² (as for a calibration table, b
 (b ∝ 1/θ²: δb/b = −2ξ/θ_max), which is why it is its own term; with the full u² on it the
 expanded uncertainty (k = 2) of b still covers a platform whose error is a pure scale
 error at the bound (2/√3 > 1), which a split of u² between the two parts did not
-(validation of the designer's program at the edge of the specification, issue 30: |z| up
+(validation of the designer's program at the edge of the specification: |z| up
 to 2.8 on such platforms; ``docs/figures/validation_dual.md``).
 
 **Prior from the platform's own calibration** (:mod:`chekan.anglecal`). The corrections
@@ -374,7 +374,7 @@ def common_scale_terms(
     never below u², so that two sensors at their bound together are covered as one sensor
     at its bound is (the module docstring's 2/√3 > 1); u is the smaller sensor's (a common
     fractional scale s reaches at most min_s U_s/θ_max,s). Without it, such pairs moved b
-    by up to 2.5 of its sd (issue 30's validation at the edge of the specification,
+    by up to 2.5 of its sd (the validation at the edge of the specification,
     ``docs/figures/validation_dual.md``)."""
     theta = np.asarray(theta_rad, dtype=float)
     t_max = {a: max(float(np.max(np.abs(theta[s.on]))), 1e-9) for a, s in sensors.items()}

@@ -4,7 +4,7 @@ The level reference moves to its estimate (m_ref ← m_ref + ĉ), then EM update
 hyperparameters run to their fixed point at θ̂ (a ``lax.while_loop``; the noise
 M-step a projected Newton, :func:`inference.box_newton.minimise_in_box`).
 
-**The E-step integrates θ as well as β** (the REML analogue, issue 29). Its moments are
+**The E-step integrates θ as well as β** (the REML analogue). Its moments are
 those of the joint Laplace posterior of (θ, β) at θ̂, not of β given θ = θ̂: with
 β̂(θ) ≈ β̂ + B(θ − θ̂), B = ∂β̂/∂θ, and θ ~ N(θ̂, C_θ),
 
