@@ -198,7 +198,12 @@ def test_russian_and_english_words_as_a_person_reads_them(jump):
     assert "сертификат" not in text.lower() and "Конец проекта" in text
     assert "°C" not in rows["Условия окружающей среды"]
     assert rows["Температура датчика (термостат)"].startswith("45.0")
+    # the estimator's messages stay English: the Russian certificate says so before them
+    paras = [b.text for b in rep.blocks if isinstance(b, Para)]
+    first = next(i for i, p in enumerate(paras) if p.startswith("Проблема: "))
+    assert paras[first - 1].startswith("Сообщения программы оценивания ниже приводятся на англ")
     en = build_report(res, figures=False)
+    assert not any("in English" in b.text for b in en.blocks if isinstance(b, Para))
     rows = {k: v for b in en.blocks if isinstance(b, KeyValue) for k, v, _ in b.rows}
     assert (
         "sensor" in rows["Environmental conditions"]

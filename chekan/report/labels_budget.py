@@ -138,4 +138,9 @@ BUDGET_LABELS: dict[str, dict[str, str]] = {
     "sigma_fit": {"en": "Residual sd of the fit σ, mGal", "ru": "СКО остатков подгонки σ, мГал"},
     "problem": {"en": "Problem", "ru": "Проблема"},
     "note": {"en": "Note", "ru": "Примечание"},
+    "messages_in_english": {
+        "en": "",
+        "ru": "Сообщения программы оценивания ниже приводятся на английском языке, как их "
+        "выдаёт программа (chekan); обозначения параметров даны по-русски.",
+    },
 }

@@ -247,6 +247,8 @@ def diagnostics_table(
     if is_num(d.get("sigma_mgal")):
         rows.append((t("sigma_fit"), fixed(d["sigma_mgal"], 3), False))
     rep.add(Heading(t("sec_diag" if bayes else "sec_diag_classical")), KeyValue(rows))
+    if lang != "en" and (d.get("problems") or d.get("notes")):  # the estimator writes English
+        rep.add(Para(t("messages_in_english"), "note"))
     for msg in d.get("problems") or []:
         rep.add(Para(f"{t('problem')}: {with_param_names(str(msg), lang)}", "warn"))
     for msg in d.get("notes") or []:
