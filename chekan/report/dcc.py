@@ -22,9 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from chekan.errors import ChekanError
+from chekan.report.checks import Traceability, traceability
 from chekan.report.dcc_conditions import influence_conditions, used_methods
 from chekan.report.dcc_schema import SCHEMA_VERSION, SCHEMAS, dcc_schema, validate_dcc
-from chekan.report.dcc_trace import Trace, criteria_text, decide, trace
+from chekan.report.dcc_trace import criteria_text, decide, statement
 from chekan.report.dcc_words import RESULT_NAMES, words
 from chekan.report.dcc_xml import (
     DCC_NS,
@@ -177,7 +178,7 @@ def build_dcc(
 
     langs = dcc_langs(lang)
     issued = issued or _dt.datetime.now(_dt.UTC).date()
-    tr = trace(result, lab)
+    tr = traceability(result, lab)
     root = ET.Element(d("digitalCalibrationCertificate"), schemaVersion=SCHEMA_VERSION)
     adm = sub(root, d("administrativeData"))
     sw = sub(sub(adm, d("dccSoftware")), d("software"))
@@ -301,7 +302,7 @@ def _statements(
     adm: ET.Element,
     result: Mapping[str, Any],
     lab: Mapping[str, Any],
-    tr: Trace,
+    tr: Traceability,
     rule: str | None,
     tolerance_percent: float,
     langs: Sequence[str],
@@ -309,7 +310,7 @@ def _statements(
     sts = sub(adm, d("statements"))
     st = sub(sts, d("statement"), refType="basic_traceability")
     sub(st, d("traceable"), "true" if tr.traceable else "false")
-    decl = text(st, "declaration", tr.statement(), langs)
+    decl = text(st, "declaration", statement(tr), langs)
     if _nonempty(lab["lab"].get("traceability")):  # the lab's own words, after the facts
         sub(decl, d("content"), str(lab["lab"]["traceability"]))
     st = sub(sts, d("statement"), refType="basic_itemOnly")

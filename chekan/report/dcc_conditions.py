@@ -9,7 +9,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from chekan.report.dcc_trace import Trace
+from chekan.report.checks import Traceability
 from chekan.report.dcc_words import W, words
 from chekan.report.dcc_xml import (
     RAD_PER_ARCMIN,
@@ -100,7 +100,7 @@ def _program_quantities(result: Mapping[str, Any], langs: Sequence[str]) -> ET.E
 
 
 def influence_conditions(
-    mr: ET.Element, result: Mapping[str, Any], tr: Trace, langs: Sequence[str]
+    mr: ET.Element, result: Mapping[str, Any], tr: Traceability, langs: Sequence[str]
 ) -> None:
     """The influence conditions the result states."""
     ics = sub(mr, d("influenceConditions"))
@@ -110,7 +110,7 @@ def influence_conditions(
     _horizontal(ics, result, langs)
 
 
-def _site_gravity(ics: ET.Element, result: Mapping[str, Any], tr: Trace, langs) -> None:
+def _site_gravity(ics: ET.Element, result: Mapping[str, Any], tr: Traceability, langs) -> None:
     ic = sub(ics, d("influenceCondition"), refType="chekan_siteGravity")
     text(ic, "name", words("site_gravity"), langs)
     src = words("g_source", src=tr.g_source) if tr.g_source else words("g_unnamed")
@@ -157,7 +157,7 @@ def _arcsec(data: ET.Element, ref: str, key: str, value: float, langs) -> None:
     hybrid_real(q, key, float(value), "|arcsecond", r"\radian", RAD_PER_ARCSEC)
 
 
-def _angle_sensors(ics: ET.Element, result: Mapping[str, Any], tr: Trace, langs) -> None:
+def _angle_sensors(ics: ET.Element, result: Mapping[str, Any], tr: Traceability, langs) -> None:
     """One condition for the platform's angle sensors: their traceability in words, the
     calibration's file hash where there is one, and per axis the error model's numbers."""
     both = result.get("angle_sensors")

@@ -17,52 +17,30 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from chekan.report.checks import conformity, traceability
+from chekan.report.checks import Traceability, conformity
 from chekan.report.dcc_words import words
 
 #: the DCC's conformity values (dcc:stringConformityStatementStatusType), worst last
 RANK = ("pass", "conditionalPass", "conditionalFail", "fail")
 
 
-@dataclass(frozen=True)
-class Trace:
-    """``angle``: "calibration", "specification" (``uncalibrated`` axes) or "unstated";
-    ``g_source``: the site gravity's survey (None: not named)."""
-
-    angle: str
-    calibration: Mapping[str, Any] | None
-    uncalibrated: tuple[str, ...]
-    g_source: str | None
-
-    @property
-    def traceable(self) -> bool:
-        return self.angle == "calibration" and self.g_source is not None
-
-    def statement(self) -> dict[str, str]:
-        """The sentence, per language: traceable or not, and through what / why not."""
-        if self.angle == "calibration":
-            cal = self.calibration or {}
-            lab = f" ({cal['laboratory']})" if cal.get("laboratory") else ""
-            angle = words(
-                "trace_angle_cal", id=cal.get("id", "?"), date=cal.get("date", "?"), lab=lab
-            )
-        elif self.angle == "specification":
-            angle = {
-                "en": words("trace_angle_spec", axes=" and ".join(self.uncalibrated))["en"],
-                "ru": words("trace_angle_spec", axes=" и ".join(self.uncalibrated))["ru"],
-            }
-        else:
-            angle = words("trace_angle_unstated")
-        g = words("trace_g", src=self.g_source) if self.g_source else words("trace_g_unnamed")
-        head = words("trace_yes" if self.traceable else "trace_no")
-        return {k: f"{head[k]}: {angle[k]}; {g[k]}." for k in head}
-
-
-def trace(result: Mapping[str, Any], lab: Mapping[str, Any] | None = None) -> Trace:
-    """The traceability of ``result`` (issued with ``lab``): the certificate's own
-    (:func:`chekan.report.checks.traceability`), in the DCC's words."""
-    t = traceability(result, lab)
-    return Trace(t.angle, t.calibration, t.uncalibrated, t.g_source)
+def statement(t: Traceability) -> dict[str, str]:
+    """The DCC's sentence for ``t`` (:func:`chekan.report.checks.traceability`), per
+    language: traceable or not, and through what / why not."""
+    if t.angle == "calibration":
+        cal = t.calibration or {}
+        lab = f" ({cal['laboratory']})" if cal.get("laboratory") else ""
+        angle = words("trace_angle_cal", id=cal.get("id", "?"), date=cal.get("date", "?"), lab=lab)
+    elif t.angle == "specification":
+        angle = {
+            "en": words("trace_angle_spec", axes=" and ".join(t.uncalibrated))["en"],
+            "ru": words("trace_angle_spec", axes=" и ".join(t.uncalibrated))["ru"],
+        }
+    else:
+        angle = words("trace_angle_unstated")
+    g = words("trace_g", src=t.g_source) if t.g_source else words("trace_g_unnamed")
+    head = words("trace_yes" if t.traceable else "trace_no")
+    return {k: f"{head[k]}: {angle[k]}; {g[k]}." for k in head}
 
 
 # ----------------------------------------------------------------------------- conformity
