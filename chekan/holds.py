@@ -21,9 +21,11 @@ a hold and the first of the next, or a slew sample without angles), the sensor's
 the start of the next hold is unknown; so it is after a gap longer than
 ``GAP_HOLDING_S`` inside a hold (the acquisition may have stopped and commanded the
 platform again). Such a state is unknown until the sensor settles: the samples within
-``settle_s`` of the gap's end are not used (:attr:`HoldTable.known`), and a hold that
-never settles after its gap leaves the next hold's start unknown too. A shorter gap inside
-a hold, while the platform holds its step's target on both sides, loses only its samples.
+``settle_s`` of the gap's end are not used (:attr:`HoldTable.known`). A hold whose start
+was unknown and that never settles leaves the next hold's start unknown too; one whose
+slew was seen is followed through a gap inside it, and a hold after it starts from its
+equilibrium. A shorter gap inside a hold, while the platform holds its step's target on
+both sides, loses only its samples.
 """
 
 from __future__ import annotations
@@ -80,6 +82,8 @@ class HoldTable:
     known: np.ndarray | None = None
     """(record rows,) False where the sensor's state is unknown after a gap (module
     docstring); None: the record has no gap that hides the state."""
+    fresh: np.ndarray | None = None
+    """(n,) True for a hold whose start state a gap hid (:func:`known_state`); None: none."""
     gaps: list[tuple[float, float]] = field(default_factory=list)
     """Every gap of the record: (t of the last sample before, t of the first after), s."""
 
@@ -91,10 +95,10 @@ class HoldTable:
         return sel if self.known is None else sel & self.known[a:b]
 
     def restarted(self, k: int) -> bool:
-        """Whether a gap leaves hold k's state unknown somewhere (its start or after a
-        gap inside it): the joint model then takes it as settled where it uses it."""
-        a, b = int(self.start[k]), int(self.stop[k])
-        return self.known is not None and not bool(self.known[a:b].all())
+        """Whether a gap hid hold k's start state (its slew not observed): the joint model
+        then takes it as settled where it uses it, and nothing of the slew carries on. A
+        hold whose start was seen follows its slew through a gap inside it."""
+        return self.fresh is not None and bool(self.fresh[k])
 
     @property
     def n(self) -> int:
@@ -135,28 +139,35 @@ def known_state(
     stop: np.ndarray,
     settle_s: float,
     sample_rate_hz: float,
-) -> np.ndarray | None:
-    """Per row, whether the sensor's state is known there (module docstring): False within
-    ``settle_s`` of a hold's start after a slew with a gap or without angles, or of the end
-    of a gap longer than ``GAP_HOLDING_S`` inside it. None where no gap hides the state.
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the sensor's state is known (module docstring): ``(known, fresh)``, per row
+    whether it is (False within ``settle_s`` of a hold's start after a slew with a gap or
+    without angles, or of the end of a gap longer than ``GAP_HOLDING_S`` inside a hold),
+    and per hold whether its start is unknown (``fresh``: a slew not observed, or a hold
+    before it that never settled after such a start). None where no gap hides the state.
     ``attitude_ok``: rows whose angles were both read."""
     gap = np.zeros(t.size, bool)  # gap[i]: samples lost between rows i − 1 and i
     gap[record_gaps(t, sample_rate_hz) + 1] = True
     known = np.ones(t.size, bool)
+    fresh = np.zeros(start.size, bool)
     end_known = True
     for k in range(start.size):
         a, b = int(start[k]), int(stop[k])
         lost_from: list[float] = []
         if k:
             slew = slice(int(stop[k - 1]), a)
-            if not end_known or gap[int(stop[k - 1]) : a + 1].any() or not attitude_ok[slew].all():
+            seen = not gap[int(stop[k - 1]) : a + 1].any() and attitude_ok[slew].all()
+            fresh[k] = not end_known or not seen
+            if fresh[k]:
                 lost_from.append(float(t[a]))
         inside = np.flatnonzero(gap[a + 1 : b]) + a + 1
         lost_from += [float(t[i]) for i in inside if t[i] - t[i - 1] > GAP_HOLDING_S]
         for t0 in lost_from:
             known[a:b] &= ~((t[a:b] >= t0) & (t[a:b] < t0 + settle_s))
-        end_known = not lost_from or float(t[b - 1]) >= max(lost_from) + settle_s
-    return None if known.all() else known
+        # a hold whose start was seen follows its slew through a gap inside it (the platform
+        # holds its step's target); one whose start is unknown must have settled by its end
+        end_known = not fresh[k] or float(t[b - 1]) >= max(lost_from) + settle_s
+    return None if known.all() else (known, fresh)
 
 
 def _short_holds_note(short: list[tuple[int, float]], settle_s: float) -> str:
@@ -216,7 +227,8 @@ def segment_record(
     for i, s in enumerate(steps):
         start[i], stop[i] = last[s]
     rate = float(record.sample_rate_hz)
-    known = known_state(t, np.isfinite(tx) & np.isfinite(ty), start, stop, settle_s, rate)
+    state = known_state(t, np.isfinite(tx) & np.isfinite(ty), start, stop, settle_s, rate)
+    known, fresh = state if state is not None else (None, None)
     gaps = [(float(t[i]), float(t[i + 1])) for i in record_gaps(t, rate)]
     for i, s in enumerate(steps):
         a, b = int(start[i]), int(stop[i])
@@ -339,6 +351,7 @@ def segment_record(
         warnings=notes,
         hold_axis=hold_axis,
         known=known,
+        fresh=fresh,
         gaps=gaps,
     )
 

@@ -39,9 +39,11 @@ def cut(rec: Record, t_from: float, t_to: float) -> Record:
 
 
 def _known(t, start, stop, settle_s=10.0, ok=None):
+    """The rows' known state (None: known everywhere)."""
     t = np.asarray(t, float)
     ok = np.ones(t.size, bool) if ok is None else ok
-    return known_state(t, ok, np.asarray(start), np.asarray(stop), settle_s, 1.0)
+    state = known_state(t, ok, np.asarray(start), np.asarray(stop), settle_s, 1.0)
+    return None if state is None else state[0]
 
 
 def test_a_gapless_record_has_its_state_known_everywhere() -> None:
@@ -83,15 +85,29 @@ def test_a_long_gap_inside_a_hold_hides_the_state_after_it() -> None:
     assert np.array_equal(known[40:], after >= 70.0) and known[:40].all()
 
 
-def test_a_hold_that_never_settles_after_its_gap_hides_the_next_holds_start() -> None:
-    # hold 1 (rows 24…) resumes 3 s before its end: never settles; hold 2's slew is whole
+def test_a_hold_whose_start_was_hidden_and_never_settles_hides_the_next_holds_start() -> None:
+    # hold 1's slew is lost (rows 20… to t = 50) and hold 1 ends 4 s later: never settled
+    t = np.concatenate([np.arange(0.0, 21.0), np.arange(50.0, 90.0)])
+    start, stop = np.array([0, 21, 27]), np.array([19, 26, t.size])
+    state = known_state(t, np.ones(t.size, bool), start, stop, 10.0, 1.0)
+    assert state is not None
+    known, fresh = state
+    assert fresh.tolist() == [False, True, True]
+    assert not known[21:26].any()
+    hold2 = t[27:]
+    assert np.array_equal(known[27:], hold2 >= hold2[0] + 10.0)
+
+
+def test_a_gap_inside_a_seen_hold_leaves_the_next_holds_start_known() -> None:
+    """The platform holds its target through a gap inside a hold whose slew was seen: the
+    next hold's slew is seen too, so it starts from that hold's equilibrium."""
     t = np.concatenate([np.arange(0.0, 24.0), np.arange(50.0, 90.0)])
     start, stop = np.array([0, 22, 28]), np.array([20, 27, t.size])
-    known = _known(t, start, stop)
-    assert known is not None
-    assert known[22:24].all() and not known[24:27].any()
-    hold2 = t[28:]
-    assert np.array_equal(known[28:], hold2 >= hold2[0] + 10.0)
+    state = known_state(t, np.ones(t.size, bool), start, stop, 10.0, 1.0)
+    assert state is not None
+    known, fresh = state
+    assert fresh.tolist() == [False, False, False]
+    assert known[22:24].all() and not known[24:27].any() and known[28:].all()
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +141,7 @@ def test_the_settled_hold_means_leave_out_the_unknown_state(session) -> None:
     used = gapped.t_s[holds.start[k] : holds.stop[k]][holds.settled(k, gapped.t_s)]
     assert used.size and used.min() >= t0 + 51.0 + 150.0
     assert holds.gaps == [(t0 + 19.0, t0 + 51.0)]
-    assert holds.restarted(k) and not holds.restarted(k + 1)
+    assert not holds.restarted(k) and not holds.restarted(k + 1)  # its slew was seen
 
 
 @pytest.fixture(scope="module")

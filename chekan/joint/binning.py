@@ -125,8 +125,9 @@ def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s, period_s: float) -> l
     """The bins of every hold: ``(hold, mean (2), count (2), d0, dstep, n_t, t_mid)``, the
     settling part cut at ``bin_edges_s``, the settled part one bin. After a gap that leaves
     the sensor's state unknown (:mod:`chekan.holds`) the samples are not used until it has
-    settled, and each run of samples without a gap after that is one bin of the settled
-    state (``d0`` = :data:`SETTLED_D0_S`); a bin never spans a gap."""
+    settled, and each run of samples without a gap after that is one bin: of the settled
+    state (``d0`` = :data:`SETTLED_D0_S`) where the hold's start was not seen, else with the
+    lag still followed from its slew; a bin never spans a gap."""
     rows = []
     for k in range(holds.n):
         a, b = holds.start[k], holds.stop[k]
@@ -145,12 +146,15 @@ def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s, period_s: float) -> l
             for r in np.unique(run[inside]):
                 sel = inside[run[inside] == r]
                 rows.append(_bin(k, m[a:b][sel], tt[sel], tt[sel[0]] - t_last[k]))
-        # after it: runs of known samples, the state settled
+        # after it: runs of known samples, the state settled where the start was not seen,
+        # else the lag still followed from the slew
         use = np.flatnonzero(known[n_plain:]) + n_plain
         part = np.cumsum(lost | ~known)[use]
+        fresh = holds.restarted(k)
         for r in np.unique(part):
             sel = use[part == r]
-            rows.append(_bin(k, m[a:b][sel], tt[sel], SETTLED_D0_S))
+            d0 = SETTLED_D0_S if fresh else tt[sel[0]] - t_last[k]
+            rows.append(_bin(k, m[a:b][sel], tt[sel], d0))
     return rows
 
 
