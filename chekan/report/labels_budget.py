@@ -139,7 +139,7 @@ BUDGET_LABELS: dict[str, dict[str, str]] = {
     "problem": {"en": "Problem", "ru": "Проблема"},
     "note": {"en": "Note", "ru": "Примечание"},
     "messages_in_english": {
-        "en": "",
+        "en": "The estimator's messages below are in English, as chekan writes them.",
         "ru": "Сообщения программы оценивания ниже приводятся на английском языке, как их "
         "выдаёт программа (chekan); обозначения параметров даны по-русски.",
     },
