@@ -17,20 +17,15 @@ mean z² and the largest sd beside the whole session's.
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import warnings
 
 import numpy as np
 
-COLUMNS = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "step", "temp_c")
-
 
 def cut(rec, t_from: float, t_to: float):
     """``rec`` without its samples at t_from ≤ t ≤ t_to."""
-    keep = (rec.t_s < t_from) | (rec.t_s > t_to)
-    parts = {k: getattr(rec, k) for k in COLUMNS}
-    return dataclasses.replace(rec, **{k: v[keep] for k, v in parts.items() if v is not None})
+    return rec.rows((rec.t_s < t_from) | (rec.t_s > t_to))
 
 
 def session(seed: int):

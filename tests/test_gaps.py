@@ -9,7 +9,6 @@ of a hold, inside a hold), and compares with the whole record's estimate and wit
 
 from __future__ import annotations
 
-import dataclasses
 import warnings
 
 import numpy as np
@@ -28,14 +27,11 @@ dwell_s = 240
 settle_s = 150
 rounds = 2
 """
-COLUMNS = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "step", "temp_c")
 
 
 def cut(rec: Record, t_from: float, t_to: float) -> Record:
     """``rec`` without its samples at t_from ≤ t ≤ t_to (a stretch lost in acquisition)."""
-    keep = (rec.t_s < t_from) | (rec.t_s > t_to)
-    parts = {k: getattr(rec, k) for k in COLUMNS}
-    return dataclasses.replace(rec, **{k: v[keep] for k, v in parts.items() if v is not None})
+    return rec.rows((rec.t_s < t_from) | (rec.t_s > t_to))
 
 
 def _known(t, start, stop, settle_s=10.0, ok=None):

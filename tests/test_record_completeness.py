@@ -6,21 +6,12 @@ from __future__ import annotations
 import dataclasses
 import warnings
 
-import numpy as np
 import pytest
 
 from chekan.cli import main
 from chekan.pipeline import CalibrationOptions, calibrate
 from chekan.records import Record, write_record
 from chekan.summary import format_summary
-
-COLUMNS = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "step", "temp_c")
-
-
-def _rows(rec: Record, keep: np.ndarray, meta: dict | None = None) -> Record:
-    parts = {k: getattr(rec, k) for k in COLUMNS}
-    out = dataclasses.replace(rec, **{k: v[keep] for k, v in parts.items() if v is not None})
-    return out if meta is None else dataclasses.replace(out, meta=meta)
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +20,7 @@ def one_round(short_session) -> tuple[Record, int]:
     _, rec, _ = short_session
     steps = int(rec.meta["program_steps"])
     half = steps // 2
-    return _rows(rec, rec.t_s < rec.t_s[rec.step == half][0]), steps
+    return rec.rows(rec.t_s < rec.t_s[rec.step == half][0]), steps
 
 
 def _classical(rec: Record) -> dict:
@@ -58,7 +49,7 @@ def test_a_record_missing_half_its_program_says_so(one_round) -> None:
 def test_without_the_header_a_missing_inner_step_is_still_seen(short_session) -> None:
     _, rec, _ = short_session
     meta = {k: v for k, v in rec.meta.items() if k != "program_steps"}
-    res = _classical(_rows(rec, rec.step != 5, meta))
+    res = _classical(dataclasses.replace(rec.rows(rec.step != 5), meta=meta))
     assert res["program_coverage"]["missing_steps"] == [5]
     assert not res["program_coverage"]["program_steps_known"]
 

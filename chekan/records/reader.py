@@ -13,6 +13,7 @@ never changes what is accepted (:mod:`chekan.records.parse`).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -43,6 +44,16 @@ DEFAULT_COLUMNS: tuple[str, ...] = (
 )
 REQUIRED_COLUMNS: tuple[str, ...] = DEFAULT_COLUMNS[:6]
 REQUIRED_KEYS: tuple[str, ...] = ("format", "serial", "g_local_mgal")
+#: the per-sample columns of a Record, one value per row
+COLUMNS: tuple[str, ...] = (
+    "t_s",
+    "m1_pix",
+    "m2_pix",
+    "tilt_x_arcsec",
+    "tilt_y_arcsec",
+    "step",
+    "temp_c",
+)
 
 
 @dataclass(eq=False)
@@ -75,7 +86,7 @@ class Record:
         if self.temp_c is not None:
             self.temp_c = np.asarray(self.temp_c, dtype=np.float64).reshape(-1)
         n = len(self.t_s)
-        for name in ("m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "step", "temp_c"):
+        for name in COLUMNS[1:]:
             a = getattr(self, name)
             if a is not None and len(a) != n:
                 raise ValueError(f"Record.{name} has {len(a)} values, t_s has {n}")
@@ -88,6 +99,12 @@ class Record:
     def n(self) -> int:
         """Number of samples."""
         return len(self.t_s)
+
+    def rows(self, keep: np.ndarray) -> Record:
+        """A new record of the rows where ``keep`` (a boolean mask) is True, the same
+        header: the record as it would be had the others been lost."""
+        cols = {k: getattr(self, k) for k in COLUMNS}
+        return dataclasses.replace(self, **{k: v[keep] for k, v in cols.items() if v is not None})
 
     @property
     def serial(self) -> str:

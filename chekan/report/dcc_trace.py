@@ -20,9 +20,6 @@ from typing import Any
 from chekan.report.checks import Traceability, conformity
 from chekan.report.dcc_words import words
 
-#: the DCC's conformity values (dcc:stringConformityStatementStatusType), worst last
-RANK = ("pass", "conditionalPass", "conditionalFail", "fail")
-
 
 def statement(t: Traceability) -> dict[str, str]:
     """The DCC's sentence for ``t`` (:func:`chekan.report.checks.traceability`), per
@@ -51,12 +48,13 @@ class Criterion:
     key: str  # "reduced_error", "instability_b1", "instability_b2"
     value_percent: float
     u_percent: float | None
-    outcome: str  # one of RANK
+    outcome: str  # a DCC conformity value (_DCC_OUTCOME's)
 
 
 @dataclass(frozen=True)
 class Decision:
-    """``outcome``: one of :data:`RANK`, or None with ``why`` (no statement)."""
+    """``outcome``: a DCC conformity value (``dcc:stringConformityStatementStatusType``), or
+    None with ``why`` (no statement)."""
 
     outcome: str | None
     criteria: tuple[Criterion, ...]
@@ -64,6 +62,7 @@ class Decision:
 
 
 #: the certificate's outcomes (:class:`chekan.report.checks.Conformity`) in the DCC's values
+#: (``dcc:stringConformityStatementStatusType``)
 _DCC_OUTCOME = {
     "pass": "pass",
     "conditional_pass": "conditionalPass",
