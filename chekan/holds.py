@@ -132,6 +132,13 @@ def record_gaps(t: np.ndarray, sample_rate_hz: float) -> np.ndarray:
     return np.flatnonzero(np.diff(t) > GAP_PERIODS * sample_period_s(t, sample_rate_hz))
 
 
+def gap_before(t: np.ndarray, sample_rate_hz: float) -> np.ndarray:
+    """Per row, whether samples were lost just before it (:func:`record_gaps`)."""
+    gap = np.zeros(t.size, bool)
+    gap[record_gaps(t, sample_rate_hz) + 1] = True
+    return gap
+
+
 def known_state(
     t: np.ndarray,
     attitude_ok: np.ndarray,
@@ -146,8 +153,7 @@ def known_state(
     and per hold whether its start is unknown (``fresh``: a slew not observed, or a hold
     before it that never settled after such a start). None where no gap hides the state.
     ``attitude_ok``: rows whose angles were both read."""
-    gap = np.zeros(t.size, bool)  # gap[i]: samples lost between rows i − 1 and i
-    gap[record_gaps(t, sample_rate_hz) + 1] = True
+    gap = gap_before(t, sample_rate_hz)
     known = np.ones(t.size, bool)
     fresh = np.zeros(start.size, bool)
     end_known = True

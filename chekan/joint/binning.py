@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from chekan.holds import GAP_PERIODS, HoldTable, sample_period_s, segment_record
+from chekan.holds import GAP_PERIODS, HoldTable, gap_before, sample_period_s, segment_record
 from chekan.jaxconfig import device_arrays
 from chekan.joint.angles import AngleSensorSpec, SensorReads, all_sensor_terms
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
@@ -121,19 +121,20 @@ def _bin(k: int, m, ts, d0: float) -> tuple:
     return (k, mean, cnt, d0, dstep, ts.size, ts.mean())
 
 
-def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s, period_s: float) -> list[tuple]:
+def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s, gap: np.ndarray) -> list[tuple]:
     """The bins of every hold: ``(hold, mean (2), count (2), d0, dstep, n_t, t_mid)``, the
     settling part cut at ``bin_edges_s``, the settled part one bin. After a gap that leaves
     the sensor's state unknown (:mod:`chekan.holds`) the samples are not used until it has
     settled, and each run of samples without a gap after that is one bin: of the settled
     state (``d0`` = :data:`SETTLED_D0_S`) where the hold's start was not seen, else with the
-    lag still followed from its slew; a bin never spans a gap."""
+    lag still followed from its slew; a bin never spans a gap (``gap``: per row, samples
+    lost just before it, :func:`chekan.holds.gap_before`)."""
     rows = []
     for k in range(holds.n):
         a, b = holds.start[k], holds.stop[k]
         tt = t[a:b]
         known = np.ones(b - a, bool) if holds.known is None else holds.known[a:b]
-        lost = np.concatenate([[False], np.diff(tt) > GAP_PERIODS * period_s])
+        lost = np.concatenate([[False], gap[a + 1 : b]])
         run = np.cumsum(lost)  # runs of samples without a gap
         # before the first unknown state: the lag followed from the slew, bins cut at gaps
         brk = np.flatnonzero(~known)
@@ -243,10 +244,10 @@ def prepare_record(
     mv_tx, mv_ty, mv_lag, mv_mask, t_last = _moves(record, holds, dt_s)
     # time from the end of the slew into hold k to the hold's last sample (lag carried on)
     hold_T = np.array([t[holds.stop[k] - 1] - t_last[k] if k else 0.0 for k in range(H)])
-    # a hold whose state a gap hid ends settled: nothing of its slew carries on
-    restarted = np.array([holds.restarted(k) for k in range(H)], bool)
-    hold_T = np.where(restarted, SETTLED_D0_S, hold_T)
-    rows = _bin_rows(t, m, holds, t_last, bin_edges_s, sample_period_s(t, record.sample_rate_hz))
+    # a hold whose start a gap hid ends settled: nothing of its slew carries on
+    if holds.fresh is not None:
+        hold_T = np.where(holds.fresh, SETTLED_D0_S, hold_T)
+    rows = _bin_rows(t, m, holds, t_last, bin_edges_s, gap_before(t, record.sample_rate_hz))
     N = len(rows)
     hold_of = np.array([r[0] for r in rows])
     own = np.zeros((N, H))
