@@ -57,11 +57,11 @@ def _run(seed: int, quick: bool) -> list[Row]:
     from scipy.optimize import least_squares
 
     from bench.classical_ref import numpy_classical_fit
-    from chekan.classical import calibrate_record
+    from chekan.classical.fit import calibrate_record
     from chekan.demo import demo_program
     from chekan.joint import fit_map_em, initial_values, prepare, problem_for
     from chekan.joint.map import map_pass_settings
-    from chekan.simulate import simulate_session
+    from chekan.records.simulate import simulate_session
     from inference.map import fit_map
 
     program = demo_program(quick)

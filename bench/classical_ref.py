@@ -1,6 +1,7 @@
 """A plain-NumPy classical fit, written from the paper, as the reference for the benchmark.
 
-Independent of :mod:`chekan.holds` and :mod:`chekan.classical` (which it must agree with):
+Independent of :mod:`chekan.records.holds` and :mod:`chekan.classical.fit` (which it must agree
+with):
 hold means after settling, the level reading interpolated in time between the level holds
 around each round, m − m_h of each ± pair mean (eq. 25) and one least squares of
 Δg = b (m − m_h) + a (m − m_h)² (eq. 21) with b per round and system and one common a.
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics.units import ARCSEC_PER_RAD
 
 
 def numpy_classical_fit(record, settle_s: float) -> tuple[np.ndarray, float]:

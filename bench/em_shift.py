@@ -9,7 +9,7 @@ so that the checkout is what gets imported), then ``compare``::
     cd /tmp && PYTHONPATH=$REPO nice -n 10 python $REPO/bench/em_shift.py run after.json
     python $REPO/bench/em_shift.py compare before.json after.json
 
-Sessions: ``--n`` drawn instruments (:func:`chekan.simulate.random_truth`, seed 1000 + i),
+Sessions: ``--n`` drawn instruments (:func:`chekan.records.simulate.random_truth`, seed 1000 + i),
 every fourth on the archive's one-round 20 min program (where EM creeps towards a bound),
 the others on the 3 h demo program; each calibrated by ``map`` with every solver of
 ``--solvers``. ``compare`` prints, per solver, the largest |Δ mean| / sd of b₁ and b₂ and of
@@ -33,7 +33,7 @@ def session(i: int):
     """Simulated record ``i`` (seed 1000 + i) and its program's name."""
     from chekan.archive.synth import short_program
     from chekan.demo import demo_program
-    from chekan.simulate import random_truth, simulate_session
+    from chekan.records.simulate import random_truth, simulate_session
 
     seed = 1000 + i
     short = i % 4 == 3

@@ -30,8 +30,8 @@ def cut(rec, t_from: float, t_to: float):
 
 def session(seed: int):
     """(record, truth) of one session (module docstring)."""
-    from chekan.program import build_program
-    from chekan.simulate import Truth, simulate_session
+    from chekan.physics.program import build_program
+    from chekan.records.simulate import Truth, simulate_session
 
     prog = build_program([2.5, 4.0, 5 + 10 / 60], axis="xy", rounds=4, dwell_s=300, settle_s=120)
     truth = Truth(

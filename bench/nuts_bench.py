@@ -62,10 +62,10 @@ def _median_time(fn, n: int) -> float:
 
 def setup(seed: int, quick: bool):
     """A simulated record, its model, the problem and the MAP initial values."""
-    from chekan.classical import calibrate_record
+    from chekan.classical.fit import calibrate_record
     from chekan.demo import demo_program
     from chekan.joint import initial_values, prepare, problem_for
-    from chekan.simulate import simulate_session
+    from chekan.records.simulate import simulate_session
 
     program = demo_program(quick)
     rec, _ = simulate_session(program, seed=seed)

@@ -1,8 +1,9 @@
 """The classical items from raw and from settled hold means, on simulated platforms.
 
-Made for the unsettled hold means of the designer's programs (``chekan/settling.py``). Each
-session draws a platform of the validation's cases (:func:`chekan.validate_scenario.session_truth`,
-τ drawn by :func:`chekan.simulate.random_truth`, 90 s in ``slow``) and is calibrated by
+Made for the unsettled hold means of the designer's programs (``chekan/classical/settling.py``).
+Each
+session draws a platform of the validation's cases (:func:`chekan.study.scenario.session_truth`,
+τ drawn by :func:`chekan.records.simulate.random_truth`, 90 s in ``slow``) and is calibrated by
 ``map`` under both programs (the designer's best, ``docs/figures/program_design_xy.toml``,
 and the paper's). Printed per program and case: the transient left in the hold means, the
 RMS error of the classical b₁, b₂ from the raw hold means (Calibr.exe) and from the settled
@@ -30,10 +31,10 @@ def session(job: tuple[str, str, int]) -> dict:
     """One simulated session of ``(program, case, i)`` and its classical items both ways:
     relative errors of b₁, b₂ in ppm, reduced errors in %."""
     from chekan.options import CalibrationOptions
+    from chekan.physics.program import default_program, load_program
     from chekan.pipeline import calibrate
-    from chekan.program import default_program, load_program
-    from chekan.simulate import simulate_session
-    from chekan.validate_scenario import DEFAULT_SCENARIO, session_truth
+    from chekan.records.simulate import simulate_session
+    from chekan.study.scenario import DEFAULT_SCENARIO, session_truth
 
     prog_name, case, i = job
     warnings.simplefilter("ignore")

@@ -4,9 +4,9 @@ a bare JAX start measured in the same run; ``reanalyze --method bayes`` throughp
     python bench/several_records.py [--seed 0] [--quick] [--jobs J] [--skip-bayes] [--nuts]
 
 The records (simulated once into a temporary folder, fixed seeds; each an independent
-instrument drawn by :func:`chekan.validate_scenario.session_truth` with the default
-:class:`~chekan.validate_scenario.Scenario`, simulated by
-:func:`chekan.simulate.simulate_session`):
+instrument drawn by :func:`chekan.study.scenario.session_truth` with the default
+:class:`~chekan.study.scenario.Scenario`, simulated by
+:func:`chekan.records.simulate.simulate_session`):
 
 - ``typical``, ``misaligned`` (|ε| 8–10′, |Δγ| 15–20′) and ``slow`` (τ = 90 s): the paper's
   9 h program (``--quick``: the same angles with 300 s dwells, 3 h);
@@ -99,7 +99,7 @@ class Run:
 
 def dual_axis_program(quick: bool):
     """The 9 h program about both axes (6 rounds, ≈ 2.6 h, for ``quick``)."""
-    from chekan.program import build_program
+    from chekan.physics.program import build_program
 
     return build_program(
         [4.5, 4 + 51 / 60, 5 + 10 / 60],
@@ -118,8 +118,8 @@ def write_records(folder: Path, seed: int, quick: bool) -> dict[str, Path]:
 
     from chekan.demo import demo_program
     from chekan.records import write_record
-    from chekan.simulate import simulate_session
-    from chekan.validate_scenario import Scenario, session_truth
+    from chekan.records.simulate import simulate_session
+    from chekan.study.scenario import Scenario, session_truth
 
     out = {}
     for i, case in enumerate(CASES):
@@ -464,12 +464,12 @@ def _nuts_agreement(path: Path, case: str, seed: int, quick: bool) -> Row:
     import numpy as np
 
     from bench.nuts_bench import MEAN_TOL_SD, SD_TOL, agreement, laplace_start, nuts
-    from chekan.classical import calibrate_record
+    from chekan.classical.fit import calibrate_record
+    from chekan.classical.settling import tau_from_transients
     from chekan.joint import fit_map_em, initial_values, prepare, problem_for
     from chekan.joint.sampling import sample_posterior
     from chekan.options import CalibrationOptions
     from chekan.records import read_record
-    from chekan.settling import tau_from_transients
     from inference.diagnostics import ess_bulk
 
     rec = read_record(path)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from chekan.program import PAPER_ANGLES, build_program, default_program, parse_angle_deg
+from chekan.physics.program import PAPER_ANGLES, build_program, default_program, parse_angle_deg
 
 
 def demo_program(quick: bool):
@@ -30,9 +30,9 @@ def run_demo(
 ) -> int:
     from chekan.pipeline import CalibrationOptions, calibrate_file
     from chekan.records import write_record
-    from chekan.result import write_result
-    from chekan.simulate import Truth, simulate_session, write_truth
-    from chekan.summary import format_summary
+    from chekan.records.simulate import Truth, simulate_session, write_truth
+    from chekan.results.document import write_result
+    from chekan.results.summary import format_summary
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

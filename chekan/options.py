@@ -34,7 +34,7 @@ class CalibrationOptions:
     # how the bound is read: "rectangular" (GUM 4.3.7, the default: only a bound is known)
     # or "triangular" (GUM 4.3.9; for comparisons in validation studies)
     angle_bound_reading: str = "rectangular"
-    # the platform's own angle calibration (chekan.anglecal): a file, or the table read from
+    # the platform's own angle calibration (chekan.records.anglecal): a file, or the table read from
     # one; None: the record header's angle_calibration, if any
     angle_calibration: str | Path | Any = None
     # map/bayes on records about X: the standard uncertainty (pix) of each pendulum's

@@ -1,7 +1,7 @@
 """One calibration end to end: record or protocol → estimator → ``chekan-result/1`` dict.
 
 :func:`calibrate` takes an in-memory :class:`~chekan.records.Record` or
-:class:`~chekan.protocol.Protocol`; :func:`calibrate_file` reads a file and calls it. Used
+:class:`~chekan.records.protocol.Protocol`; :func:`calibrate_file` reads a file and calls it. Used
 by ``chekan calibrate``, re-analysis, validation, the live page and the demo, so they agree.
 """
 
@@ -12,15 +12,15 @@ from pathlib import Path
 
 import numpy as np
 
+from chekan.classical.settling import unsettled_hold_means
 from chekan.errors import ChekanError
-from chekan.holds import gaps_entry, program_coverage
-from chekan.inputs import input_kind, read_input
 from chekan.options import METHODS, CalibrationOptions
-from chekan.protocol import Protocol
 from chekan.records import Record
 from chekan.records.framing import count_rows
-from chekan.result import base_result, classical_result, tilt_program_entry
-from chekan.settling import unsettled_hold_means
+from chekan.records.holds import gaps_entry, program_coverage
+from chekan.records.inputs import input_kind, read_input
+from chekan.records.protocol import Protocol
+from chekan.results.document import base_result, classical_result, tilt_program_entry
 
 #: ``result["record"]`` of a calibration of data that came from no file.
 IN_MEMORY = "<memory>"
@@ -142,9 +142,9 @@ def classical_stage(path: str | Path, opts: CalibrationOptions):
 def with_angle_calibration(
     data: Record | Protocol, opts: CalibrationOptions, input_path: str | Path | None = None
 ) -> Record | Protocol:
-    """``data`` with the platform's angle calibration applied (:mod:`chekan.anglecal`: the
+    """``data`` with the platform's angle calibration applied (:mod:`chekan.records.anglecal`: the
     option's table, else the one the record's header names), or unchanged without one."""
-    from chekan.anglecal import calibration_for, corrected
+    from chekan.records.anglecal import calibration_for, corrected
 
     if kind_of(data) == "protocol":
         if opts.angle_calibration is not None:
@@ -192,7 +192,7 @@ def classical_of(
         header["date"] = data.meta["started"][:10]
     elif "date" in data.meta:
         header["date"] = data.meta["date"]
-    from chekan import classical
+    from chekan.classical import fit as classical
 
     unsettled = None
     coverage = None

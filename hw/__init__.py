@@ -9,7 +9,7 @@ Modules (one job each)::
     faults       fault-injection plan of the emulator (``--faults`` text)
     endpoints    where the emulator's bytes go: pseudo-terminals or in-process pipes
     anglesensors the emulated platform's X and Y angle sensors and their errors
-    emulator     both devices on one device clock (physics from chekan.simulate)
+    emulator     both devices on one device clock (physics from chekan.records.simulate)
     protocol_chekanemu   pyserial URL scheme ``chekanemu://sensor?session=NAME``
     journal      fsynced JSON-lines journal of a run
     acquisition  the runner, a package: plan, summary, clock (seq → t_s), steps (the

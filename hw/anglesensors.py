@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 BOUND_ARCSEC = 3.0  # the platform's specification: |systematic error| ≤ 3″
-RANGE_DEG = 6.0  # the largest program angle (chekan.program.MAX_ANGLE_DEG)
+RANGE_DEG = 6.0  # the largest program angle (chekan.physics.program.MAX_ANGLE_DEG)
 AXES = ("x", "y")
 FIELDS = ("amp", "period_deg", "phase_deg", "scale_ppm", "sd", "jitter")
 _ITEM_RE = re.compile(r"(?P<axis>[xy])\.(?P<field>[a-z_]+)=(?P<value>\S+)")

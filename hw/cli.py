@@ -23,8 +23,8 @@ import threading
 
 from chekan import argtypes
 from chekan.errors import ChekanError
-from chekan.filekinds import RECORD, TRUTH
-from chekan.outputs import Output, check_outputs, run_command
+from chekan.files.kinds import RECORD, TRUTH
+from chekan.files.outputs import Output, check_outputs, run_command
 
 _META_RE = re.compile(r"([a-z0-9_]+)=(.*)", re.DOTALL)
 
@@ -85,7 +85,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from chekan.simulate import Truth, random_truth
+    from chekan.records.simulate import Truth, random_truth
     from hw import anglesensors
     from hw.emulator import PtyEmulator
     from hw.faults import parse_faults
@@ -145,7 +145,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         d = truth.to_json()
         d["angle_sensors"] = sensors.to_json()
         d["holds"] = [h.to_json() for h in em.platform.holds]
-        from chekan.durable import atomic_output
+        from chekan.files.durable import atomic_output
 
         with atomic_output(args.truth) as f:
             f.write(json.dumps(d, indent=2) + "\n")
@@ -247,7 +247,7 @@ def check_ports(sensor: str | None, platform: str | None) -> None:
 
 
 def cmd_acquire(args: argparse.Namespace) -> int:
-    from chekan.program import default_program, load_program
+    from chekan.physics.program import default_program, load_program
     from hw.acquisition import Options, acquire, resume
     from hw.errors import BadMetadata, PortsUnknown, RecordExists
     from hw.progress import StatusLine

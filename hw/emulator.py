@@ -1,7 +1,7 @@
 """Emulator of both devices (sensor and gyro-platform) on one device clock.
 
 It follows ``docs/specs/serial-protocol.md``; the physics is
-:class:`chekan.simulate.Instrument`:
+:class:`chekan.records.simulate.Instrument`:
 
 - the platform slews at ``Truth.slew_deg_per_s`` (both axes reach the target
   together), settles for ``Truth.platform_settle_s``, then holds; it reports
@@ -48,8 +48,8 @@ from typing import Any
 
 import numpy as np
 
-from chekan.simulate import Instrument, Truth
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics.units import ARCSEC_PER_RAD
+from chekan.records.simulate import Instrument, Truth
 from hw.anglesensors import PlatformSensors, default_sensors
 from hw.endpoints import MemoryEndpoint, PtyEndpoint, memory_url, register, unregister
 from hw.faults import FaultPlan

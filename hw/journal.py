@@ -16,8 +16,8 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
-from chekan.durable import append_whole, fsync_dir
 from chekan.errors import ChekanError
+from chekan.files.durable import append_whole, fsync_dir
 
 
 def utc_now() -> str:

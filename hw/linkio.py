@@ -23,7 +23,7 @@ from typing import Any
 
 import serial
 
-from chekan.durable import append_whole
+from chekan.files.durable import append_whole
 from hw.errors import GaveUp, LinkLost
 from hw.nmea import HOST_TYPES, Parser, Sentence, SentenceParser
 

@@ -63,7 +63,7 @@ def short_program():
 def short_session(short_program, tmp_path_factory):
     """(record path, Record, Truth) of a short simulated session (seed 7)."""
     from chekan.records import write_record
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     rec, truth = simulate_session(short_program, Truth(serial="T-1"), seed=7)
     path = tmp_path_factory.mktemp("session") / "rec.csv"

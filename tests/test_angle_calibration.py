@@ -1,4 +1,4 @@
-"""The platform's own angle calibration (chekan.anglecal, issue 29): the file format and
+"""The platform's own angle calibration (chekan.records.anglecal, issue 29): the file format and
 its errors, the corrections applied to the measured angles, its uncertainty replacing the
 bound's prior (the sd of b falls as the budget says), the result and CLI naming it."""
 
@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from chekan.anglecal import corrected, read_angle_calibration
-from chekan.cli import main
+from chekan.cli.commands import main
 from chekan.errors import ChekanError, FormatError
 from chekan.options import CalibrationOptions
 from chekan.pipeline import calibrate
 from chekan.records import write_record
-from chekan.simulate import Truth, simulate_session
-from chekan.validate_scenario import session_calibration
+from chekan.records.anglecal import corrected, read_angle_calibration
+from chekan.records.simulate import Truth, simulate_session
+from chekan.study.scenario import session_calibration
 
 HEAD = "# format: chekan-angle-calibration/1\n# id: AC-1\n# date: 2026-10-02\n"
 COLS = "axis,angle_arcsec,correction_arcsec,U_arcsec\n"
@@ -198,7 +198,7 @@ def test_a_stated_scale_part_is_read_checked_and_replaces_the_extremes(tmp_path)
     scale term u_s(θ_max)² and each angle u(θ)² − u_s(θ)², u_s(θ) = (U_s/2)·|θ|/θ_t, where
     a table alone gets both extremes at the full u²; the result and the reading state it."""
     from chekan.joint.angles import SystematicBasis, angle_sensor_entry, spec_for
-    from chekan.units import ARCSEC_PER_RAD
+    from chekan.physics.units import ARCSEC_PER_RAD
 
     plain = read_angle_calibration(_write(tmp_path, SCALE_ROWS, name="plain.csv"))
     cal = read_angle_calibration(
@@ -241,8 +241,8 @@ def test_the_simulated_lab_states_its_scale_part(session, short_program):
     """The validation's tables: stated as independent (0) they are the unstated tables to
     the bit; with a scale part U_s the residual is ξ·θ/θ_t plus the unstated draw's normals
     scaled to the rest, √(U² − (U_s·θ/θ_t)²)/2, so that each row's total stays U."""
-    from chekan.simulate import session_systematic
-    from chekan.units import ARCSEC_PER_RAD
+    from chekan.physics.units import ARCSEC_PER_RAD
+    from chekan.records.simulate import session_systematic
 
     _rec, truth, cal = session
     plain = cal.table("y")

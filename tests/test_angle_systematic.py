@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 
 from chekan import joint
-from chekan.classical import calibrate_record
+from chekan.classical.fit import calibrate_record
 from chekan.errors import ChekanError
 from chekan.joint.angles import AngleSensorSpec, commanded_groups, spec_for, systematic_basis
 from chekan.joint.reported import map_derived
-from chekan.program import build_program
-from chekan.simulate import Truth, simulate_session
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics.program import build_program
+from chekan.physics.units import ARCSEC_PER_RAD
+from chekan.records.simulate import Truth, simulate_session
 
 #: A zero bound: the systematic columns are there (the same compiled model as with a bound,
 #: one JAX compilation per program instead of two) with a prior of 1e-12 arcsec².
@@ -209,7 +209,7 @@ def test_every_round_shares_the_slews_of_its_type():
     the paper's program has 17 (level → +1°50′, eight ± pairs, seven −a → +a′, −5°10′ →
     level; the level → level step between rounds does not move)."""
     from chekan.joint.slews import slew_types, types_about
-    from chekan.program import default_program
+    from chekan.physics.program import default_program
 
     prog = default_program()
     theta = np.array([s.theta_rad for s in prog.steps])

@@ -21,7 +21,7 @@ from chekan.archive.db import Archive, read_export_csv
 from chekan.archive.history import stability_history
 from chekan.archive.reanalyze import find_inputs, reanalyze
 from chekan.archive.synth import InstrumentSpec, write_archive_inputs
-from chekan.result import sha256_file
+from chekan.results.document import sha256_file
 
 SPECS = [
     InstrumentSpec("A-101", (6.98, 6.88), rate_ppm_per_year=50.0, seed=11),

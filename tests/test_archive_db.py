@@ -20,7 +20,7 @@ from chekan.archive.db import (
 )
 from chekan.errors import ChekanError
 from chekan.pipeline import CalibrationOptions, calibrate_file
-from chekan.result import write_result
+from chekan.results.document import write_result
 
 
 @pytest.fixture(scope="module")

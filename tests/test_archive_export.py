@@ -15,7 +15,7 @@ import pytest
 
 from chekan.archive.db import Archive
 from chekan.archive.export import CSV_COLUMNS, OPEN_END
-from chekan.cli import main
+from chekan.cli.commands import main
 
 # (date, relative change of b1 and b2 from the protocol's); two verifications on 2018-03-01;
 # in the last session b2 was held fixed (no sd): it has no b2 to export

@@ -240,7 +240,7 @@ def test_at_is_a_date(tmp_path, capsys, value, problem):
     """An impossible date is one line naming the option and the problem, exit 2 (it was a
     ValueError's traceback, exit 1)."""
     from chekan.archive.db import Archive
-    from chekan.cli import main
+    from chekan.cli.commands import main
 
     Archive(tmp_path / "a.sqlite").close()
     try:

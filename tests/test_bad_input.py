@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from chekan.cli import build_parser, main
+from chekan.cli.commands import build_parser, main
 
 RECORD_G = re.compile(r"^# g_local_mgal: .*$", re.M)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from chekan import joint
-from chekan.classical import calibrate_record
+from chekan.classical.fit import calibrate_record
 from chekan.joint import likelihood as cm
 from chekan.joint.map import between_passes
 from chekan.joint.reported import map_derived
@@ -100,7 +100,7 @@ def test_map_slow_damping_recentres_level_and_converges_em(short_program):
     """τ = 90 s: the level holds have not settled, so the classical m_h that the model
     starts from is pixels off. The MAP moves its level reference to the estimate (b is
     dG/dm about it) and runs the EM of the hyperparameters to its fixed point."""
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     rec, truth = simulate_session(short_program, Truth(serial="T-slow", tau_s=90.0), seed=11)
     cres, _, model, _ = _setup(rec, padded=True)
@@ -193,9 +193,9 @@ def test_protocol_posterior_centred_on_printed_b(paper_protocol):
 
 def test_unidentifiable_azimuth_is_reported_not_fatal(tmp_path):
     """Small tilts about one axis hardly inform Δγ: the result says it is prior-dominated."""
-    from chekan.program import build_program
+    from chekan.physics.program import build_program
     from chekan.records import write_record
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     prog = build_program([0.3, 0.6], dwell_s=300, settle_s=200, rounds=1)
     rec, _ = simulate_session(prog, Truth(m_level_pix=(1024.0, 1024.0)), seed=5)

@@ -13,7 +13,7 @@ from bench.table import Row, format_table
 
 
 def test_numpy_reference_agrees_with_the_classical_method(short_session):
-    from chekan.classical import calibrate_record
+    from chekan.classical.fit import calibrate_record
 
     _, rec, _ = short_session
     settle = float(rec.meta["program_settle_s"])
@@ -166,7 +166,7 @@ def _check_several_records_rows(rows, methods=("map", "bayes")):
 def test_several_records_table_from_stubbed_runs(monkeypatch):
     """Median, worst, ratios and ESS/s computed from the runs (processes stubbed: no timing)."""
     import bench.several_records as sr
-    from chekan.parameters import PARAMETER_UNITS
+    from chekan.physics.parameters import PARAMETER_UNITS
 
     secs = {"typical": 10.0, "misaligned": 14.0, "slow": 30.0, "dual-axis": 12.0}
 

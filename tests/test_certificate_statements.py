@@ -41,11 +41,11 @@ def jump(tmp_path_factory) -> tuple[dict, Path]:
     """The MAP result of a short session whose system 1 jumps by 0.9 pix mid-record (as a
     knock on the instrument would): the joint model has no such term, so its diagnostics
     flag the residuals (a problem), while every criterion's value stays small."""
+    from chekan.physics.program import load_program
     from chekan.pipeline import CalibrationOptions, calibrate_file
-    from chekan.program import load_program
     from chekan.records import write_record
-    from chekan.result import write_result
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
+    from chekan.results.document import write_result
 
     d = tmp_path_factory.mktemp("jump")
     (d / "short.toml").write_text(SHORT_PROGRAM, encoding="utf-8")
@@ -214,10 +214,10 @@ def test_russian_and_english_words_as_a_person_reads_them(jump):
 def test_an_xy_classical_result_with_unsettled_holds_certifies_its_y_rounds_once(tmp_path):
     """An xy record with 120 s settling at τ = 30 s: the classical fit is flagged, and its
     certified Y rounds are items a)–d), not a second 'not certified' copy."""
+    from chekan.physics.program import load_program
     from chekan.pipeline import CalibrationOptions, calibrate_file
-    from chekan.program import load_program
     from chekan.records import write_record
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     prog = tmp_path / "xy.toml"
     prog.write_text(
@@ -245,7 +245,7 @@ def test_an_xy_classical_result_with_unsettled_holds_certifies_its_y_rounds_once
 
 
 def test_the_console_names_parameters_as_a_person_reads_them(jump):
-    from chekan.summary import format_summary
+    from chekan.results.summary import format_summary
 
     res, _ = jump
     text = format_summary(res)

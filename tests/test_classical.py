@@ -5,15 +5,15 @@ import json
 import numpy as np
 import pytest
 
-from chekan.classical import (
+from chekan.classical.fit import (
     calibrate_protocol,
     calibrate_record,
     fit_by_axis,
     increments_from_holds,
 )
-from chekan.cli import main
-from chekan.protocol import read_protocol
-from chekan.result import read_result
+from chekan.cli.commands import main
+from chekan.records.protocol import read_protocol
+from chekan.results.document import read_result
 
 # Fig. 6 of the paper: δg per angle (rows) for r1_s1, r1_s2, r2_s1, r2_s2, and their mean Δg
 PAPER_DELTA_G = np.array(
@@ -64,7 +64,7 @@ def test_recovers_simulated_truth(short_session):
 
 def test_simulator_residuals_look_like_the_papers(short_program):
     """Default noise: classical СКП of the order of the paper's 0.5–1 mGal per column."""
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     rms = []
     for seed in range(4):
@@ -164,9 +164,9 @@ B_TRUE = (6.98, 6.882)
 def _forward_record(program, m_level=(1024.0, 1024.0), dt_s=10.0, serial="AX-1"):
     """A noise-free record of ``program`` from the forward model itself (eq. 6, ideal
     geometry: ε = γ = 0): every sample of a hold is the equilibrium reading there."""
-    from chekan import model as fm
+    from chekan.physics import sensor as fm
+    from chekan.physics.units import ARCSEC_PER_RAD
     from chekan.records import Record
-    from chekan.units import ARCSEC_PER_RAD
 
     params = fm.make_params(
         g_mgal=G_MGAL, K_pix_per_rad=K_PIX, b_mgal_per_pix=B_TRUE, m_level_pix=m_level
@@ -193,7 +193,7 @@ def _forward_record(program, m_level=(1024.0, 1024.0), dt_s=10.0, serial="AX-1")
 
 
 def _xy_program(**kw):
-    from chekan.program import build_program
+    from chekan.physics.program import build_program
 
     kw = {"round_axes": ["y", "x", "y", "x"], "dwell_s": 200, "settle_s": 100, **kw}
     return build_program([1 + 50 / 60, 3 + 10 / 60, 4 + 10 / 60, 5 + 10 / 60], **kw)
@@ -204,7 +204,7 @@ def test_rounds_about_x_are_processed_per_axis_with_analytic_truth():
     ± pairs cancel the terms linear in θ (eq. 25), and their pair means are the Y rounds'
     times 1 + (gθ/λ)² (eq. 6: a tilt about X changes the stiffness by gθ), so their own a
     is ≈ 5a (λ = bK, a = g/2K²)."""
-    from chekan import model as fm
+    from chekan.physics import sensor as fm
 
     rec, params = _forward_record(_xy_program())
     res, holds = calibrate_record(rec, settle_s=100)
@@ -274,7 +274,7 @@ def test_cli_classical_on_both_axes_labelled_tables_no_warnings(tmp_path, capsys
 
 
 def test_x_rounds_alone_give_a_flagged_result(tmp_path, capsys):
-    from chekan.program import build_program
+    from chekan.physics.program import build_program
     from chekan.records import write_record
 
     prog = build_program([2.5, 4 + 10 / 60, 5 + 10 / 60], axis="x", dwell_s=200, settle_s=100)
@@ -296,7 +296,7 @@ def test_each_axis_table_holds_only_its_own_angles():
     import dataclasses
     from types import SimpleNamespace
 
-    from chekan.program import build_program
+    from chekan.physics.program import build_program
 
     y = build_program([2.0, 4.0], axis="y", dwell_s=200, settle_s=100, rounds=2)
     x = build_program([3.0, 5.0], axis="x", dwell_s=200, settle_s=100, rounds=1)
@@ -319,7 +319,7 @@ def test_replicated_readings_give_each_tables_own_increments():
     interpolated in time), bit for bit."""
     from dataclasses import replace
 
-    from chekan.classical import increments_of_readings
+    from chekan.classical.fit import increments_of_readings
 
     rec, _ = _forward_record(_xy_program())
     _, holds = calibrate_record(rec, settle_s=100)

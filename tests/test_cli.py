@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from chekan.cli import EXIT_STATUS, build_parser, main
-from chekan.durable import atomic_output
-from chekan.outputs import OutputError, check_outputs, sniff_format
+from chekan.cli.commands import EXIT_STATUS, build_parser, main
+from chekan.files.durable import atomic_output
+from chekan.files.outputs import OutputError, check_outputs, sniff_format
 
 ROOT = Path(__file__).resolve().parents[1]
 PROTOCOL = ROOT / "examples" / "calibr_46_protocol.csv"
@@ -131,8 +131,8 @@ def test_atomic_output_keeps_the_old_file_on_failure(tmp_path):
 
 
 def test_result_writer_is_atomic(proto, tmp_path, monkeypatch):
-    from chekan import durable
-    from chekan.result import write_result
+    from chekan.files import durable
+    from chekan.results.document import write_result
 
     res = tmp_path / "r.json"
     assert main(["calibrate", str(proto), "-q", "-o", str(res)]) == 0
@@ -243,7 +243,7 @@ def test_exit_4_alarm(tmp_path, monkeypatch):
 
 
 def test_exit_130_interrupted(monkeypatch, capsys):
-    import chekan.cli as cli
+    import chekan.cli.commands as cli
 
     def interrupted(args):
         raise KeyboardInterrupt
@@ -267,7 +267,7 @@ def _parsers(p: argparse.ArgumentParser):
 
 def _all_parsers():
     from chekan.archive.cli import add_parsers
-    from chekan.validate import main as validate_main
+    from chekan.study.coverage import main as validate_main
     from hw.cli import build_parser as hw_parser
 
     yield from _parsers(build_parser())
@@ -314,7 +314,7 @@ def test_version(capsys):
 
 
 def test_validate_short_options(tmp_path, capsys, record):
-    from chekan.validate import main as validate_main
+    from chekan.study.coverage import main as validate_main
 
     with pytest.raises(SystemExit):
         validate_main(["-V"])
@@ -342,7 +342,7 @@ def test_a_bad_input_starts_no_background_loads(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------ 4. end of process
 def _end_process_run(body: str, tmp_path) -> subprocess.CompletedProcess:
-    code = "import sys, threading, time\nfrom chekan.outputs import end_process\n" + body
+    code = "import sys, threading, time\nfrom chekan.files.outputs import end_process\n" + body
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=60
@@ -376,7 +376,7 @@ def test_end_process_cuts_short_an_unneeded_preload(tmp_path):
 def test_quiet_prints_nothing_on_success(tmp_path, capsys):
     """-q: nothing on standard output when the command succeeds, in every command that
     writes files (issue 33 §6), and the files are there."""
-    from chekan.cli import main
+    from chekan.cli.commands import main
 
     paper = PROTOCOL
     res = tmp_path / "r.json"
@@ -410,9 +410,9 @@ def test_simulate_writes_late_angles_and_a_moving_platform_from_the_command_line
 
     import numpy as np
 
-    from chekan.program import load_program
+    from chekan.physics.program import load_program
     from chekan.records import read_record
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     toml = tmp_path / "p.toml"
     toml.write_text(

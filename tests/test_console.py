@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from chekan.cli import main
-from chekan.summary import ESTIMATES, format_summary
+from chekan.cli.commands import main
+from chekan.results.summary import ESTIMATES, format_summary
 
 
 @pytest.fixture
@@ -26,7 +26,7 @@ def test_quiet_prints_nothing_on_success(proto, tmp_path, capsys):
 
 
 def test_every_table_of_the_summary_says_what_it_is(proto, tmp_path, capsys):
-    from chekan.result import read_result
+    from chekan.results.document import read_result
 
     out = tmp_path / "r.json"
     assert main(["calibrate", str(proto), "-q", "-o", str(out)]) == 0

@@ -15,8 +15,16 @@ from pathlib import Path
 import pytest
 
 from chekan.archive.db import Archive
-from chekan.cli import main
-from chekan.outputs import PROGRAM, RESULT, SQLITE, Output, OutputError, check_outputs, sniff_kind
+from chekan.cli.commands import main
+from chekan.files.outputs import (
+    PROGRAM,
+    RESULT,
+    SQLITE,
+    Output,
+    OutputError,
+    check_outputs,
+    sniff_kind,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -14,7 +14,7 @@ import pytest
 
 xmlschema = pytest.importorskip("xmlschema")
 
-from chekan.cli import main  # noqa: E402
+from chekan.cli.commands import main  # noqa: E402
 from chekan.report.dcc import DCC_NS, SI_NS, dcc_schema, validate_dcc  # noqa: E402
 from chekan.report.dcc_read import is_dcc, read_dcc  # noqa: E402
 
@@ -66,8 +66,8 @@ def sim_bayes_json(tmp_path_factory) -> Path:
     from chekan.demo import demo_program
     from chekan.pipeline import CalibrationOptions, calibrate_file
     from chekan.records import write_record
-    from chekan.result import write_result
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
+    from chekan.results.document import write_result
 
     d = tmp_path_factory.mktemp("simbayes")
     rec, _ = simulate_session(demo_program(quick=True), Truth(serial="T-1"), seed=7)
@@ -82,8 +82,8 @@ def sim_map_json(tmp_path_factory) -> Path:
     from chekan.demo import demo_program
     from chekan.pipeline import CalibrationOptions, calibrate_file
     from chekan.records import write_record
-    from chekan.result import write_result
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
+    from chekan.results.document import write_result
 
     d = tmp_path_factory.mktemp("simmap")
     rec, _ = simulate_session(demo_program(quick=True), Truth(serial="T-1"), seed=7)
@@ -283,7 +283,7 @@ def test_pdf_states_what_iso_17025_7_8_asks(bayes_json, lab, tmp_path, lang):
 def test_dcc_states_that_the_classical_items_come_from_settled_hold_means(
     bayes_json, lab, tmp_path
 ):
-    """A joint result whose hold means were unsettled (chekan.settling.settled_items): the
+    """A joint result whose hold means were unsettled (chekan.classical.settling.settled_items): the
     DCC's method description says so with Calibr.exe's raw figures, as the PDF does, and
     the result it embeds keeps them."""
     res = json.loads(bayes_json.read_text(encoding="utf-8"))

@@ -17,7 +17,7 @@ import pytest
 
 xmlschema = pytest.importorskip("xmlschema")
 
-from chekan.cli import main  # noqa: E402
+from chekan.cli.commands import main  # noqa: E402
 from chekan.report.dcc import DCC_NS, SI_NS, build_dcc, dcc_bytes, load_lab  # noqa: E402
 from chekan.report.dcc_read import read_dcc  # noqa: E402
 from chekan.report.dcc_schema import SCHEMAS, dcc_schema, validate_dcc  # noqa: E402

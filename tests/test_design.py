@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from chekan import design as d
-from chekan.program import PAPER_ANGLES, build_program, load_program, parse_angle_deg
-from chekan.simulate import Truth
-from chekan.units import ARCMIN_PER_RAD
+from chekan.physics.program import PAPER_ANGLES, build_program, load_program, parse_angle_deg
+from chekan.physics.units import ARCMIN_PER_RAD
+from chekan.records.simulate import Truth
 
 PAPER_DEG = [parse_angle_deg(a) for a in PAPER_ANGLES]
 
@@ -35,7 +35,7 @@ def white_noise_only(**truth) -> d.DesignValues:
 def test_white_noise_information_equals_independent_least_squares():
     """(a) Hold means of n samples, σ²/n each: OLS covariance σ²(JᵀNJ)⁻¹ with J from central
     differences of the forward model itself (not the design's splines or lag operator)."""
-    import chekan.model as fm
+    import chekan.physics.sensor as fm
 
     prog = build_program(PAPER_DEG[::2], dwell_s=300, settle_s=200, rounds=1)
     vals = white_noise_only(noise_pix=(0.15, 0.25))
@@ -109,9 +109,9 @@ def test_design_model_is_the_estimators_model(short_session):
     import jax.numpy as jnp
 
     from chekan.demo import demo_program
-    from chekan.holds import segment_record
     from chekan.joint import binning
     from chekan.joint import likelihood as cm
+    from chekan.records.holds import segment_record
 
     _, rec, truth = short_session
     prog = demo_program(True)
@@ -248,7 +248,7 @@ def test_cli_design_search_round_trip_and_errors(tmp_path, capsys):
     program; a bad program file is an error naming the file (exit 2)."""
     import json
 
-    from chekan.cli import main
+    from chekan.cli.commands import main
 
     prog = tmp_path / "short.toml"
     prog.write_text(
@@ -299,7 +299,7 @@ OLD_SD = {
 
 
 def _old_programs():
-    from chekan.program import default_program
+    from chekan.physics.program import default_program
 
     return {
         "paper": default_program(),
@@ -338,7 +338,7 @@ def test_systematic_errors_do_not_average_over_rounds():
     """(b) With the 3″ bound sd(b) of the paper's program grows; the same 4 angles in 8
     rounds instead of 2 (dwell ÷ 4, same clock) shrink the random part by ~2 but not the
     systematic part, which stays above the floor the per-angle and scale priors set."""
-    from chekan.program import default_program
+    from chekan.physics.program import default_program
 
     paper = default_program()
     with_sys = d.expected_precision(paper)
@@ -357,7 +357,7 @@ def test_systematic_errors_do_not_average_over_rounds():
     # the floor: the scale error ξ ~ N(0, u_s²) at θ_max moves b₁ and b₂ alike, as
     # δb/b = −2ξ/θ_max, which no number of rounds or samples separates; the per-angle ζ
     # add to it (partly resolved by the two systems' different sensitivities)
-    from chekan.units import ARCSEC_PER_RAD
+    from chekan.physics.units import ARCSEC_PER_RAD
 
     u_s = math.sqrt(d.DesignValues().angle_spec.scale_var)
     floor = 2 * u_s / (max(eight.angles_rad) * ARCSEC_PER_RAD) * Truth().b_mgal_per_pix[0]
@@ -372,8 +372,8 @@ def test_systematic_errors_do_not_average_over_rounds():
 def test_pure_scale_prior_adds_two_u_over_theta_max():
     """(c) Per-angle share 0: a scale error ξ ~ N(0, u²) at θ_max acts on b as
     δb/b = −2ξ/θ_max, so sd(b)/b grows by 2u/θ_max in quadrature (here 186 ppm)."""
-    from chekan.program import default_program
-    from chekan.units import ARCSEC_PER_RAD
+    from chekan.physics.program import default_program
+    from chekan.physics.units import ARCSEC_PER_RAD
 
     paper = default_program()
     base = d.expected_precision(paper, d.DesignValues(angle_bound_arcsec=0.0))
@@ -391,7 +391,7 @@ def test_tilts_about_x_use_the_other_sensor():
     and the scale error they may share; the systematic part of sd(b) is smaller than with
     the Y sensor alone, but not below one sensor's scale error at its bound (both sensors
     at their bound with one sign are admitted): 2u/θ_max, u = 3″/√3."""
-    from chekan.program import default_program
+    from chekan.physics.program import default_program
 
     y, xy = default_program(), default_program(axis="xy")
     assert [s.axis for s in xy.steps if s.round == 2] == ["x"] * 18
@@ -420,7 +420,7 @@ def test_tilts_about_x_use_the_other_sensor():
 def test_search_under_systematic_errors_uses_more_distinct_angles():
     """(d) Without systematic errors the hold count is all that matters and a few angles in
     many rounds win; with them every distinct angle brings its own ζ to average."""
-    from chekan.program import default_program
+    from chekan.physics.program import default_program
 
     space = {
         "n_angles": (2, 3, 4, 6, 8, 12),
@@ -442,7 +442,7 @@ def test_search_under_systematic_errors_uses_more_distinct_angles():
 
 def test_xy_program_file_round_trip_and_cli_bound(tmp_path, capsys):
     """axis = "xy" reads and writes back; ``--angle-bound-arcsec 0`` gives the old sds."""
-    from chekan.cli import main
+    from chekan.cli.commands import main
 
     prog = build_program(PAPER_DEG[::2], axis="xy", dwell_s=400, settle_s=150, rounds=4)
     back = load_program(d.write_program_toml(tmp_path / "xy.toml", prog))
@@ -463,7 +463,7 @@ def test_every_ranked_program_is_a_program_file_with_the_same_steps(tmp_path):
     """The designer's programs (every ranked candidate, both axes, about Y, X and Y/X
     alternating, and one given per round) are program files that read back to the same
     steps, and ``chekan program`` shows the axis of every round."""
-    from chekan.cli import main
+    from chekan.cli.commands import main
     from chekan.demo import demo_program
 
     space = {
@@ -509,7 +509,7 @@ def test_a_calibration_table_gives_the_design_its_u_in_place_of_the_bound(tmp_pa
     scale, both extremes as for a bound, normal: the same prior as the rectangular bound
     0.25·√3″. The design gives the same sds to round-off, on programs about Y, about X and
     about both; a table of the Y axis alone leaves the X sensor at the bound."""
-    from chekan.anglecal import read_angle_calibration
+    from chekan.records.anglecal import read_angle_calibration
 
     cal = read_angle_calibration(_calibration_file(tmp_path / "cal.csv"))
     same_bound = d.DesignValues(angle_bound_arcsec=0.25 * math.sqrt(3.0))
@@ -544,15 +544,15 @@ def test_cli_design_with_the_platforms_angle_calibration(tmp_path, capsys):
     design evaluates, an unreadable one, or the bound given beside it: exit 2, named."""
     import json
 
-    from chekan.anglecal import read_angle_calibration
-    from chekan.cli import main
+    from chekan.cli.commands import main
+    from chekan.records.anglecal import read_angle_calibration
 
     cal = _calibration_file(tmp_path / "cal.csv")
     js = tmp_path / "d.json"
     assert main(["design", "--angle-calibration", str(cal), "--json", str(js)]) == 0
     text = capsys.readouterr().out
     assert "angle calibration AC-D1 of 2026-10-02" in text and "U ≤ 0.5″" in text
-    from chekan.program import default_program
+    from chekan.physics.program import default_program
 
     sd = d.expected_precision(
         default_program(), d.DesignValues(angle_calibration=read_angle_calibration(cal))

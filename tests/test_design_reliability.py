@@ -10,7 +10,7 @@ import pytest
 
 from chekan import design as d
 from chekan.design.reliability import ExpectedReliability, expected_reliability
-from chekan.program import build_program
+from chekan.physics.program import build_program
 from inference.dof import NU_CAP, coverage_factor, t_two_sided
 
 
@@ -100,7 +100,7 @@ def test_the_search_picks_the_smallest_expected_u_not_the_smallest_sd(monkeypatc
 
 
 def test_design_command_warns_about_a_program_without_degrees_of_freedom(tmp_path, capsys):
-    from chekan.cli import main
+    from chekan.cli.commands import main
 
     prog = tmp_path / "six.toml"
     prog.write_text(

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from chekan.errors import ChekanError
-from chekan.holds import segment_record
 from chekan.options import CalibrationOptions
+from chekan.physics.program import build_program
 from chekan.pipeline import calibrate
-from chekan.program import build_program
-from chekan.simulate import Truth, random_truth, session_systematic, simulate_session
+from chekan.records.holds import segment_record
+from chekan.records.simulate import Truth, random_truth, session_systematic, simulate_session
 
 
 def _program(rounds: int = 4):
@@ -215,7 +215,7 @@ def test_posterior_predictive_of_a_two_axis_record_is_the_y_rounds_table(dual_fi
     """bayes on a record with rounds about both axes crashed writing its predictive δg
     table (6 columns from all rounds against the 3 of the certified Y rounds): the
     replicated sessions go through the classical method as it reports, Y rounds only."""
-    from chekan.classical import calibrate_record
+    from chekan.classical.fit import calibrate_record
     from chekan.joint.binning import prepare
     from chekan.joint.predictive import posterior_predictive_delta_g
 

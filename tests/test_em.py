@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from chekan import joint
-from chekan.classical import calibrate_record
+from chekan.classical.fit import calibrate_record
 from chekan.joint import em
 from chekan.joint.angles import AngleSensorSpec
 from chekan.joint.likelihood import solve_beta

@@ -9,8 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from chekan import model as fm
 from chekan.joint import likelihood as lk
+from chekan.physics import sensor as fm
 
 
 def _systematic_model(short_session, theta: dict, pad: bool):
@@ -99,9 +99,9 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
 
     from chekan.joint.predictive import _equilibria, equilibria_of
     from chekan.joint.problem import K_DESIGN
+    from chekan.physics.units import ARCMIN_PER_RAD
     from chekan.runtime.engine import PREDICTIVE
     from chekan.runtime.store import ExecutableStore
-    from chekan.units import ARCMIN_PER_RAD
 
     g = 981_600.0
     flat = {
@@ -149,12 +149,12 @@ def test_the_posterior_predictive_uses_the_records_ccd_centre():
     record's ``ccd_center_pix`` (900 here), which the fit uses; it took 1024 before 0.3.9."""
     from types import SimpleNamespace
 
-    from chekan.classical import fit_classical, increments_from_holds
+    from chekan.classical.fit import fit_classical, increments_from_holds
     from chekan.demo import demo_program
-    from chekan.holds import segment_record
     from chekan.joint.predictive import posterior_predictive_delta_g
-    from chekan.simulate import Truth, simulate_session
-    from chekan.units import ARCMIN_PER_RAD
+    from chekan.physics.units import ARCMIN_PER_RAD
+    from chekan.records.holds import segment_record
+    from chekan.records.simulate import Truth, simulate_session
 
     rec, truth = simulate_session(demo_program(quick=True), Truth(serial="M0"), seed=3)
     holds = segment_record(rec, settle_s=200.0)

@@ -237,7 +237,7 @@ def test_a_failed_raw_log_write_stops_the_run_without_a_thread_traceback(tmp_pat
     import threading
 
     import hw.linkio
-    from chekan.program import build_program
+    from chekan.physics.program import build_program
     from hw.acquisition import EXIT_DEVICE, Options, acquire
     from hw.emulator import InProcessEmulator
 
@@ -294,7 +294,7 @@ def test_a_record_write_that_fails_part_way_is_cut_back(tmp_path):
 def test_any_fatal_error_of_acquisition_levels_and_closes_first(tmp_path, monkeypatch):
     """Not only the disk: whatever ends a run (here an unexpected error in the recorder)
     levels the platform, closes the record at a whole row and says so in one line."""
-    from chekan.program import build_program
+    from chekan.physics.program import build_program
     from hw.acquisition import EXIT_DEVICE, Options, acquire
     from hw.acquisition.recorder import Recorder
     from hw.emulator import InProcessEmulator

@@ -21,7 +21,7 @@ import pytest
 
 from chekan.joint.budget import budget_entries
 from chekan.report.expanded import expanded_of
-from chekan.result import param_entry
+from chekan.results.document import param_entry
 from inference.dof import coverage_factor
 
 DATA = Path(__file__).resolve().parent / "data" / "report"

@@ -9,9 +9,9 @@ import json
 import numpy as np
 import pytest
 
-from chekan.cli import main
+from chekan.cli.commands import main
 from chekan.records import write_record
-from chekan.simulate import Truth, random_truth, simulate_session
+from chekan.records.simulate import Truth, random_truth, simulate_session
 
 
 @pytest.fixture(scope="module")

@@ -14,10 +14,10 @@ import warnings
 import numpy as np
 import pytest
 
-from chekan.holds import GAP_HOLDING_S, known_state, segment_record
-from chekan.program import TiltProgram, load_program
+from chekan.physics.program import TiltProgram, load_program
 from chekan.records import Record
-from chekan.simulate import Truth, simulate_session
+from chekan.records.holds import GAP_HOLDING_S, known_state, segment_record
+from chekan.records.simulate import Truth, simulate_session
 
 SHORT = """angles = ["2°30'", "4°10'", "5°10'"]
 axis = "y"

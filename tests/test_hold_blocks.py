@@ -29,8 +29,8 @@ from inference.normal_eq import (
 @pytest.fixture(scope="module")
 def dual_axis_record():
     """Two rounds about Y and X (300 s dwells): a record with the X-response terms."""
-    from chekan.program import build_program
-    from chekan.simulate import Truth, simulate_session
+    from chekan.physics.program import build_program
+    from chekan.records.simulate import Truth, simulate_session
 
     prog = build_program([4.5, 5.0], axis="xy", rounds=2, dwell_s=300, settle_s=120)
     return simulate_session(prog, Truth(), seed=3)[0]
@@ -40,7 +40,7 @@ def _full_record(record: str):
     """The paper's 9 h program or the bench's dual-axis record (160 holds, p 558)."""
     from bench.several_records import dual_axis_program
     from chekan.demo import demo_program
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     prog = demo_program(False) if record == "paper-9h" else dual_axis_program(False)
     return simulate_session(prog, Truth(), seed=3)[0]

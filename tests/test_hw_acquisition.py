@@ -15,7 +15,7 @@ import pytest
 from children import interrupt
 
 from chekan.errors import ChekanError
-from chekan.program import build_program
+from chekan.physics.program import build_program
 from chekan.records import read_record
 from hw.acquisition import (
     EXIT_DEVICE,

@@ -9,11 +9,11 @@ import signal
 import numpy as np
 import pytest
 
-from chekan import model as fm
-from chekan.program import build_program
+from chekan.physics import sensor as fm
+from chekan.physics.program import build_program
+from chekan.physics.units import ARCSEC_PER_RAD
 from chekan.records import read_record
-from chekan.simulate import Truth
-from chekan.units import ARCSEC_PER_RAD
+from chekan.records.simulate import Truth
 from hw import anglesensors
 from hw.acquisition import Acquisition, Options, PlanStep, acquire, resume
 from hw.emulator import InProcessEmulator, PlatformModel

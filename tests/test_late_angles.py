@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from chekan.demo import demo_program
-from chekan.simulate import random_truth, simulate_session
+from chekan.records.simulate import random_truth, simulate_session
 
 
 def _session(seed: int, period_s: float, phase_s: float | None, *, quiet=(), **overrides):
@@ -55,7 +55,7 @@ def test_the_truth_handed_to_the_simulator_is_left_as_it_was():
     import dataclasses
 
     from chekan.demo import demo_program
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     given = Truth(platform_report_period_s=1.0, motion_substeps=2)
     before = dataclasses.asdict(given)
@@ -68,8 +68,8 @@ def test_the_truth_handed_to_the_simulator_is_left_as_it_was():
 
 
 def test_the_validation_case_draws_a_one_second_stream():
-    from chekan.validate import CASES
-    from chekan.validate_scenario import DEFAULT_SCENARIO, session_truth
+    from chekan.study.coverage import CASES
+    from chekan.study.scenario import DEFAULT_SCENARIO, session_truth
 
     assert "late_angles" in CASES
     phases = set()

@@ -9,12 +9,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from chekan import model as fm
 from chekan.joint.xresponse import M0_TOLERANCE_PIX, level_angle_column, x_response_terms
 from chekan.options import CalibrationOptions
+from chekan.physics import sensor as fm
+from chekan.physics.program import build_program
 from chekan.pipeline import calibrate
-from chekan.program import build_program
-from chekan.simulate import Truth, simulate_session
+from chekan.records.simulate import Truth, simulate_session
 
 G_MGAL = 981_600.0
 
@@ -122,8 +122,8 @@ def test_a_pendulum_horizontal_far_from_the_ccd_centre_keeps_a_honest():
 
 
 def test_the_horizontal_case_moves_the_pendulums_not_the_stated_centre():
-    from chekan.validate import CASES, X_CASES
-    from chekan.validate_scenario import Scenario, session_truth
+    from chekan.study.coverage import CASES, X_CASES
+    from chekan.study.scenario import Scenario, session_truth
 
     assert "horizontal" in CASES and "horizontal" in X_CASES
     offs = np.array(

@@ -43,7 +43,7 @@ def _values_and_data(short_session, theta):
 def test_shared_slew_path_equals_separate_evaluations(short_session, short_session_theta):
     """E along the slews from the forward-mode pass equals the plain evaluation, and the
     pieces built from one shared pass equal those built on their own."""
-    from chekan import model as fm
+    from chekan.physics import sensor as fm
 
     v, data = _values_and_data(short_session, short_session_theta)
     path = lk.slew_path(v, data)

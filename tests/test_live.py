@@ -136,7 +136,7 @@ def test_running_classical_converges_and_map_is_asked_per_round(short_session, t
     final = snaps[-1]
     assert final["pairs"] == 16 and final["rounds_complete"] == 2
     # the last snapshot is the classical method on the whole record
-    from chekan.classical import calibrate_record
+    from chekan.classical.fit import calibrate_record
     from chekan.records import read_record
 
     cres, _ = calibrate_record(read_record(path))
@@ -646,8 +646,8 @@ def test_readings_end_time_and_the_error_state(short_session, short_program, tmp
 
 def _about_x_in_round_2(rec, path: Path, out: Path) -> None:
     """The short session with its second round's tilts about X (tilt columns swapped)."""
-    from chekan.holds import segment_record
     from chekan.records import write_record
+    from chekan.records.holds import segment_record
 
     holds = segment_record(rec, settle_s=200)
     r2 = holds.rounds[1]
@@ -661,8 +661,8 @@ def _about_x_in_round_2(rec, path: Path, out: Path) -> None:
 
 
 def test_the_axis_of_each_hold_from_the_record_and_from_the_plan(short_session, tmp_path):
-    from chekan.holds import segment_record
     from chekan.records import read_record
+    from chekan.records.holds import segment_record
 
     path, rec, _ = short_session
     xy = tmp_path / "xy.csv"

@@ -15,7 +15,7 @@ def test_pad_model_is_exact(short_session) -> None:
     """Padded bins, holds and slew samples add nothing to the residuals."""
     import jax.numpy as jnp
 
-    from chekan.classical import calibrate_record
+    from chekan.classical.fit import calibrate_record
 
     _, rec, _ = short_session
     opts = CalibrationOptions(method="map", progress=False)
@@ -43,7 +43,7 @@ def test_pad_model_is_exact(short_session) -> None:
 def test_map_of_many_equals_one_by_one(short_program, short_session, tmp_path) -> None:
     from chekan.archive.reanalyze import solve_many_map
     from chekan.records import write_record
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     path7, _, _ = short_session
     rec8, _ = simulate_session(short_program, Truth(serial="T-2", b_mgal_per_pix=(6.95, 6.91)), 8)

@@ -14,7 +14,7 @@ def test_short_session_with_a_fast_lag_finds_the_truth(tmp_path):
     from chekan.options import CalibrationOptions
     from chekan.pipeline import calibrate_file
     from chekan.records import write_record
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     rec, truth = simulate_session(short_program(), Truth(serial="T-5", tau_s=5.0), seed=1)
     path = tmp_path / "fast.csv"
@@ -163,9 +163,9 @@ def test_tau_read_off_the_transients_of_simulated_sessions():
     """``tau_from_transients`` recovers the simulated lag of a one-round archive session
     (120 s dwells) from 2 s to 2 dwells, within 2 %."""
     from chekan.archive.synth import short_program
-    from chekan.holds import segment_record
-    from chekan.settling import tau_from_transients
-    from chekan.simulate import Truth, simulate_session
+    from chekan.classical.settling import tau_from_transients
+    from chekan.records.holds import segment_record
+    from chekan.records.simulate import Truth, simulate_session
 
     for tau in (2.0, 5.0, 30.0, 240.0):
         rec, _ = simulate_session(short_program(), Truth(serial="T", tau_s=tau), seed=3)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from chekan.cli import main
+from chekan.cli.commands import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -207,7 +207,7 @@ def test_bayes_checks_the_room_for_its_posterior_before_any_work(
 ):
     import importlib
 
-    import chekan.outputs as outputs
+    import chekan.files.outputs as outputs
 
     estimate = importlib.import_module("chekan.joint.estimate")  # chekan.joint.estimate: a function
 

@@ -5,8 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from chekan import model as fm
-from chekan.units import arcmin_to_rad
+from chekan.physics import sensor as fm
+from chekan.physics.units import arcmin_to_rad
 
 G = 981922.05
 K = 60428.0

@@ -95,8 +95,8 @@ def test_banded_equals_dense_on_a_random_structure():
 @pytest.fixture(scope="module")
 def dual_axis_record():
     """Two rounds about Y and X (300 s dwells): a record with the X-response terms."""
-    from chekan.program import build_program
-    from chekan.simulate import Truth, simulate_session
+    from chekan.physics.program import build_program
+    from chekan.records.simulate import Truth, simulate_session
 
     prog = build_program([4.5, 5.0], axis="xy", rounds=2, dwell_s=300, settle_s=120)
     return simulate_session(prog, Truth(), seed=3)[0]

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from chekan import filekinds
-from chekan.cli import main
-from chekan.outputs import Output, OutputError, check_outputs, sniff_kind
+from chekan.cli.commands import main
+from chekan.files import kinds as filekinds
+from chekan.files.outputs import Output, OutputError, check_outputs, sniff_kind
 
 LAB = """\
 [lab]

@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from chekan.errors import ChekanError
-from chekan.inputs import read_input
 from chekan.pipeline import IN_MEMORY, CalibrationOptions, calibrate, calibrate_file
+from chekan.records.inputs import read_input
 
 
 def _numbers(res: dict) -> dict:

@@ -1,4 +1,5 @@
-"""Tests of the chekan-protocol/1 reader (chekan.protocol) and its dispatch in chekan.inputs."""
+"""Tests of the chekan-protocol/1 reader (chekan.records.protocol) and its dispatch in
+chekan.records.inputs."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ import numpy as np
 import pytest
 
 from chekan.errors import FormatError
-from chekan.inputs import input_kind, read_input
-from chekan.protocol import Protocol, read_protocol
 from chekan.records import IncompleteLineWarning
+from chekan.records.inputs import input_kind, read_input
+from chekan.records.protocol import Protocol, read_protocol
 
 REFERENCE = Path(__file__).resolve().parents[1] / "examples" / "calibr_46_protocol.csv"
 

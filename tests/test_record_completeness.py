@@ -8,10 +8,10 @@ import warnings
 
 import pytest
 
-from chekan.cli import main
+from chekan.cli.commands import main
 from chekan.pipeline import CalibrationOptions, calibrate
 from chekan.records import Record, write_record
-from chekan.summary import format_summary
+from chekan.results.summary import format_summary
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Tests of the chekan-record/1 reader and writers (chekan.records) and chekan.inputs."""
+"""Tests of the chekan-record/1 reader and writers (chekan.records) and chekan.records.inputs."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from chekan.errors import FormatError
-from chekan.inputs import input_kind, read_input
 from chekan.records import (
     DEFAULT_COLUMNS,
     IncompleteLineWarning,
@@ -23,6 +22,7 @@ from chekan.records import (
     read_record,
     write_record,
 )
+from chekan.records.inputs import input_kind, read_input
 
 SPEC_EXAMPLE = """\
 # format: chekan-record/1

@@ -14,8 +14,8 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from chekan.errors import ChekanError, FormatError
-from chekan.protocol import read_protocol
 from chekan.records import read_record
+from chekan.records.protocol import read_protocol
 
 RECORD = (
     b"# format: chekan-record/1\n"

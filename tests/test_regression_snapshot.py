@@ -11,7 +11,7 @@ solve), which moves figures by at most 6e-7 relative (a drift slope near zero; m
 by < 1e-6 of their sd): the tolerance is 1e-6 relative, still far below any printed digit.
 
 Rewritten in 0.3.8, a change meant to move the numbers: the equilibrium's second
-derivatives became exact (:func:`chekan.model.solve_deflection`), so the MAP Jacobian is
+derivatives became exact (:func:`chekan.physics.sensor.solve_deflection`), so the MAP Jacobian is
 exact and the solvers stop at the posterior's optimum, not beside it. Against the 0.3.7
 snapshot: means moved by at most 0.0064 of their sd (sim508), a drift slope near zero by
 0.9 % of itself, sds and budget lines by at most 0.11 %; classical figures by rounding.

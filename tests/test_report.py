@@ -44,7 +44,7 @@ def f2(x: float) -> str:
 def paper(tmp_path_factory) -> tuple[dict, Path]:
     """The paper's protocol (Fig. 6), calibrated with the classical method."""
     from chekan.pipeline import CalibrationOptions, calibrate_file
-    from chekan.result import write_result
+    from chekan.results.document import write_result
 
     res = calibrate_file(PAPER_CSV, CalibrationOptions(progress=False))
     path = write_result(tmp_path_factory.mktemp("paper") / "r46.json", res)
@@ -54,11 +54,11 @@ def paper(tmp_path_factory) -> tuple[dict, Path]:
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory) -> tuple[dict, Path]:
     """A simulated 9 h session (seed 0), calibrated with the classical method."""
+    from chekan.physics.program import default_program
     from chekan.pipeline import CalibrationOptions, calibrate_file
-    from chekan.program import default_program
     from chekan.records import write_record
-    from chekan.result import write_result
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
+    from chekan.results.document import write_result
 
     d = tmp_path_factory.mktemp("sim")
     rec, _ = simulate_session(default_program(), Truth(), seed=0)
@@ -478,7 +478,7 @@ def test_cli_report(paper, tmp_path, capsys):
 def test_calibrate_report_option(tmp_path, monkeypatch):
     """``chekan calibrate … --report`` (wired by the CLI) renders through render_report: a
     certificate with the lab file of ``$CHEKAN_LAB``, a draft without one."""
-    from chekan.cli import main
+    from chekan.cli.commands import main
 
     out = tmp_path / "calibr_46.html"
     monkeypatch.setenv("CHEKAN_LAB", str(LAB_TOML))
@@ -578,7 +578,7 @@ def test_certificate_of_a_record_with_rounds_about_both_axes(tmp_path, lang):
 
     from chekan.pipeline import CalibrationOptions, calibrate_file
     from chekan.records import write_record
-    from chekan.result import write_result
+    from chekan.results.document import write_result
 
     rec, _ = _forward_record(_xy_program(round_axes=["y", "x", "x", "y"]))
     rec.meta["program"] = "xy-test"
@@ -705,15 +705,15 @@ def test_the_cosinusoid_residuals_follow_the_sensors_lag_through_the_record():
 
     import numpy as np
 
-    from chekan.holds import segment_record
-    from chekan.program import build_program
-    from chekan.settling import (
+    from chekan.classical.settling import (
         fitted_model,
         lagged_hold_means,
         model_at_holds,
         unsettled_transient_pix,
     )
-    from chekan.simulate import Truth, simulate_session
+    from chekan.physics.program import build_program
+    from chekan.records.holds import segment_record
+    from chekan.records.simulate import Truth, simulate_session
 
     program = build_program(
         [4.5, 5 + 10 / 60], name="short-settle", axis="xy", order="alternate", rounds=2,

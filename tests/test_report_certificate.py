@@ -53,7 +53,7 @@ def sim_map(tmp_path_factory) -> tuple[dict, Path]:
     from chekan.demo import demo_program
     from chekan.pipeline import CalibrationOptions, calibrate_file
     from chekan.records import write_record
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     d = tmp_path_factory.mktemp("simmap")
     rec, _ = simulate_session(demo_program(quick=True), Truth(serial="T-1"), seed=7)
@@ -63,8 +63,8 @@ def sim_map(tmp_path_factory) -> tuple[dict, Path]:
 
 
 def _holds(record: Path):
-    from chekan.holds import segment_record
-    from chekan.inputs import read_input
+    from chekan.records.holds import segment_record
+    from chekan.records.inputs import read_input
 
     rec = read_input(record)
     return segment_record(rec, settle_s=float(rec.meta.get("program_settle_s", 300.0)))
@@ -105,7 +105,7 @@ def test_figure2_without_a_pendulum_model_is_omitted_with_a_note(sim_map):
 def _every_parameter_result() -> dict:
     """The hand-made bayes result with every parameter a result may report, and messages
     of the fit that name parameters by their keys."""
-    from chekan.parameters import LEGACY_UNITS, PARAMETER_UNITS
+    from chekan.physics.parameters import LEGACY_UNITS, PARAMETER_UNITS
 
     res = _bayes()
     params = dict(res["parameters"])
@@ -129,7 +129,7 @@ def test_no_raw_parameter_names_in_pdf_or_html(lang):
     from pdfread import normalize
     from pypdf import PdfReader
 
-    from chekan.parameters import LEGACY_UNITS, MODEL_UNITS, PARAMETER_UNITS
+    from chekan.physics.parameters import LEGACY_UNITS, MODEL_UNITS, PARAMETER_UNITS
     from chekan.report.html_page import render_html
     from chekan.report.typst_pdf import render_pdf
 
@@ -198,7 +198,7 @@ def test_pdf_pages_do_not_split_tables(sim_map, which):
 def test_angle_bound_reading_is_one_truth_in_help_result_and_certificate(sim_map, capsys):
     """--angle-bound-arcsec's help, the result's angle_sensor and the certificate all read
     the bound as rectangular, u = U/√3 (issue 33 §6: the help said one, the budget another)."""
-    from chekan.cli import main
+    from chekan.cli.commands import main
 
     res, record = sim_map
     with pytest.raises(SystemExit):

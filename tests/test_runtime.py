@@ -14,13 +14,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_clear_caches_forgets_every_cache_of_the_package():
-    from chekan import model as fm
     from chekan.archive import history
     from chekan.design import information
     from chekan.joint import engine_for
     from chekan.joint.layout import ModelStructure
+    from chekan.physics import sensor as fm
+    from chekan.records.simulate import Truth
     from chekan.runtime import process
-    from chekan.simulate import Truth
 
     st = ModelStructure(4, 12, 5)
     engine, store, kernels = engine_for(st), process.executable_store(), history._compiled()

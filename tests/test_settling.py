@@ -1,4 +1,5 @@
-"""The lag in the hold means (``chekan.settling``): where a program's settling time is short
+"""The lag in the hold means (``chekan.classical.settling``): where a program's settling time is
+short
 beside τ, the classical method is told that its items are biased, and a joint result's
 items are computed from the hold means with the transient removed; the verdict judges the
 certified b. The truth stands in for the joint fit (no MAP to compile)."""
@@ -12,11 +13,7 @@ import re
 import numpy as np
 import pytest
 
-from chekan.holds import segment_record
-from chekan.options import CalibrationOptions
-from chekan.pipeline import calibrate
-from chekan.program import build_program
-from chekan.settling import (
+from chekan.classical.settling import (
     UNSETTLED_PIX,
     certified_instability,
     raw_transient_pix,
@@ -25,7 +22,11 @@ from chekan.settling import (
     transient_bound_pix,
     unsettled_transient_pix,
 )
-from chekan.simulate import Truth, simulate_session
+from chekan.options import CalibrationOptions
+from chekan.physics.program import build_program
+from chekan.pipeline import calibrate
+from chekan.records.holds import segment_record
+from chekan.records.simulate import Truth, simulate_session
 
 PROGRAM = build_program(
     [2.5, 3.5, 4.5, 5 + 10 / 60], name="short-settle", axis="y", rounds=2, dwell_s=194.0,
@@ -140,7 +141,7 @@ def test_a_joint_results_items_come_from_settled_hold_means(unsettled, monkeypat
     assert f"up to {ht['max_pix']:.2f} pix" in note.text and "τ = 45.0 s" in note.text
     assert f"b₁ = {raw['b1']['mean']:.6f}" in note.text
     assert f"reduced error {raw['reduced_error_percent']:.3f} %" in note.text
-    from chekan.summary import format_summary
+    from chekan.results.summary import format_summary
 
     assert f"as Calibr.exe: b1 = {raw['b1']['mean']:.6f} mGal/pix" in format_summary(out)
     transient = unsettled_transient_pix(fitted, holds, rec)
@@ -150,20 +151,20 @@ def test_a_joint_results_items_come_from_settled_hold_means(unsettled, monkeypat
     lost = {**fitted, "diagnostics": {**fitted["diagnostics"], "converged": False}}
     assert settled_items(lost, holds, rec) == certified_instability(lost)
     # … and where its input lacks the classical fit's flag, the classical fit gives it
-    from chekan.classical import calibrate_record
+    from chekan.classical.fit import calibrate_record
 
     bare = {k: v for k, v in lost.items() if k != "unsettled_hold_means"}
     cres, _ = calibrate_record(rec, settle_s=120.0)
     flagged = settled_items(bare, holds, rec, classical=cres)
     assert flagged["unsettled_hold_means"] == classical["unsettled_hold_means"]
     # nor is a calibration lost where the settled refit fails: the raw items and their flag
-    import chekan.classical
+    import chekan.classical.fit
     from chekan.errors import ChekanError
 
     def refuse(*args, **kwargs):
         raise ChekanError("no fit")
 
-    monkeypatch.setattr(chekan.classical, "fit_by_axis", refuse)
+    monkeypatch.setattr(chekan.classical.fit, "fit_by_axis", refuse)
     assert settled_items(fitted, holds, rec) == certified_instability(fitted)
     monkeypatch.undo()
     # the instability is the certified b's (the truth here), not the classical one's
@@ -215,7 +216,7 @@ def test_the_designer_predicts_the_transient_a_record_of_the_program_carries(
     record of the program carries (the model with the lag followed through it)."""
     import json
 
-    from chekan.cli import main
+    from chekan.cli.commands import main
     from chekan.design.command import program_toml
     from chekan.design.information import settled_tau_limit_s, settled_transient_pix
     from chekan.design.layout import DesignValues

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from chekan import joint
-from chekan.classical import calibrate_record
+from chekan.classical.fit import calibrate_record
 from chekan.joint import em, typea
 from chekan.joint.angles import AngleSensorSpec
 from chekan.joint.likelihood import (
@@ -197,7 +197,7 @@ def test_reported_sd_and_budget_carry_the_type_a_terms(fitted):
     assert sd**2 == pytest.approx(laplace + md["_u_hyper"]["b1"] ** 2, rel=1e-10)
     assert 3 < md["_nu_eff"]["b1"] < 1e4
     from chekan.joint.budget import budget_entries, uncertainty_budget
-    from chekan.result import param_entry
+    from chekan.results.document import param_entry
 
     raw = uncertainty_budget(fit)
     raw["b1"]["hyperparameters"] = md["_u_hyper"]["b1"]

@@ -3,8 +3,8 @@ import math
 import pytest
 
 from chekan.errors import ProgramError
-from chekan.program import build_program, default_program, load_program
-from chekan.units import (
+from chekan.physics.program import build_program, default_program, load_program
+from chekan.physics.units import (
     ARCSEC_PER_RAD,
     arcsec_to_rad,
     format_dms,
@@ -109,7 +109,7 @@ def test_build_program_validates():
 
 
 def test_cli_program_shows_the_axis_of_every_round(tmp_path, capsys):
-    from chekan.cli import main
+    from chekan.cli.commands import main
 
     f = tmp_path / "xy.toml"
     f.write_text('angles = ["2°", "4°"]\nround_axes = ["y", "x", "x"]\n', encoding="utf-8")

@@ -1,4 +1,4 @@
-"""The coverage study (``python -m chekan.validate``): the summary on hand-made rows, and
+"""The coverage study (``python -m chekan.study``): the summary on hand-made rows, and
 small runs on simulated sessions (files, parallel workers, resume, honest MAP sds)."""
 
 import csv
@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from chekan.validate import read_rows, run_study
-from chekan.validate_summary import (
+from chekan.study.coverage import read_rows, run_study
+from chekan.study.summary import (
     PARAMS,
     binomial_band,
     coverage_summary,
@@ -178,7 +178,7 @@ def test_small_coverage_study_map(tmp_path):
     ],
 )
 def test_a_scale_statement_needs_a_table_and_is_part_of_its_u(tmp_path, capsys, args, what):
-    from chekan.validate import main
+    from chekan.study.coverage import main
 
     with pytest.raises(SystemExit) as e:
         main([*args, "--sessions", "1", "-o", str(tmp_path / "v")])

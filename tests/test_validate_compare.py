@@ -1,4 +1,4 @@
-"""Two validation studies on the same platforms (``python -m chekan.validate_compare``):
+"""Two validation studies on the same platforms (``python -m chekan.study.compare``):
 the RMS-error ratio and its paired bootstrap interval on hand-made rows, the pairing's
 checks, the edge case split by shape, and the command's files and errors."""
 
@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from chekan.errors import ChekanError
-from chekan.validate_compare import compare, main, paired_rows
-from chekan.validate_scenario import (
+from chekan.study.compare import compare, main, paired_rows
+from chekan.study.scenario import (
     DEFAULT_SCENARIO,
     EDGE_SHAPES,
     edge_platform,
     session_truth,
 )
-from chekan.validate_summary import PARAMS
+from chekan.study.summary import PARAMS
 
 CASES = ("typical", "edge")
 
@@ -139,7 +139,7 @@ def test_the_command_prints_and_writes_the_table_and_names_a_bad_line(tmp_path, 
 def test_a_study_stopped_mid_write_loses_only_its_torn_last_line(tmp_path):
     """``read_rows`` (``--resume`` and this command read through it): an incomplete last
     line is left out with a warning; a short line elsewhere is an error naming it."""
-    from chekan.validate import read_rows
+    from chekan.study.coverage import read_rows
 
     path = tmp_path / "v.csv"
     _write(path, _study(_errors(5), 1e-3))

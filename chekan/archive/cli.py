@@ -1,6 +1,6 @@
 """Command-line registrars of the archive layer (cheap to import: no NumPy, no JAX).
 
-``add_parsers(subparsers)`` registers all three; ``chekan/cli.py`` calls it. Standalone:
+``add_parsers(subparsers)`` registers all three; ``chekan/cli/commands.py`` calls it. Standalone:
 ``python -m chekan.archive archive|reanalyze|history …``.
 
     chekan archive add RESULT.json… [--db PATH]
@@ -15,7 +15,7 @@
                     [--height-offset-m H] [--valid-until DATE]]
 
 Exit status: 0; 1 when some input/result failed (``reanalyze``, ``archive add``); 2 on an
-error (also an output refused by :func:`chekan.outputs.check_outputs`); 4 when ``history``
+error (also an output refused by :func:`chekan.files.outputs.check_outputs`); 4 when ``history``
 raised an ALARM; 130 interrupted; 141 standard output closed early (``| head``).
 """
 
@@ -29,9 +29,9 @@ from typing import Any
 
 from chekan import argtypes
 from chekan.errors import ChekanError
-from chekan.filekinds import EXPORT, FOLDER, HISTORY, PDF, PNG, SVG
+from chekan.files.kinds import EXPORT, FOLDER, HISTORY, PDF, PNG, SVG
+from chekan.files.outputs import SQLITE, Output, check_outputs, run_command
 from chekan.options import METHODS
-from chekan.outputs import SQLITE, Output, check_outputs, run_command
 
 PLOT_KINDS = {".png": PNG, ".pdf": PDF, ".svg": SVG}
 PLOT_SUFFIXES = tuple(PLOT_KINDS)
@@ -111,7 +111,7 @@ def _cmd_show(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(s, indent=2, ensure_ascii=False))
         return 0
-    from chekan.summary import format_summary
+    from chekan.results.summary import format_summary
 
     for k in (
         "id",

@@ -36,8 +36,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-from chekan.durable import atomic_output
 from chekan.errors import ChekanError
+from chekan.files.durable import atomic_output
 
 SCHEMA_VERSION = 2
 PARAM_COLUMNS = ("mean", "sd", "hdi_low", "hdi_high", "unit", "r_hat", "ess_bulk")
@@ -324,7 +324,7 @@ class Archive:
         returns that session's id; other numbers raise :class:`ArchiveConflict`, unless
         ``replace``: then the session (same id) takes the new result.
         """
-        from chekan.result import _clean, check_result, sha256_file
+        from chekan.results.document import _clean, check_result, sha256_file
 
         where = str(result_path) if result_path else "<result>"
         check_result(result, where)
@@ -588,7 +588,7 @@ def read_export_csv(path: str | os.PathLike) -> list[dict]:
 
 def _parameter_rows(sid: int, result: dict) -> Iterable[tuple]:
     """Rows of ``parameters`` from ``result["parameters"]`` and ``result["fixed"]``."""
-    from chekan.result import UNITS
+    from chekan.results.document import UNITS
 
     params = result.get("parameters") or {}
     for name, e in params.items():

@@ -339,7 +339,7 @@ def write_export(
     valid_until: _dt.date | None = None,
 ) -> tuple[Path, list[str]]:
     """Write the ``fmt`` export of ``serial``'s history to ``path``; returns it and notes."""
-    from chekan.durable import atomic_output
+    from chekan.files.durable import atomic_output
 
     check_export(path, fmt, system=system, reference_b=reference_b, height_offset_m=height_offset_m)
     verifs, notes = verifications(archive, serial, method=method)

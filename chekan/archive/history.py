@@ -70,7 +70,7 @@ Sign of a (the quadratic coefficient): every value of ``a`` here is in the recor
 convention (readings grow with gravity, Δg = b(m − m_h) + a(m − m_h)², eq. 8). A legacy
 protocol prints a in its own convention (increments counted positive when gravity decreases,
 ``docs/specs/legacy-protocol.md``), which has the opposite sign; its re-analysis reports a
-in the record's convention (:func:`chekan.classical.increments_from_protocol`): protocol
+in the record's convention (:func:`chekan.classical.fit.increments_from_protocol`): protocol
 no. 46's printed +78 nGal/pix² is archived as −7.8e-5 mGal/pix² (its printed δg are
 reproduced only with that reading). Eq. (10), a = g/2K², is positive in the record's
 convention (+1.34e-4 mGal/pix² for K = 60 428, the simulator's value), so histories that mix
@@ -373,7 +373,7 @@ def param_history(
     extra_error: bool = True,
 ) -> tuple[ParamHistory, HistoryFit | None]:
     """Changes, trend, prediction at ``at`` and alarms for one parameter's points."""
-    from chekan.result import z_for
+    from chekan.results.document import z_for
 
     h = ParamHistory(name, unit, [asdict(p) for p in points])
     if not points:
@@ -520,7 +520,7 @@ def stability_history(
     (:func:`write_history_json`); ``fits`` maps each parameter to its :class:`HistoryFit`,
     whose ``predict(tau_years)`` gives the posterior of the true value at any date.
     """
-    from chekan.result import UNITS
+    from chekan.results.document import UNITS
 
     at = _dt.date.fromisoformat(at) if isinstance(at, str) else (at or _dt.date.today())
     rows = archive.parameter_rows(str(serial))
@@ -566,8 +566,8 @@ def stability_history(
 
 
 def write_history_json(path: str | Path, hist: dict) -> Path:
-    from chekan.durable import atomic_output
-    from chekan.result import _clean
+    from chekan.files.durable import atomic_output
+    from chekan.results.document import _clean
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -626,7 +626,7 @@ def format_history(hist: dict) -> str:
 
 def plot_history(hist: dict, path: str | Path) -> Path:
     """Write :func:`history_figure` to ``path`` (PNG, PDF or SVG from its suffix)."""
-    from chekan.durable import atomic_output
+    from chekan.files.durable import atomic_output
 
     fig = history_figure(hist)
     path = Path(path)
@@ -653,7 +653,7 @@ def history_figure(hist: dict):
         ss = np.array([p["sd"] for p in h["points"]])
         ax.errorbar(dates, ys, yerr=ss, fmt="o", ms=4, capsize=2, label="session ± sd")
         if fit is not None:
-            from chekan.result import z_for
+            from chekan.results.document import z_for
 
             z = z_for(hist["hdi_prob"])
             d0 = dates[0]

@@ -360,7 +360,7 @@ def reanalyze(
     import chekan
     from chekan.archive.db import Archive
     from chekan.pipeline import METHODS
-    from chekan.result import sha256_file, write_result
+    from chekan.results.document import sha256_file, write_result
 
     if method not in METHODS:
         raise ChekanError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")

@@ -7,7 +7,7 @@ date t are
 
 with r in ppm per year (t in years of 365.25 days) and J(t) the sum of the jumps (ppm)
 dated on or before t. Each session is a record of a short program (4 angles, 120 s dwell,
-one round: about 25 minutes, 60 kB) simulated by :func:`chekan.simulate.simulate_session`
+one round: about 25 minutes, 60 kB) simulated by :func:`chekan.records.simulate.simulate_session`
 with a fast-settling sensor, so that the classical estimate is unbiased.
 """
 
@@ -45,7 +45,7 @@ class InstrumentSpec:
 
 def short_program():
     """4 angles (2°…5°), dwell 120 s of which 40 s settle, one round: 10 steps, 20 min."""
-    from chekan.program import build_program
+    from chekan.physics.program import build_program
 
     return build_program([2.0, 3.0, 4.0, 5.0], name="short", dwell_s=120.0, settle_s=40.0, rounds=1)
 
@@ -62,7 +62,7 @@ def session_dates(start: str, years: float, n: int, rng: np.random.Generator) ->
 def write_session(path: str | Path, spec: InstrumentSpec, date: str, seed: int, program=None):
     """Simulate one session of ``spec`` on ``date`` into ``path``; returns the Truth."""
     from chekan.records import write_record
-    from chekan.simulate import Truth, simulate_session
+    from chekan.records.simulate import Truth, simulate_session
 
     rng = np.random.default_rng(spec.seed)  # the instrument's constant properties
     truth = Truth(

@@ -55,7 +55,7 @@ from chekan.design.search import (
     spec_program,
 )
 from chekan.errors import ChekanError
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics.units import ARCSEC_PER_RAD
 
 __all__ = [
     "ARCSEC_PER_RAD",

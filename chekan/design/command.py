@@ -20,11 +20,11 @@ from chekan.design.information import (
 from chekan.design.layout import DesignValues, program_clock_s
 from chekan.design.reliability import ExpectedReliability, expected_reliability
 from chekan.design.search import Candidate, SearchResult, search_programs
-from chekan.durable import atomic_output
 from chekan.errors import ChekanError
+from chekan.files.durable import atomic_output
 from chekan.joint.xresponse import horizontal_prior
-from chekan.program import TiltProgram
-from chekan.units import format_dms, parse_angle_deg
+from chekan.physics.program import TiltProgram
+from chekan.physics.units import format_dms, parse_angle_deg
 
 #: The largest bound of an angle sensor's error that a design takes, arcsec (1°).
 MAX_BOUND_ARCSEC = 3600.0
@@ -209,13 +209,13 @@ def format_table(result: SearchResult, top: int = 15) -> str:
 
 
 def _dms_key(text: str) -> float:
-    from chekan.units import parse_angle_deg
+    from chekan.physics.units import parse_angle_deg
 
     return parse_angle_deg(text)
 
 
 def program_toml(program: TiltProgram) -> str:
-    """A TOML program file that :func:`chekan.program.load_program` reads back to the same
+    """A TOML program file that :func:`chekan.physics.program.load_program` reads back to the same
     program, step for step (angles in whole arcminutes as DMS text where that reads back to
     the same number, otherwise as decimal degrees; the axis, or the axis of each round)."""
 
@@ -330,7 +330,7 @@ def design_json(
 def classical_settling(program: TiltProgram, values: DesignValues) -> dict:
     """What the program's settling leaves of the slews' transients in the hold means that
     the classical method (Calibr.exe) averages: the largest, pix, at the design τ, and the
-    longest τ that keeps it within :data:`chekan.settling.UNSETTLED_PIX`."""
+    longest τ that keeps it within :data:`chekan.classical.settling.UNSETTLED_PIX`."""
     return {
         "settle_s": program.settle_s,
         "tau_s": values.truth.tau_s,
@@ -341,7 +341,7 @@ def classical_settling(program: TiltProgram, values: DesignValues) -> dict:
 
 def settling_text(s: dict) -> str:
     """One line for :func:`classical_settling`."""
-    from chekan.settling import UNSETTLED_PIX
+    from chekan.classical.settling import UNSETTLED_PIX
 
     lim = s["tau_limit_s"]
     span = (
@@ -384,7 +384,7 @@ def design_values(args, program: TiltProgram) -> DesignValues:
             f"[0, {MAX_BOUND_ARCSEC:g}] arcsec"
         )
     if cal_path is not None:
-        from chekan.anglecal import read_angle_calibration
+        from chekan.records.anglecal import read_angle_calibration
 
         cal = read_angle_calibration(cal_path)
         _check_covered(cal, program, search=bool(args.search or args.out))
@@ -398,9 +398,9 @@ def design_values(args, program: TiltProgram) -> DesignValues:
 
 def _check_covered(cal, program: TiltProgram, search: bool) -> None:
     """Refuse a table that does not cover the angles the design evaluates about its axes
-    (nothing is extrapolated, as in :func:`chekan.anglecal.corrected`)."""
+    (nothing is extrapolated, as in :func:`chekan.records.anglecal.corrected`)."""
     from chekan.design.search import HIGHEST_ANGLE_ARCMIN
-    from chekan.units import ARCSEC_PER_RAD
+    from chekan.physics.units import ARCSEC_PER_RAD
 
     for axis, table in sorted(cal.tables.items()):
         theta = [s.theta_rad * ARCSEC_PER_RAD for s in program.steps if s.axis == axis]
@@ -458,7 +458,7 @@ def horizontal_text(values: DesignValues) -> str:
 
 def run_design_command(args) -> int:
     """``chekan design [PROGRAM.toml] [--budget-h H] [--search] [--out best.toml] [--json J]``."""
-    from chekan.program import default_program, load_program
+    from chekan.physics.program import default_program, load_program
 
     program = load_program(args.program) if args.program else default_program()
     values = design_values(args, program)

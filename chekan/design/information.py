@@ -1,7 +1,7 @@
 r"""Expected information of a tilt program: the expected precision of b₁, b₂ and a.
 
 **What is computed.** For a tilt program and design values of the instrument (default:
-:class:`chekan.simulate.Truth`, the simulator's instrument and error budget), the Laplace
+:class:`chekan.records.simulate.Truth`, the simulator's instrument and error budget), the Laplace
 covariance that the MAP estimator (:mod:`chekan.joint`) would report, evaluated at the
 design values with every random effect at its prior mean:
 
@@ -21,7 +21,7 @@ and ``settle_s`` across the settling transient, one bin after it):
 
 θ = (b₁, b₂, log K, ε₁, ε₂, Δγ, log τ) (the estimator's nonlinear parameters with their
 priors from :func:`chekan.joint.problem.nonlinear_params`); f = G E + w(M_v + R) is the lagged
-exact torsion equilibrium (E at every hold, :func:`chekan.model.equilibrium_readings`,
+exact torsion equilibrium (E at every hold, :func:`chekan.physics.sensor.equilibrium_readings`,
 first-order damping lag τ, the lag state after each slew filtered along the slew's
 attitudes, the unsettled remainder R carried across holds); G is the (N × H) lag-mixing
 matrix (1 − wᵢ on the bin's own hold, wᵢ w_prev on the previous one); c_j the level offset
@@ -81,17 +81,17 @@ import scipy.sparse
 from scipy.interpolate import CubicSpline
 
 import chekan.jaxconfig  # noqa: F401  (float64 before any array)
-from chekan import model as fm
 from chekan.design.layout import DesignValues, Lagged, Layout, lagged_means, program_layout
 from chekan.joint.angles import SensorReads, all_sensor_terms
 from chekan.joint.derived import at_horizontal
 from chekan.joint.problem import nonlinear_params
 from chekan.joint.slews import slew_types, types_about
 from chekan.joint.xresponse import M0_TOLERANCE_PIX, horizontal_prior, x_response_terms
-from chekan.program import TiltProgram
+from chekan.physics import sensor as fm
+from chekan.physics.program import TiltProgram
+from chekan.physics.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
+from chekan.records.simulate import Truth
 from chekan.runtime import cached, jit
-from chekan.simulate import Truth
-from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
 THETA_NAMES = ("b1", "b2", "K", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin", "tau_s")
 C_PRIOR_VAR_PIX2 = 1.0  # chekan.joint.likelihood.beta_prior_var: level offset c
@@ -546,18 +546,19 @@ def settled_transient(program: TiltProgram, values: DesignValues | None = None):
 
 
 def settled_transient_pix(program: TiltProgram, values: DesignValues | None = None) -> float:
-    """:func:`settled_transient` at the design τ. Above :data:`chekan.settling.UNSETTLED_PIX`
+    """:func:`settled_transient` at the design τ. Above
+    :data:`chekan.classical.settling.UNSETTLED_PIX`
     the program's classical items are biased unless the transient is removed
-    (:func:`chekan.settling.settled_items`)."""
+    (:func:`chekan.classical.settling.settled_items`)."""
     values = values or DesignValues()
     return settled_transient(program, values)(float(values.truth.tau_s))
 
 
 def settled_tau_limit_s(program: TiltProgram, values: DesignValues | None = None) -> float:
     """The longest lag τ (s) for which :func:`settled_transient` stays within
-    :data:`chekan.settling.UNSETTLED_PIX` (bisection in log τ on 1–1000 s; the transient
+    :data:`chekan.classical.settling.UNSETTLED_PIX` (bisection in log τ on 1–1000 s; the transient
     grows with τ): the instruments whose classical items this program's settling serves."""
-    from chekan.settling import UNSETTLED_PIX
+    from chekan.classical.settling import UNSETTLED_PIX
 
     left = settled_transient(program, values)
     lo, hi = 1.0, 1000.0

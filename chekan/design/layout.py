@@ -19,11 +19,11 @@ import numpy as np
 
 from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, AngleSensorSpec, spec_for
 from chekan.joint.binning import BIN_EDGES_S
-from chekan.program import TiltProgram
-from chekan.simulate import Truth
+from chekan.physics.program import TiltProgram
+from chekan.records.simulate import Truth
 
 if TYPE_CHECKING:  # pragma: no cover
-    from chekan.anglecal import AngleCalibration
+    from chekan.records.anglecal import AngleCalibration
 
 
 @dataclass(frozen=True)
@@ -42,7 +42,7 @@ class DesignValues:
     (:class:`chekan.joint.angles.AngleSensorSpec`: each with the full u² = U²/3 by default,
     or ``angle_scale_share`` of it to the scale and the rest to the per-angle part);
     0: no systematic error (the random δ only, as before). ``angle_calibration``: the
-    platform's own angle calibration (:mod:`chekan.anglecal`); where it has a table of an
+    platform's own angle calibration (:mod:`chekan.records.anglecal`); where it has a table of an
     axis, that sensor's terms take the table's u(θ) = U(θ)/2 instead of the bound, as the
     estimator does (:func:`chekan.joint.angles.spec_for`). ``horizontal_u_pix``: the
     standard uncertainty of each pendulum's horizontal about the CCD centre that the
@@ -118,7 +118,7 @@ class Layout:
 
 
 def _slew_samples(prev_rad: float, cmd_rad: float, truth: Truth) -> np.ndarray:
-    """Attitudes of the samples of one move, as :func:`chekan.simulate.program_timeline`
+    """Attitudes of the samples of one move, as :func:`chekan.records.simulate.program_timeline`
     lays them out: ⌈|Δθ|/v/Δt⌉ slew samples then ⌈settle/Δt⌉ at the target."""
     dt = 1.0 / truth.sample_rate_hz
     dist_deg = math.degrees(abs(cmd_rad - prev_rad))

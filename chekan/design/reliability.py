@@ -39,7 +39,7 @@ import numpy as np
 from chekan.design.information import THETA_NAMES, DesignRows, design_rows
 from chekan.design.layout import DesignValues
 from chekan.joint.typea import COMPONENTS, PRIOR_INFO
-from chekan.program import TiltProgram
+from chekan.physics.program import TiltProgram
 from inference.dof import (
     component_information,
     cov_of_information,

@@ -53,8 +53,8 @@ from chekan.design.information import OBJECTIVES, ExpectedPrecision, expected_pr
 from chekan.design.layout import DesignValues, program_clock_s
 from chekan.design.reliability import ExpectedReliability, expected_reliability
 from chekan.errors import ChekanError
-from chekan.program import TiltProgram, build_program
-from chekan.units import format_dms
+from chekan.physics.program import TiltProgram, build_program
+from chekan.physics.units import format_dms
 from inference.dof import coverage_factor
 
 LOWEST_ANGLE_ARCMIN = 110  # 1°50′: the paper's smallest tilt

@@ -23,6 +23,7 @@ What is compiled for a structure, kept, loaded and cleared lives in :mod:`chekan
 (``engine_for``, ``problem_for`` and ``clear_caches`` are re-exported here).
 """
 
+from chekan.classical.settling import tau_from_transients
 from chekan.joint.binning import BIN_EDGES_S, prepare, prepare_record
 from chekan.joint.estimate import estimate, map_result, posterior_result
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
@@ -31,7 +32,6 @@ from chekan.joint.problem import CalibrationProblem, default_hyper
 from chekan.joint.start import initial_values
 from chekan.runtime.engine import clear_caches, engine_for, problem_for
 from chekan.runtime.padding import padded_shape
-from chekan.settling import tau_from_transients
 
 __all__ = [
     "BIN_EDGES_S",

@@ -27,7 +27,7 @@ error at the bound (2/√3 > 1), which a split of u² between the two parts did 
 (validation of the designer's program at the edge of the specification: |z| up
 to 2.8 on such platforms; ``docs/figures/validation_dual.md``).
 
-**Prior from the platform's own calibration** (:mod:`chekan.anglecal`). The corrections
+**Prior from the platform's own calibration** (:mod:`chekan.records.anglecal`). The corrections
 are applied to the measured angles; what is left is the calibration's uncertainty,
 u(θ) = U(θ)/2 (k = 2, normal), which replaces the bound. A table alone does not state how
 the errors of its angles correlate, so both extremes are carried: ζ_a ~ N(0, u(θ_a)²)
@@ -47,7 +47,7 @@ import numpy as np
 
 from chekan.errors import ChekanError
 from chekan.joint.slews import type_indicator
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics.units import ARCSEC_PER_RAD
 
 DEFAULT_BOUND_ARCSEC = 3.0  # the paper: the platform reads its angles with an error ≤ 3″
 HEADER_KEY = "platform_angle_bound_arcsec"  # both sensors
@@ -76,7 +76,7 @@ class AngleSensorSpec:
     distribution: str = "rectangular"  # or "triangular" (GUM 4.3.7, 4.3.9)
     axis: str = "y"
     source: str = DEFAULT_SOURCE
-    calibration: Any = None  # chekan.anglecal.AngleCalibration of this sensor, if any
+    calibration: Any = None  # chekan.records.anglecal.AngleCalibration of this sensor, if any
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.bound_arcsec) and self.bound_arcsec >= 0):
@@ -119,7 +119,7 @@ class AngleSensorSpec:
     @property
     def stated_scale(self) -> bool:
         """Whether the calibration table states the part of its U that is a scale error
-        (:class:`chekan.anglecal.AxisTable`): then that part is the scale term's and the
+        (:class:`chekan.records.anglecal.AxisTable`): then that part is the scale term's and the
         rest the per-angle terms', instead of both extremes."""
         return self.table is not None and self.table.scale_U_arcsec is not None
 

@@ -15,13 +15,13 @@ import math
 
 import numpy as np
 
-from chekan.holds import GAP_PERIODS, HoldTable, gap_before, sample_period_s, segment_record
 from chekan.jaxconfig import device_arrays
 from chekan.joint.angles import AngleSensorSpec, SensorReads, all_sensor_terms
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.slews import slew_types, types_about
 from chekan.joint.xresponse import M0_TOLERANCE_PIX, x_response_terms
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics.units import ARCSEC_PER_RAD
+from chekan.records.holds import GAP_PERIODS, HoldTable, gap_before, sample_period_s, segment_record
 
 BIN_EDGES_S = (0.0, 15.0, 40.0, 90.0, 180.0)
 
@@ -124,11 +124,11 @@ def _bin(k: int, m, ts, d0: float) -> tuple:
 def _bin_rows(t, m, holds: HoldTable, t_last, bin_edges_s, gap: np.ndarray) -> list[tuple]:
     """The bins of every hold: ``(hold, mean (2), count (2), d0, dstep, n_t, t_mid)``, the
     settling part cut at ``bin_edges_s``, the settled part one bin. After a gap that leaves
-    the sensor's state unknown (:mod:`chekan.holds`) the samples are not used until it has
+    the sensor's state unknown (:mod:`chekan.records.holds`) the samples are not used until it has
     settled, and each run of samples without a gap after that is one bin: of the settled
     state (``d0`` = :data:`SETTLED_D0_S`) where the hold's start was not seen, else with the
     lag still followed from its slew; a bin never spans a gap (``gap``: per row, samples
-    lost just before it, :func:`chekan.holds.gap_before`)."""
+    lost just before it, :func:`chekan.records.holds.gap_before`)."""
     rows = []
     for k in range(holds.n):
         a, b = holds.start[k], holds.stop[k]

@@ -17,7 +17,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chekan import model as fm
 from chekan.joint.hold_blocks import apply_blocks, block_normal_equations
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import (
@@ -27,7 +26,8 @@ from chekan.joint.likelihood import (
     sensor_params,
     solve_beta,
 )
-from chekan.parameters import PHYSICAL
+from chekan.physics import sensor as fm
+from chekan.physics.parameters import PHYSICAL
 from inference.normal_eq import draw_beta_blocks, split_prior
 
 

@@ -13,7 +13,8 @@ from typing import cast
 
 import numpy as np
 
-from chekan.holds import HoldTable
+from chekan.classical.settling import settled_items, tau_from_transients
+from chekan.files.outputs import check_room
 from chekan.joint import em
 from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
 from chekan.joint.binning import prepare
@@ -25,9 +26,9 @@ from chekan.joint.sampling import sample_posterior, sampler_config
 from chekan.joint.start import initial_values
 from chekan.joint.xresponse import horizontal_prior
 from chekan.options import CalibrationOptions
-from chekan.outputs import check_room
-from chekan.parameters import PARAMETER_UNITS
-from chekan.result import param_entry, posterior_entry
+from chekan.physics.parameters import PARAMETER_UNITS
+from chekan.records.holds import HoldTable
+from chekan.results.document import param_entry, posterior_entry
 from chekan.runtime.engine import (
     FIRST_RUN_NOTICE,
     compiled_before,
@@ -36,7 +37,6 @@ from chekan.runtime.engine import (
 )
 from chekan.runtime.padding import padded_for
 from chekan.runtime.process import single_threaded_blas
-from chekan.settling import settled_items, tau_from_transients
 
 
 def estimate(data, *, kind: str, classical, base: dict, options: CalibrationOptions) -> dict:

@@ -41,7 +41,6 @@ import jax.numpy as jnp
 import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
-from chekan import model as fm
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import (
     beta_prior_var,
@@ -51,7 +50,8 @@ from chekan.joint.likelihood import (
     slew_path,
     transient_amplitude,
 )
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics import sensor as fm
+from chekan.physics.units import ARCSEC_PER_RAD
 from inference.barrier import fusion_barrier
 from inference.normal_eq import (
     BandedFactor,

@@ -6,7 +6,8 @@ Only the per-angle increments survive, so the model is the characteristic itself
 
     Δg_ref,ri = b_rj x_rji + a x_rji² − g sin θᵢ · δ_ri + e_rji,
 
-with x = m − m_h recovered from the protocol (:func:`chekan.classical.increments_from_protocol`),
+with x = m − m_h recovered from the protocol
+(:func:`chekan.classical.fit.increments_from_protocol`),
 δ_ri the angle-readout error of the ± pair (shared by both systems; the mean of two holds'
 errors, variance σ_θ²/2) and e the independent error of each system's pair mean
 (variance σ_e²). δ is marginalised: each (r, i) pair of systems is bivariate normal with
@@ -54,14 +55,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
-from chekan.classical import increments_from_protocol
+from chekan.classical.fit import increments_from_protocol
 from chekan.errors import ChekanError
 from chekan.joint.angles import AngleSensorSpec, angle_sensor_entry, commanded_groups
 from chekan.joint.budget import budget_entries
-from chekan.parameters import unit_of
-from chekan.result import param_entry, posterior_entry
+from chekan.physics.parameters import unit_of
+from chekan.physics.units import ARCSEC_PER_RAD
+from chekan.results.document import param_entry, posterior_entry
 from chekan.runtime.compiler import Compiler
-from chekan.units import ARCSEC_PER_RAD
 from inference.map import fit_map
 from inference.params import Param, ParamSpace
 from inference.problem import LeastSquaresProblem
@@ -394,7 +395,7 @@ def _sampler_config(options):
 
 
 def _write_netcdf(draws: dict, samp, pm: ProtocolModel, path) -> Path:
-    from chekan.durable import fsync_dir
+    from chekan.files.durable import fsync_dir
     from inference.arviz_io import save_netcdf, to_inference_data
 
     idata = to_inference_data(

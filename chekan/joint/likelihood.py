@@ -5,7 +5,7 @@ r"""The joint likelihood of a record: both systems, all rounds, β linear.
     ȳᵢⱼ = (1 − wᵢ) Eₖⱼ + wᵢ Eₖ₋₁,ⱼ + cⱼ + Σₗ dⱼₗ Pₗ(sᵢ)
           + (1 − wᵢ)(oₖⱼ + Φₖνⱼ − Sₖⱼ δₖ) + wᵢ (oₖ₋₁,ⱼ + Φₖ₋₁νⱼ − Sₖ₋₁,ⱼ δₖ₋₁),
 
-where Eₖⱼ is the exact torsion equilibrium (:func:`chekan.model.equilibrium_readings`,
+where Eₖⱼ is the exact torsion equilibrium (:func:`chekan.physics.sensor.equilibrium_readings`,
 eq. 6) at the *reported* attitude of hold k, Sₖⱼ = ∂Eₖⱼ/∂θ, δₖ the angle-readout error of
 hold k (reported − true, shared by both systems; prior N(0, σ_θ²)), oₖⱼ a per-hold offset
 of each system (prior N(0, σ_o²)), Φₖνⱼ the X rounds' response beyond eq. (6) (zero at
@@ -39,9 +39,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
-from chekan import model as fm
 from chekan.joint.layout import ModelStructure, RecordData
-from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
+from chekan.physics import sensor as fm
+from chekan.physics.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 from inference.barrier import fusion_barrier
 from inference.normal_eq import (
     NormalEquations,
@@ -78,7 +78,8 @@ class SlewPath(NamedTuple):
     weight: jax.Array
     """wₖₘ (H, M): the share of path point m in the lag state at the end of slew k."""
     readings: jax.Array
-    """E(θₖₘ) (2, H, M), pixels (systems first: see :func:`chekan.model.equilibrium_by_system`)."""
+    """E(θₖₘ) (2, H, M), pixels (systems first: see
+    :func:`chekan.physics.sensor.equilibrium_by_system`)."""
     per_rad: jax.Array
     """∂E/∂θ (2, H, M) along the tilt direction, pixels per radian."""
 

@@ -141,7 +141,7 @@ def _first_pass(
     1. ``solver`` from the classical start (τ₀ = 30 s).
     2. If that pass :func:`_in_tails`: the same solver from the record's τ hint, if it has
        one (the pipeline's is read off the record's settling transients,
-       :func:`chekan.settling.tau_from_transients`); then, unless the hint's pass landed
+       :func:`chekan.classical.settling.tau_from_transients`); then, unless the hint's pass landed
        in the prior's bulk, from each τ₀ in ``TAU_RESTARTS_S``. A τ within a factor
        ``RESTART_APART`` of one already tried is skipped.
     3. Levenberg–Marquardt (the fallback of a Gauss–Newton pass that did not converge),

@@ -9,13 +9,13 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from chekan import model as fm
-from chekan.classical import fit_by_axis, increments_of_readings
+from chekan.classical.fit import fit_by_axis, increments_of_readings
 from chekan.joint.derived import equilibria_of
 from chekan.joint.problem import K_DESIGN
+from chekan.physics import sensor as fm
+from chekan.physics.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 from chekan.runtime import jit
 from chekan.runtime.engine import engine_for
-from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
 
 def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixed=None, n_max=200):
@@ -102,7 +102,7 @@ def drift_curve(draws, model, hp: float, n: int = 60) -> dict:
 def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
     """The ArviZ NetCDF of the posterior (:func:`inference.arviz_io.save_posterior_netcdf`:
     the InferenceData layout written without importing ArviZ or xarray)."""
-    from chekan.durable import fsync_dir
+    from chekan.files.durable import fsync_dir
     from inference.arviz_io import save_posterior_netcdf
 
     C, Dn = samp.draws.shape[:2]

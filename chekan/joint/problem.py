@@ -39,7 +39,7 @@ from chekan.jaxconfig import device_array
 from chekan.joint.hold_blocks import block_normal_equations
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import beta_prior_var, solve_beta
-from chekan.parameters import unit_of
+from chekan.physics.parameters import unit_of
 from inference.normal_eq import marginal_loglik_blocks, split_prior
 from inference.params import Param, ParamSpace
 from inference.problem import LeastSquaresProblem

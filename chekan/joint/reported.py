@@ -12,7 +12,7 @@ import numpy as np
 from chekan.jaxconfig import device_array
 from chekan.joint.map import MapFit
 from chekan.joint.typea import reliabilities
-from chekan.parameters import PHYSICAL
+from chekan.physics.parameters import PHYSICAL
 from chekan.runtime.engine import engine_for
 from inference.chunks import map_chunks
 

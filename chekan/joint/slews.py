@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics.units import ARCSEC_PER_RAD
 
 GROUP_ARCSEC = 30.0  # start and end angles closer than this are the same (commanded angles)
 

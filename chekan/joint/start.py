@@ -2,7 +2,8 @@
 
 The first Gauss–Newton pass starts from the classical b₁, b₂, a (K = √(g/2a), eq. 10) and
 ε, with τ₀ = 30 s. Where that pass fails or lands in the prior's tails, it is redone first
-from the record's own τ (:func:`chekan.settling.tau_from_transients`, the ``tau_hint_s`` of
+from the record's own τ (:func:`chekan.classical.settling.tau_from_transients`, the
+``tau_hint_s`` of
 :func:`chekan.joint.map.fit_map_em`) and only then from the fixed restarts
 (:data:`chekan.joint.map.TAU_RESTARTS_S`). The first start stays at 30 s so that every
 record it served keeps its numbers to the last digit.
@@ -12,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from chekan.classical.settling import TAU_START_S
 from chekan.joint.problem import K_DESIGN
-from chekan.settling import TAU_START_S
 
 
 def initial_values(classical, g: float, tau_s: float = TAU_START_S) -> dict[str, float]:

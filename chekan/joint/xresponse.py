@@ -1,7 +1,7 @@
 r"""The X rounds' response beyond eq. (6): a nuisance per quartz system.
 
 A tilt about the platform X axis turns the pendulums in their own plane. Eq. (6) with
-the attitude of the system (:mod:`chekan.model`) gives the reading's response to it:
+the attitude of the system (:mod:`chekan.physics.sensor`) gives the reading's response to it:
 to first order the same g(1 − cos θ) as a tilt about Y (the *even* part), plus
 g·sin θ·sin φ (the *odd* part, the paper's d·θ·(m − m_h) of eq. 11–12, which depends on
 φ = (m − m₀)/K and so on K). The paper warns that eq. (11) leaves effects out (fibre sag
@@ -48,8 +48,8 @@ from typing import NamedTuple
 import numpy as np
 
 from chekan.joint.slews import type_indicator
-from chekan.model import NEWTON_STEPS, newton_deflection
-from chekan.units import ARCSEC_PER_RAD
+from chekan.physics.sensor import NEWTON_STEPS, newton_deflection
+from chekan.physics.units import ARCSEC_PER_RAD
 
 K_NOMINAL_PIX_PER_RAD = 60428.0  # eq. (4): the design K
 B_NOMINAL_MGAL_PER_PIX = 6.9  # the paper's single-system b (eq. 9), for unit conversion only
@@ -57,7 +57,7 @@ M0_TOLERANCE_PIX = 100.0  # the CCD centre vs the pendulum's horizontal (5 % of 
 M0_SOURCE = "the model's assumption: 5 % of the CCD, no vendor figure known"
 EVEN_BOUND_MGAL = 0.2  # eq. (20): what eq. (21) may leave out at the largest angle
 GROUP_ARCSEC = 30.0  # X angles closer than this are one angle (as the angle sensors')
-LEVEL_RAD = float(np.deg2rad(0.1))  # below this a hold is level (:mod:`chekan.holds`)
+LEVEL_RAD = float(np.deg2rad(0.1))  # below this a hold is level (:mod:`chekan.records.holds`)
 
 
 def horizontal_prior(u_pix: float | None) -> tuple[float, str]:
@@ -166,7 +166,7 @@ def level_angle_column(
         λδ = g[−(1 − cos θ) cos φ + (cos φ − cos φ_h) + sin θ sin φ],  φ = φ_h + δ,
         φ_h = (m_h − m₀)/K,  λ = bK cos φ_h − g sin φ_h,  E_even = K(δ(θ) + δ(−θ))/2;
 
-    δ by the forward model's own Newton steps (:func:`chekan.model.newton_deflection`), a
+    δ by the forward model's own Newton steps (:func:`chekan.physics.sensor.newton_deflection`), a
     central difference of ±1 pix (exact for a function this close to linear)."""
     theta = np.asarray(theta_rad, dtype=float)
     K, b = K_NOMINAL_PIX_PER_RAD, B_NOMINAL_MGAL_PER_PIX

@@ -58,7 +58,7 @@ def cmd_live(args: argparse.Namespace) -> int:
 
     program = None
     if args.program:
-        from chekan.program import load_program
+        from chekan.physics.program import load_program
 
         program = load_program(args.program)
     beside = args.owner_pid is not None

@@ -68,10 +68,10 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
     ``a`` is fitted once two angles are paired (with one angle it cannot be told from b)
     and held at 0 until then.
     """
-    from chekan import classical
+    from chekan.classical import fit as classical
+    from chekan.classical.settling import unsettled_hold_means
     from chekan.errors import ChekanError
-    from chekan.holds import segment_record
-    from chekan.settling import unsettled_hold_means
+    from chekan.records.holds import segment_record
 
     if settle_s is None:
         settle_s = float(record.meta.get("program_settle_s", 300.0))
@@ -231,9 +231,9 @@ class MapRunner:
 
 
 def program_from_plan(plan: list[dict], name: str = "recorded"):
-    """The :class:`~chekan.program.TiltProgram` of a journal's ``run_start`` plan."""
-    from chekan.program import Step, TiltProgram
-    from chekan.units import ARCSEC_PER_RAD
+    """The :class:`~chekan.physics.program.TiltProgram` of a journal's ``run_start`` plan."""
+    from chekan.physics.program import Step, TiltProgram
+    from chekan.physics.units import ARCSEC_PER_RAD
 
     steps = []
     mags: list[float] = []

@@ -54,7 +54,8 @@ def _iso(d: datetime) -> str:
 
 
 def step_axis(x_arcsec: float, y_arcsec: float) -> str:
-    """The axis a target tilts about ("x" when |x| > |y|, as :mod:`chekan.holds` classifies)."""
+    """The axis a target tilts about ("x" when |x| > |y|, as :mod:`chekan.records.holds`
+    classifies)."""
     return "x" if abs(x_arcsec) > abs(y_arcsec) else "y"
 
 

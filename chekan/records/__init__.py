@@ -1,7 +1,7 @@
 """Calibration records, format ``chekan-record/1`` (``docs/specs/record-format.md``).
 
 - :mod:`chekan.records.framing` — metadata/header/data framing, shared with
-  :mod:`chekan.protocol`;
+  :mod:`chekan.records.protocol`;
 - :mod:`chekan.records.parse` — the vectorised and the line-by-line data parsers;
 - :mod:`chekan.records.reader` — :class:`Record` and :func:`read_record`;
 - :mod:`chekan.records.writer` — :func:`write_record` (atomic) and :class:`RecordWriter`

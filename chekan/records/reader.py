@@ -71,7 +71,7 @@ class Record:
     path: str | None = None
     warnings: list[str] = field(default_factory=list)
     meta_lines: dict[str, int] = field(default_factory=dict, repr=False, compare=False)
-    # the platform angle calibration applied to the tilt columns (chekan.anglecal), if any
+    # the platform angle calibration applied to the tilt columns (chekan.records.anglecal), if any
     angle_calibration: Any = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:

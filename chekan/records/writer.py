@@ -20,8 +20,8 @@ from typing import IO, Any
 
 import numpy as np
 
-from chekan.durable import append_whole, fsync_dir
 from chekan.errors import FormatError
+from chekan.files.durable import append_whole, fsync_dir
 from chekan.records.framing import PathArg, read_frame
 from chekan.records.reader import DEFAULT_COLUMNS, FORMAT, REQUIRED_COLUMNS, Record
 

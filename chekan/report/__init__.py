@@ -75,7 +75,7 @@ def render_report(
     lab file (TOML; default ``$CHEKAN_LAB``) and the customer's name (default: the lab file's).
     Returns the path written. Bad input raises :class:`~chekan.errors.ChekanError`.
     """
-    from chekan.result import check_result, read_result
+    from chekan.results.document import check_result, read_result
 
     check_lang(lang)
     out = Path(out)
@@ -95,8 +95,8 @@ def render_report(
         check_result(dict(result), source or "<result>")
     else:
         raise FormatError(source, None, "a result must be a JSON object (dict)")
-    from chekan.durable import atomic_output
-    from chekan.outputs import SYSTEM_ERRNOS
+    from chekan.files.durable import atomic_output
+    from chekan.files.outputs import SYSTEM_ERRNOS
 
     if kind == "dcc":
         from chekan.report.dcc import write_dcc

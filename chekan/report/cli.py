@@ -12,8 +12,8 @@ from chekan.report.i18n import LANGS
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from chekan.filekinds import report_kind
-    from chekan.outputs import Output, check_outputs
+    from chekan.files.kinds import report_kind
+    from chekan.files.outputs import Output, check_outputs
     from chekan.report import render_report
     from chekan.report.dcc_read import read_any_result
 

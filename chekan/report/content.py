@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from chekan.classical.settling import UNSETTLED_PIX, unsettled_transient_pix
 from chekan.errors import ChekanError, FormatError
 from chekan.report import figures as figs
 from chekan.report.checks import check_certificate_input, states_expanded_uncertainty
@@ -53,7 +54,6 @@ from chekan.report.verdict import (  # verdict_of: re-exported
     verdict_of,  # noqa: F401
     verdict_paras,
 )
-from chekan.settling import UNSETTLED_PIX, unsettled_transient_pix
 
 FULL_RANGE_MGAL = 5000.0  # Δ₀ = 5 Gal
 
@@ -105,7 +105,7 @@ def _header(rep: Report, result: Mapping[str, Any], t: Translator, lang: str) ->
     if meta.get("site"):
         rows.append((t("site"), value_name(str(meta["site"]), lang), False))
     coords = []
-    from chekan.units import format_dms
+    from chekan.physics.units import format_dms
 
     for key, lab in (("latitude_deg", "lat"), ("longitude_deg", "lon")):
         try:
@@ -444,7 +444,7 @@ def _rest_of_items(
     if rm and is_num(rm.get("heavy")) and is_num(rm.get("light")):
         meta = result.get("metadata") or {}
         try:
-            from chekan.units import format_dms
+            from chekan.physics.units import format_dms
 
             lat = format_dms(float(meta["latitude_deg"]), seconds=True, sign="always")
             rep.add(Para(t("margin_at", lat=lat)))
@@ -479,13 +479,13 @@ def _record_figures(
         return [], None, [Para(t("no_record_file", path=str(given)), "note")]
     want = result.get("record_sha256")
     if want:
-        from chekan.result import sha256_file
+        from chekan.results.document import sha256_file
 
         if sha256_file(path) != want:
             return [], None, [Para(t("record_changed", path=str(path)), "warn")]
     try:
-        from chekan.holds import segment_record
-        from chekan.inputs import read_input
+        from chekan.records.holds import segment_record
+        from chekan.records.inputs import read_input
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -505,7 +505,9 @@ def _record_figures(
     band = t("fig_cos_band_model" if figs.has_noise_model(result) else "fig_cos_band_rms")
     cap = t("fig_cos", gamma=gamma, band=band)
     if transient is not None:
-        cap += " " + t("fig_cos_lag")  # the residuals of chekan.settling.lagged_hold_means
+        cap += " " + t(
+            "fig_cos_lag"
+        )  # the residuals of chekan.classical.settling.lagged_hold_means
     return [fig_rec], Figure("cosinusoid", png, cap), transient_note(result, holds, transient, t)
 
 
@@ -513,10 +515,10 @@ def transient_note(
     result: Mapping[str, Any], holds: Any, transient: np.ndarray | None, t: Translator
 ) -> list[Para]:
     """A warning where the hold means still carry the slews' transients (``transient``,
-    :func:`chekan.settling.unsettled_transient_pix`; a settling time short beside τ) and the
-    result's classical items were computed from them (a result written before
-    :func:`chekan.settling.settled_items` existed): they and the verdict's reduced error are
-    biased by them, the joint model is not. A result whose items were settled states it in
+    :func:`chekan.classical.settling.unsettled_transient_pix`; a settling time short beside τ)
+    and the result's classical items were computed from them (a result written before
+    :func:`chekan.classical.settling.settled_items` existed): they and the verdict's reduced
+    error are biased by them, the joint model is not. A result whose items were settled states it in
     :func:`settled_note` instead."""
     if "hold_transient" in result or transient is None:
         return []
@@ -530,7 +532,7 @@ def transient_note(
 
 def settled_note(result: Mapping[str, Any], t: Translator) -> list[Para]:
     """Where the joint model removed the lag's transient from the hold means before the
-    classical items (``hold_transient``, :func:`chekan.settling.settled_items`): how much,
+    classical items (``hold_transient``, :func:`chekan.classical.settling.settled_items`): how much,
     and Calibr.exe's figures from the raw hold means, which the items no longer show."""
     ht = result.get("hold_transient")
     if not isinstance(ht, Mapping):

@@ -390,8 +390,8 @@ def write_dcc(
     lang: str = "en",
 ) -> Path:
     """The DCC of ``result`` at ``out``; the lab file is read before anything is written."""
-    from chekan.durable import atomic_output
-    from chekan.outputs import SYSTEM_ERRNOS
+    from chekan.files.durable import atomic_output
+    from chekan.files.outputs import SYSTEM_ERRNOS
 
     lab = load_lab(lab_path)
     data = dcc_bytes(

@@ -62,7 +62,7 @@ def used_methods(mr: ET.Element, result: Mapping[str, Any], langs: Sequence[str]
 
 def _program_quantities(result: Mapping[str, Any], langs: Sequence[str]) -> ET.Element:
     """``dcc:usedMethodQuantities`` of the tilt program (empty when the result has none)."""
-    from chekan.units import parse_angle_deg
+    from chekan.physics.units import parse_angle_deg
 
     el = ET.Element(d("usedMethodQuantities"))
     tp = result.get("tilt_program")

@@ -52,7 +52,7 @@ def read_dcc(path: str | os.PathLike) -> dict[str, Any]:
 
 def parse_dcc(data: bytes, src: str | Path) -> dict[str, Any]:
     """The chekan-result/1 dict of the DCC ``data`` (``src`` names it in errors)."""
-    from chekan.result import check_result
+    from chekan.results.document import check_result
 
     p = src
     try:
@@ -109,8 +109,8 @@ def _check_numbers(p: str | Path, root: ET.Element, result: dict[str, Any]) -> N
 
 
 def read_result_or_dcc(path: str | os.PathLike) -> dict[str, Any]:
-    """:func:`read_dcc` for a DCC file, else :func:`chekan.result.read_result`."""
-    from chekan.result import read_result
+    """:func:`read_dcc` for a DCC file, else :func:`chekan.results.document.read_result`."""
+    from chekan.results.document import read_result
 
     return read_dcc(path) if is_dcc(path) else read_result(Path(path))
 

@@ -12,9 +12,9 @@ from typing import Any, cast
 
 import numpy as np
 
+from chekan.classical.settling import fitted_model, model_at_holds
 from chekan.plotting import new_figure
 from chekan.report.i18n import Translator, param_name
-from chekan.settling import fitted_model, model_at_holds
 
 DPI = 200
 SYS_COLORS = ("#1f62b4", "#c8382c")
@@ -106,7 +106,7 @@ ARCSEC_RAD = np.pi / 648000.0
 def _readings(params, axis, theta_rad: np.ndarray, other_rad: np.ndarray) -> np.ndarray:
     """The model's readings (n, 2) at the signed angle θ about ``axis`` ("x"/"y", or one
     per point), the other axis at ``other_rad``."""
-    from chekan import model
+    from chekan.physics import sensor as model
 
     about_y = np.asarray(axis) == "y"
     tx = np.where(about_y, other_rad, theta_rad)
@@ -159,7 +159,8 @@ def cosinusoid_figure(
     """Hold means against the signed tilt angle θ (Fig. 3 of the paper) with the fitted
     model's readings; below, each hold mean minus the model's reading at the angles measured
     in that hold (plus ``transient``, what the lag leaves in each hold mean:
-    :func:`chekan.settling.unsettled_transient_pix`), with the model's 95 % band. None when
+    :func:`chekan.classical.settling.unsettled_transient_pix`), with the model's 95 % band. None
+    when
     the result has no model (a ≤ 0)."""
     params = fitted_model(result)
     if params is None:

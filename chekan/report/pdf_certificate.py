@@ -93,7 +93,7 @@ def read_pdf_result(path: str | os.PathLike) -> dict[str, Any]:
     import json
 
     from chekan.report.dcc_read import parse_dcc
-    from chekan.result import check_result
+    from chekan.results.document import check_result
 
     p = Path(path)
     files = embedded_files(p)

@@ -6,7 +6,7 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-from chekan.parameters import PHYSICAL
+from chekan.physics.parameters import PHYSICAL
 from chekan.report.document import Cell, Heading, KeyValue, Para, Report, Table
 from chekan.report.i18n import Translator, param_name, unit_name, with_param_names
 from chekan.report.numbers import (

@@ -46,7 +46,7 @@ def in_background(jobs: list[tuple[Callable, tuple]], threads: int, label: str) 
     (SIGABRT at exit, measured on jax 0.10.2), so the interpreter waits for them; start
     loads only once the process is likely to use them (after reading its input). They are
     named ``aot-<label>-<i>``: a caller that ends its process itself may recognise them
-    (``chekan.outputs.DISPOSABLE_THREAD_PREFIX`` relies on that prefix)."""
+    (``chekan.files.outputs.DISPOSABLE_THREAD_PREFIX`` relies on that prefix)."""
     import queue
     import threading
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
-from chekan.program import TiltProgram
+from chekan.physics.program import TiltProgram
 
 EXIT_OK = 0
 EXIT_DEVICE = 1  # the device refused (TILT,ERR) or misbehaved; or an I/O error

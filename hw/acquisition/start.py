@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from chekan.errors import ChekanError
-from chekan.program import TiltProgram
+from chekan.physics.program import TiltProgram
 from hw.acquisition.plan import Options, plan_from_program
 from hw.acquisition.resume import resume_state
 from hw.acquisition.runner import Acquisition

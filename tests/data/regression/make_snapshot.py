@@ -38,7 +38,7 @@ def records():
     """(label, record path) of the 10 fixed sessions (3 h program, drawn instruments)."""
     from chekan.demo import demo_program
     from chekan.records import write_record
-    from chekan.simulate import random_truth, simulate_session
+    from chekan.records.simulate import random_truth, simulate_session
 
     tmp = Path(tempfile.mkdtemp(prefix="chekan-snapshot-"))
     for seed in SEEDS:

@@ -17,14 +17,14 @@ class Scenario:
     """What the simulated platform does and what the model assumes of it.
 
     ``systematic_arcsec``: bound of the simulated systematic angle-sensor error (0: none;
-    :func:`chekan.simulate.systematic_angle_error`), ``shape`` its shape;
+    :func:`chekan.records.simulate.systematic_angle_error`), ``shape`` its shape;
     ``random_arcsec``: (low, high) of the random angle error's sd, drawn per session
     (None: the simulator's 2″); ``angle_errors`` and ``angle_bound_arcsec``: the model's
     (:class:`chekan.options.CalibrationOptions`); ``calibration_u_arcsec``: the platform has
     its own angle calibration whose residual error has expanded uncertainty U (k = 2)
     (:func:`session_calibration`; None: only the bound is known); ``x_cubic``: the share of
     sin³ θ in the odd part of the ``x_response`` case's unmodelled X response
-    (:attr:`chekan.simulate.Truth.x_unmodelled_cubic`; 1: a pure sin³ θ);
+    (:attr:`chekan.records.simulate.Truth.x_unmodelled_cubic`; 1: a pure sin³ θ);
     ``horizontal_u_pix``: the model's standard uncertainty of the pendulums' horizontal
     (None: its default), which the ``horizontal`` case's offsets then stay within;
     ``calibration_scale_u_arcsec``: the calibration's residual has a scale part of this U
@@ -83,7 +83,7 @@ def edge_platform(i: int) -> tuple[str, float]:
 
 
 def session_truth(case: str, rng: np.random.Generator, i: int, scenario: Scenario):
-    from chekan.simulate import random_truth
+    from chekan.records.simulate import random_truth
 
     kw: dict[str, Any] = {
         "angle_systematic_arcsec": scenario.systematic_arcsec,
@@ -151,9 +151,9 @@ def session_calibration(
     ``scale_U_arcsec`` U_s: the residual is instead a scale error ξ·θ/θ_t, ξ ~ N(0, (U_s/2)²)
     (θ_t the table's largest angle), plus an independent part of variance
     (U² − (U_s θ/θ_t)²)/4, so that each row's total is still U; the table states U_s."""
-    from chekan.anglecal import AngleCalibration, AxisTable
-    from chekan.simulate import session_systematic
-    from chekan.units import ARCSEC_PER_RAD
+    from chekan.physics.units import ARCSEC_PER_RAD
+    from chekan.records.anglecal import AngleCalibration, AxisTable
+    from chekan.records.simulate import session_systematic
 
     tables: dict[str, AxisTable] = {}
     for axis in program.tilt_axes:

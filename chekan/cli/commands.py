@@ -18,9 +18,9 @@ import warnings
 from pathlib import Path
 
 from chekan import __version__, argtypes
-from chekan.filekinds import DESIGN, FOLDER, NETCDF, PROGRAM, RECORD, RESULT, TRUTH, report_kind
+from chekan.files.kinds import DESIGN, FOLDER, NETCDF, PROGRAM, RECORD, RESULT, TRUTH, report_kind
+from chekan.files.outputs import Output, check_outputs, end_process, run_command, sniff_format
 from chekan.options import ANGLE_ERRORS, METHODS
-from chekan.outputs import Output, check_outputs, end_process, run_command, sniff_format
 
 #: ``simulate --report-period-s``: a platform reporting its angles faster than every
 #: millisecond is a platform without a report period (0); slower than hourly is no platform.
@@ -56,9 +56,9 @@ short options (the same in every command that has the option):
 def _cmd_simulate(args) -> int:
     import numpy as np
 
-    from chekan.program import default_program, load_program
+    from chekan.physics.program import default_program, load_program
     from chekan.records import write_record
-    from chekan.simulate import Truth, random_truth, simulate_session, write_truth
+    from chekan.records.simulate import Truth, random_truth, simulate_session, write_truth
 
     check_outputs(
         [args.program], [Output(args.out, writes=RECORD), Output(args.truth, writes=TRUTH)]
@@ -84,8 +84,8 @@ def _cmd_simulate(args) -> int:
 
 def _cmd_calibrate(args) -> int:
     from chekan.pipeline import CalibrationOptions, calibrate_file
-    from chekan.result import write_result
-    from chekan.summary import format_summary
+    from chekan.results.document import write_result
+    from chekan.results.summary import format_summary
 
     opts = CalibrationOptions(
         method=args.method,
@@ -137,7 +137,7 @@ def _cmd_calibrate(args) -> int:
 
 
 def _cmd_program(args) -> int:
-    from chekan.program import default_program, load_program
+    from chekan.physics.program import default_program, load_program
 
     p = load_program(args.file) if args.file else default_program()
     print(p.describe())
@@ -399,7 +399,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def entry() -> None:
     """The ``chekan`` command (console script, ``python -m chekan.cli``): :func:`main`, then
-    :func:`chekan.outputs.end_process` (no interpreter teardown). Call :func:`main` to run
+    :func:`chekan.files.outputs.end_process` (no interpreter teardown). Call :func:`main` to run
     a command inside a Python process."""
     end_process(main())
 

@@ -1,14 +1,14 @@
 """Two validation studies on the same platforms: one program's RMS error against another's.
 
-    python -m chekan.validate_compare A/validation.csv B/validation.csv [--method map]
+    python -m chekan.study.compare A/validation.csv B/validation.csv [--method map]
         [--target 0.5] [-o compare.md]
 
 The designer's target: its best program gives an RMS error of b at most half the paper
-program's *on the same platforms*. Two studies (:mod:`chekan.validate`) with the same seed
+program's *on the same platforms*. Two studies (:mod:`chekan.study.coverage`) with the same seed
 and cases simulate the same instrument and platform in session i whatever the program, so
 their rows are paired by (session, case, seed); the paired rows' true b₁ must agree, or the
 studies are of different platforms (an error). Per case, per shape of the systematic angle
-error in the ``edge`` case (:func:`chekan.validate_scenario.edge_platform`) and over all
+error in the ``edge`` case (:func:`chekan.study.scenario.edge_platform`) and over all
 sessions, for b₁, b₂ and a:
 
 .. math::  r = \\frac{\\mathrm{RMS}(\\hat p_A - p)}{\\mathrm{RMS}(\\hat p_B - p)},
@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from chekan.errors import ChekanError
-from chekan.validate_scenario import edge_platform
-from chekan.validate_summary import PARAMS
+from chekan.study.scenario import edge_platform
+from chekan.study.summary import PARAMS
 
 BOOTSTRAP = 4000  # paired resamples: the interval's ends move by < 0.005 between seeds
 BOOTSTRAP_SEED = 20261128
@@ -175,7 +175,7 @@ def markdown_table(rows: Sequence[RatioRow], name_a: str, name_b: str, target: f
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
-        prog="python -m chekan.validate_compare", description=__doc__.split("\n\n")[0]
+        prog="python -m chekan.study.compare", description=__doc__.split("\n\n")[0]
     )
     ap.add_argument("a", help="the first study's validation.csv (the numerator)")
     ap.add_argument("b", help="the second study's validation.csv, on the same platforms")
@@ -187,14 +187,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="the ratio asked for (default 0.5: the designer's target)",
     )
     ap.add_argument("-o", "--out", help="also write the table here (markdown; a new file)")
-    from chekan.outputs import run_command
+    from chekan.files.outputs import run_command
 
-    return run_command(_main, ap, argv, prog="python -m chekan.validate_compare")
+    return run_command(_main, ap, argv, prog="python -m chekan.study.compare")
 
 
 def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
     args = ap.parse_args(argv)
-    from chekan.outputs import check_outputs
+    from chekan.files.outputs import check_outputs
 
     check_outputs([args.a, args.b], [args.out])
     if args.out and Path(args.out).exists():
@@ -209,9 +209,9 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
 
 
 def _rows(path: str) -> list[dict]:
-    """The rows of a ``validation.csv`` (:func:`chekan.validate.read_rows`: a bad line is an
+    """The rows of a ``validation.csv`` (:func:`chekan.study.coverage.read_rows`: a bad line is an
     error naming it), which must have the columns that pair them."""
-    from chekan.validate import read_rows
+    from chekan.study.coverage import read_rows
 
     return read_rows(path, need=("session", "case", "seed", "true_b1"))
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from chekan.errors import ProgramError
-from chekan.units import ARCSEC_PER_RAD, format_dms, parse_angle_deg
+from chekan.physics.units import ARCSEC_PER_RAD, format_dms, parse_angle_deg
 
 MAX_ANGLE_DEG = 6.0
 AXES = ("y", "x", "xy")  # "xy": rounds alternate between Y (odd) and X (even)

@@ -1,4 +1,4 @@
-"""The summary of a validation study (:mod:`chekan.validate`): coverage of the stated
+"""The summary of a validation study (:mod:`chekan.study.coverage`): coverage of the stated
 intervals against truth with the binomial band of an honest interval, RMS error, mean z²,
 and the markdown report."""
 
@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 
 from chekan.options import METHODS
-from chekan.parameters import unit_of
-from chekan.validate_scenario import SEED_STRIDE, scenario_line
+from chekan.physics.parameters import unit_of
+from chekan.study.scenario import SEED_STRIDE, scenario_line
 
 LEVELS = (0.5, 0.9, 0.95)
 PARAMS = ("b1", "b2", "a")

@@ -20,6 +20,7 @@ from os import PathLike
 import numpy as np
 
 from chekan.errors import FormatError
+from chekan.physics.units import ARCSEC_PER_RAD, one_minus_cos, parse_angle_deg
 from chekan.records.framing import (
     check_gravity_mgal,
     count_problem,
@@ -28,7 +29,6 @@ from chekan.records.framing import (
     read_frame,
     warn_incomplete,
 )
-from chekan.units import ARCSEC_PER_RAD, one_minus_cos, parse_angle_deg
 
 FORMAT = "chekan-protocol/1"
 _DG_RE = re.compile(r"dg_r(\d+)_s(\d+)")

@@ -5,10 +5,10 @@ from __future__ import annotations
 from os import PathLike
 
 from chekan.errors import FormatError
-from chekan.protocol import FORMAT as PROTOCOL_FORMAT
-from chekan.protocol import Protocol, read_protocol
 from chekan.records import FORMAT as RECORD_FORMAT
 from chekan.records import Record, read_record
+from chekan.records.protocol import FORMAT as PROTOCOL_FORMAT
+from chekan.records.protocol import Protocol, read_protocol
 
 KINDS = {RECORD_FORMAT: "record", PROTOCOL_FORMAT: "protocol"}
 

@@ -1,4 +1,4 @@
-"""Figures of the validation study (:mod:`chekan.validate`): coverage, z-scores, errors."""
+"""Figures of the validation study (:mod:`chekan.study.coverage`): coverage, z-scores, errors."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from chekan.parameters import unit_of
+from chekan.physics.parameters import unit_of
 from chekan.plotting import new_figure
-from chekan.validate_summary import BAND_PROB, LEVELS, PARAMS, summary_groups
+from chekan.study.summary import BAND_PROB, LEVELS, PARAMS, summary_groups
 
 _COLORS = {"classical": "tab:orange", "map": "tab:blue", "bayes": "tab:green"}
 _MARKERS = {"typical": "o", "misaligned": "s", "drift": "^", "slow": "v"}

@@ -6,7 +6,7 @@
   created), to overwrite an existing ``chekan-record/1`` or ``chekan-protocol/1`` file
   (measurements cannot be recomputed; results can) or an SQLite database (an archive:
   every session of every instrument), to overwrite any other file of a kind chekan reads
-  or writes (a result, a program, a lab file, a DCC, a PDF, …: :mod:`chekan.filekinds`)
+  or writes (a result, a program, a lab file, a DCC, a PDF, …: :mod:`chekan.files.kinds`)
   with anything but a file of the same kind (:class:`Output`), and to write one format
   under another's suffix (JSON into ``x.pdf``). The file is named in the message.
 - :func:`run_command` runs a command function the same way in every ``main()``: a
@@ -21,7 +21,7 @@
   flushes the standard streams and exits without the interpreter's teardown (0.5 s of
   freeing compiled executables after a MAP calibration), unless a thread still has work.
 
-Writing itself goes through :func:`chekan.durable.atomic_output` (temporary file beside
+Writing itself goes through :func:`chekan.files.durable.atomic_output` (temporary file beside
 the target, then renamed into place). Stdlib only: cheap to import from every CLI.
 """
 
@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from chekan.errors import ChekanError
-from chekan.filekinds import (
+from chekan.files.kinds import (
     FOLDER,
     KNOWN_SUFFIXES,
     PROGRAM,
@@ -54,7 +54,7 @@ from chekan.filekinds import (
 
 PathArg = str | os.PathLike[str]
 
-__all__ = [  # the kinds and sniffers of chekan.filekinds are used from here too
+__all__ = [  # the kinds and sniffers of chekan.files.kinds are used from here too
     "FOLDER",
     "PROGRAM",
     "PROTECTED_FORMATS",
@@ -90,10 +90,10 @@ class OutputError(ChekanError):
 
 @dataclass(frozen=True)
 class Output:
-    """An output of a command and the kind of file it writes (:mod:`chekan.filekinds`).
+    """An output of a command and the kind of file it writes (:mod:`chekan.files.kinds`).
 
     It may replace an existing file of its kind only (a result over a result); its name
-    must not carry another kind's suffix (:data:`~chekan.filekinds.SUFFIXES`). ``writes=
+    must not carry another kind's suffix (:data:`~chekan.files.kinds.SUFFIXES`). ``writes=
     FOLDER``: a folder of outputs, created by the command if missing (its parent must
     exist); the outputs given inside it need no existing folder. ``makes_folders``: the
     command creates the missing folders itself (a default location nobody named).
@@ -324,7 +324,7 @@ def end_process(status: int) -> NoReturn:
     calibration that is ≈ 0.5 s of tearing down compiled executables (measured, 9 h record,
     jax 0.10.2), a sixth of the command's wall time, with nothing left to do. Here the
     standard streams are flushed and the process ends with ``os._exit``. Every file a command
-    writes is closed by then (:func:`chekan.durable.atomic_output`). A non-daemon thread
+    writes is closed by then (:func:`chekan.files.durable.atomic_output`). A non-daemon thread
     still running (other than a preload of executables) means work in flight: then the
     ordinary exit runs, which waits for it. A standard output closed early still ends with
     :data:`EXIT_CLOSED_PIPE`, quietly.

@@ -19,12 +19,12 @@ import numpy as np
 import chekan
 from chekan.errors import FormatError
 from chekan.options import METHODS
-from chekan.parameters import PARAMETER_UNITS
+from chekan.physics.parameters import PARAMETER_UNITS
 
 FORMAT = "chekan-result/1"
 REQUIRED_KEYS = ("format", "serial", "record", "method", "g_local_mgal", "parameters")
 PARAM_FIELDS = ("mean", "sd", "hdi_low", "hdi_high")
-UNITS = PARAMETER_UNITS  # one table: chekan.parameters
+UNITS = PARAMETER_UNITS  # one table: chekan.physics.parameters
 META_KEYS = (
     "instrument",
     "model",
@@ -146,7 +146,7 @@ def base_result(
 
 
 def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) -> dict:
-    """Fill a result dict from a :class:`chekan.classical.ClassicalResult`."""
+    """Fill a result dict from a :class:`chekan.classical.fit.ClassicalResult`."""
     hp = header["hdi_prob"]
     m0 = header["ccd_center_pix"]
     t = cres.table
@@ -299,7 +299,7 @@ def _axis_entry(fit, cert, header: dict, b_prior, ccd_range_pix) -> dict:
 
 def write_result(path: str | Path, result: dict) -> Path:
     """Write ``result`` as JSON, atomically (a crash leaves the old file or none)."""
-    from chekan.durable import atomic_output
+    from chekan.files.durable import atomic_output
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chekan.errors import ChekanError
-from chekan.holds import HoldTable, segment_record
-from chekan.units import ARCMIN_PER_RAD, format_dms
+from chekan.physics.units import ARCMIN_PER_RAD, format_dms
+from chekan.records.holds import HoldTable, segment_record
 
 FULL_RANGE_MGAL = 5000.0  # Δ₀ = 5 Gal, the upper limit of the measuring range
 

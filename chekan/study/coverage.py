@@ -1,14 +1,14 @@
-"""Coverage and accuracy study on simulated sessions: ``python -m chekan.validate``.
+"""Coverage and accuracy study on simulated sessions: ``python -m chekan.study``.
 
-    python -m chekan.validate --sessions 200 --out validation [--quick] [--jobs N]
+    python -m chekan.study --sessions 200 --out validation [--quick] [--jobs N]
                               [--cases typical misaligned drift slow edge]
                               [--methods classical map bayes] [--seed S] [--resume]
 
-For each session an instrument is drawn at random (:func:`chekan.simulate.random_truth`,
+For each session an instrument is drawn at random (:func:`chekan.records.simulate.random_truth`,
 or a hard case), a record of the tilt program is simulated, and each method estimates
 b₁, b₂ and a:
 
-- ``classical``: Calibr.exe's least squares (:mod:`chekan.classical`), sd from its fit;
+- ``classical``: Calibr.exe's least squares (:mod:`chekan.classical.fit`), sd from its fit;
 - ``map``: the joint model, MAP + Laplace (the posterior's likelihood), delta-method sds;
 - ``bayes``: the posterior (:func:`chekan.pipeline.calibrate` with ``method="bayes"``,
   ``quick=True``) of a record written to a temporary file: ~1 min per session, for small
@@ -43,8 +43,8 @@ empirical coverage per case), ``z_hist.png`` (z-scores against N(0, 1) per case)
 seeded by their index (``seed·100000 + i``), so the rows do not depend on ``--jobs``;
 worker processes are spawned (JAX does not survive ``fork``) with one XLA thread each.
 
-The scenario and the sessions' instruments: :mod:`chekan.validate_scenario`; the summary and
-its report: :mod:`chekan.validate_summary`; the figures: :mod:`chekan.validate_plots`.
+The scenario and the sessions' instruments: :mod:`chekan.study.scenario`; the summary and
+its report: :mod:`chekan.study.summary`; the figures: :mod:`chekan.study.plots`.
 """
 
 from __future__ import annotations
@@ -65,14 +65,14 @@ import numpy as np
 
 from chekan import argtypes
 from chekan.options import METHODS
-from chekan.validate_scenario import (
+from chekan.study.scenario import (
     DEFAULT_SCENARIO,
     SEED_STRIDE,
     Scenario,
     session_calibration,
     session_truth,
 )
-from chekan.validate_summary import (
+from chekan.study.summary import (
     PARAMS,
     coverage_summary,
     format_summary,
@@ -143,14 +143,14 @@ def run_session(
     The classical fit always runs (it starts the MAP). A method that raises leaves NaN
     estimates and its message in ``<method>_error``; the other methods still run.
     """
-    from chekan.classical import calibrate_record
-    from chekan.simulate import simulate_session
+    from chekan.classical.fit import calibrate_record
+    from chekan.records.simulate import simulate_session
 
     rng = np.random.default_rng(seed)
     truth = session_truth(case, rng, i, scenario)
     rec, truth = simulate_session(program, truth, seed=seed)
     if scenario.calibration_u_arcsec is not None:  # corrected as the pipeline would
-        from chekan.anglecal import corrected
+        from chekan.records.anglecal import corrected
 
         rec = corrected(
             rec,
@@ -270,7 +270,7 @@ def read_rows(path: str | os.PathLike, need: Collection[str] = ()) -> list[dict[
         missing = set(need) - set(reader.fieldnames or ())
         if missing:
             raise ChekanError(
-                f"{path}: line 1: not a validation.csv of python -m chekan.validate "
+                f"{path}: line 1: not a validation.csv of python -m chekan.study "
                 f"(no column {', '.join(sorted(missing))})"
             )
         lines = [(reader.line_num, raw) for raw in reader]
@@ -373,7 +373,7 @@ def run_study(
 ) -> dict:
     """Run the study and write its files into ``out``; returns the summary.
 
-    ``program``: a :class:`chekan.program.TiltProgram` (default: the paper's 9 h program,
+    ``program``: a :class:`chekan.physics.program.TiltProgram` (default: the paper's 9 h program,
     or its 3 h variant with ``quick``). ``resume``: keep the rows of an earlier run in
     ``out/validation.csv`` that match this plan and run only the others. ``figures``: write
     the three PNG files (a few seconds). The summary holds
@@ -381,7 +381,7 @@ def run_study(
     ``seconds`` and ``paths`` (every file written).
     """
     from chekan.demo import demo_program
-    from chekan.result import _clean  # NaN → None: JSON has no NaN
+    from chekan.results.document import _clean  # NaN → None: JSON has no NaN
 
     unknown = [m for m in methods if m not in METHODS]
     if unknown or not methods:
@@ -442,7 +442,7 @@ def run_study(
     summary["seconds"] = seconds
     pngs = []
     if figures:
-        from chekan.validate_plots import plot_coverage, plot_errors, plot_z
+        from chekan.study.plots import plot_coverage, plot_errors, plot_z
 
         pngs = [
             plot_coverage(summary, out / "coverage.png"),
@@ -450,7 +450,7 @@ def run_study(
             plot_errors(rows, methods, out / "errors.png"),
         ]
     md = out / "validation.md"
-    from chekan.durable import atomic_output
+    from chekan.files.durable import atomic_output
 
     with atomic_output(md) as f:
         f.write(markdown_report(summary, settings, pngs))
@@ -464,7 +464,7 @@ def run_study(
 # ---------------------------------------------------------------------------- command
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
-        prog="python -m chekan.validate",
+        prog="python -m chekan.study",
         description=__doc__.split("\n\n")[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=__doc__.split("\n\n", 2)[2],
@@ -558,9 +558,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     from chekan import __version__
 
     ap.add_argument("-V", "--version", action="version", version=f"chekan {__version__}")
-    from chekan.outputs import run_command
+    from chekan.files.outputs import run_command
 
-    return run_command(_main, ap, argv, prog="python -m chekan.validate")
+    return run_command(_main, ap, argv, prog="python -m chekan.study")
 
 
 def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
@@ -573,7 +573,7 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
             ap.error("--calibration-scale-u-arcsec needs --calibration-u-arcsec (the table's U)")
         if not 0.0 <= scale <= args.calibration_u_arcsec:
             ap.error("--calibration-scale-u-arcsec must be in [0, U]: a part of the table's U")
-    from chekan.outputs import FOLDER, Output, check_outputs
+    from chekan.files.outputs import FOLDER, Output, check_outputs
 
     out = Path(args.out)
     names = ("validation.csv", "validation.md", "validation.json", "coverage.png")
@@ -581,7 +581,7 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
     check_outputs([args.program], [Output(out, writes=FOLDER), *files])
     program = None
     if args.program:
-        from chekan.program import load_program
+        from chekan.physics.program import load_program
 
         program = load_program(args.program)
     about_x = program is not None and "x" in program.tilt_axes
@@ -597,7 +597,7 @@ def _main(ap: argparse.ArgumentParser, argv: Sequence[str] | None) -> int:
         jobs=args.jobs,
         program=program,
         resume=args.resume,
-        command="python -m chekan.validate " + " ".join(sys.argv[1:] if argv is None else argv),
+        command="python -m chekan.study " + " ".join(sys.argv[1:] if argv is None else argv),
         scenario=Scenario(
             systematic_arcsec=args.systematic_arcsec,
             shape=args.shape,

@@ -1,6 +1,6 @@
 """Simulated calibration sessions: a realistic 1 Hz record of a whole tilt program.
 
-The readings come from the exact forward model (:mod:`chekan.model`) at the *true*
+The readings come from the exact forward model (:mod:`chekan.physics.sensor`) at the *true*
 platform attitude, passed through the first-order damping lag, plus a polynomial
 drift and white noise. The platform's angle sensor reports the attitude with a
 readout error that is constant over each hold and a small jitter; the true attitude is
@@ -23,9 +23,9 @@ from typing import Any
 import numpy as np
 
 import chekan.jaxconfig  # noqa: F401
-from chekan import model as fm
-from chekan.program import TiltProgram, default_program
-from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
+from chekan.physics import sensor as fm
+from chekan.physics.program import TiltProgram, default_program
+from chekan.physics.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
 K_DESIGN_PIX_PER_RAD = 60428.0  # eq. (4): 2nF/δ with n = 1.4, F = 150 mm, δ = 7 µm
 
@@ -485,7 +485,7 @@ def _cross_axis_errors(truth: Truth, program: TiltProgram, seed: int, fns: dict)
 
 
 def write_truth(path: str | Path, truth: Truth) -> Path:
-    from chekan.durable import atomic_output
+    from chekan.files.durable import atomic_output
 
     path = Path(path)
     with atomic_output(path) as f:

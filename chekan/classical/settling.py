@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from chekan.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
+from chekan.physics.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
 
 #: A transient above this in some hold mean (pix; ≈ 0.07 mGal, 3 % of the verdict's 0.05 %
 #: of the 5 Gal range) makes the hold means unsettled: the joint result's classical items
@@ -54,10 +54,10 @@ ITEM_KEYS = (
 )
 
 
-def fitted_model(result: Mapping[str, Any]):  # -> chekan.model.SensorParams | None
-    """The result's forward model (chekan.model: eqs. 6, 10 with ε₁, ε₂, Δγ) for its
+def fitted_model(result: Mapping[str, Any]):  # -> chekan.physics.sensor.SensorParams | None
+    """The result's forward model (chekan.physics.sensor: eqs. 6, 10 with ε₁, ε₂, Δγ) for its
     readings at any attitude; None where a ≤ 0 (a = g/(2K²) > 0 for a real pendulum)."""
-    from chekan import model
+    from chekan.physics import sensor as model
 
     p = result["parameters"]
     a = p["a"]["mean"] if "a" in p else (result.get("fixed") or {}).get("a")
@@ -82,7 +82,7 @@ def fitted_model(result: Mapping[str, Any]):  # -> chekan.model.SensorParams | N
 
 def model_at_holds(params, holds: Any) -> np.ndarray:
     """The model's readings (n, 2) at the attitude measured in each hold (both axes)."""
-    from chekan import model
+    from chekan.physics import sensor as model
 
     tx = np.asarray(holds.tilt_x_rad, dtype=float)
     ty = np.asarray(holds.tilt_y_rad, dtype=float)
@@ -105,7 +105,7 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
     ρ = e^{−Δt/τ}, Eᵢ the equilibrium at the attitude recorded with sample i (each held
     over the sample before it, as the joint model holds it). A hold whose settling time is
     short beside τ still carries part of the slew's transient; E at the hold alone misses it."""
-    from chekan import model
+    from chekan.physics import sensor as model
 
     E = model.equilibrium_readings_host(params, *_sample_attitudes(record))
     rho = math.exp(-1.0 / (float(record.sample_rate_hz) * tau_s))
@@ -135,7 +135,9 @@ def unsettled_transient_pix(result: Mapping[str, Any], holds: Any, record: Any):
     if params is None or record is None or tau is None:
         return None
     out = lagged_hold_means(params, holds, record, tau) - model_at_holds(params, holds)
-    for k in range(holds.n):  # after a gap the model takes the state as settled (chekan.holds)
+    for k in range(
+        holds.n
+    ):  # after a gap the model takes the state as settled (chekan.records.holds)
         if holds.restarted(k):
             out[k] = 0.0
     return out
@@ -158,7 +160,7 @@ def transient_bound_pix(holds: Any, record: Any, tau_s: float) -> float:
         a, b = int(holds.start[k]), int(holds.stop[k])
         tt = t[a:b] - t[a]
         d = float(tt[-1]) if tt.size else 0.0
-        if d <= s or holds.restarted(k):  # after a gap: taken as settled (chekan.holds)
+        if d <= s or holds.restarted(k):  # after a gap: taken as settled (chekan.records.holds)
             continue
         early = tt <= min(tau_s, s / 2.0)
         grow = (np.exp(tt[early] / tau_s) / (1.0 - np.exp((tt[early] - s) / tau_s)))[:, None]
@@ -203,7 +205,7 @@ def settled_items(
     if transient is None or not np.nanmax(np.abs(transient)) > UNSETTLED_PIX:
         out.pop("unsettled_hold_means", None)  # the classical fit's flag: the model finds
         return out  # the hold means settled
-    from chekan.result import classical_result
+    from chekan.results.document import classical_result
 
     cres = _refit(holds, record, np.asarray(holds.m_mean_pix) - transient, a_fixed=a_fixed)
     if cres is None:
@@ -230,10 +232,10 @@ def settled_items(
 
 
 def _refit(holds: Any, record: Any, means: np.ndarray, *, a_fixed: float | None, preview=False):
-    """The classical fit (eqs. 21–25, :func:`chekan.classical.fit_by_axis`) of ``holds`` with
+    """The classical fit (eqs. 21–25, :func:`chekan.classical.fit.fit_by_axis`) of ``holds`` with
     their hold means replaced by ``means``; None where it fails (the fit of the raw means of
     the same holds passed, so a failure is not expected: it must not lose a calibration)."""
-    from chekan.classical import fit_by_axis, increments_from_holds
+    from chekan.classical.fit import fit_by_axis, increments_from_holds
     from chekan.errors import ChekanError
 
     settled = dataclasses.replace(holds, m_mean_pix=means)
@@ -380,7 +382,7 @@ class Unsettled:
 def unsettled_hold_means(
     holds: Any, record: Any, fit: Any, *, a_fixed: float | None = None, preview: bool = False
 ) -> Unsettled | None:
-    """Whether the classical ``fit`` (:class:`chekan.classical.ClassicalResult` of ``holds``)
+    """Whether the classical ``fit`` (:class:`chekan.classical.fit.ClassicalResult` of ``holds``)
     takes unsettled hold means as settled enough to matter; None otherwise.
 
     The lag τ is read off the record (:func:`tau_from_transients`) and the transient left in

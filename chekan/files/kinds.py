@@ -4,7 +4,7 @@
 own (records, protocols, angle-calibration tables, results, truths, design and history
 JSON, programs, lab files, DCC, PDF and HTML certificates, posterior NetCDF, archive
 exports, the SQLite archive) from its first 64 kB; :data:`SUFFIXES` are the file name
-suffixes of each kind. :mod:`chekan.outputs` uses both to refuse an output that would
+suffixes of each kind. :mod:`chekan.files.outputs` uses both to refuse an output that would
 destroy a file of another kind or put one format under another's name. Stdlib only.
 """
 
@@ -33,7 +33,7 @@ NETCDF = "NetCDF file"
 EXPORT = "archive export (CSV)"
 PNG = "PNG image"
 SVG = "SVG image"
-#: an output folder (its files are the command's business): see :class:`chekan.outputs.Output`
+#: an output folder (its files are the command's business): see :class:`chekan.files.outputs.Output`
 FOLDER = "folder"
 
 #: The kind of file each ``--format`` of a certificate writes.

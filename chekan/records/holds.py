@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from chekan.errors import ChekanError
-from chekan.units import ARCSEC_PER_RAD, format_dms
+from chekan.physics.units import ARCSEC_PER_RAD, format_dms
 
 GAP_PERIODS = 1.5  # consecutive samples further apart than this many periods: a gap
 GAP_HOLDING_S = 5.0  # a gap inside a hold up to this long loses only its samples

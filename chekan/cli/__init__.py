@@ -1,0 +1,1 @@
+"""The ``chekan`` command line (:mod:`chekan.cli.commands`); ``python -m chekan.cli``."""
