@@ -14,7 +14,7 @@ and the loop's outputs are buffers: consumers read them instead of recomputing t
 Derivatives pass through unchanged (the barrier is the identity) and are materialised the
 same way: under ``jacfwd`` the tangents of a value are as costly as the
 value, and without a barrier of their own XLA recomputed them in every consumer (the 9 h
-record's three estimation programs: 57 500 HLO instructions, 51 600 with it; the jitted
+record's three estimation executables: 57 500 HLO instructions, 51 600 with it; the jitted
 Jacobian of a 3 h record's residuals 2.8–3.0 ms, 0.8–1.6 ms with it). The barrier is a
 primitive, linear (the identity) and its own transpose, lowered to the loop: it works under
 ``jvp``, ``grad``, ``jacfwd``, ``hessian`` and ``vmap``.

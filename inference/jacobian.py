@@ -20,7 +20,7 @@ def jacobian_once(fn: Callable) -> Callable:
     Same values (forward mode either way). Why: optimistix's Gauss–Newton and LM
     linearise ``fn`` (``jax.linearize``) and lineax turns the linear map into a matrix
     inside the step's linear solve, and the caller again after the loop: each is a copy
-    of the model's tangent code in the compiled program (and the second a second Jacobian
+    of the model's tangent code in the compiled executable (and the second a second Jacobian
     at run time). With ``J`` formed in the linearisation both are ``J @ I``: the Gauss–Newton
     executable of a 9 h record is 35 % smaller (4.9 → 3.2 MB), and loads that much faster.
 

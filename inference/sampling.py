@@ -23,14 +23,12 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 
 # isort: split
 
-import math
 import os
 import sys
 import time
-import warnings
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 from typing import Any, Literal
 
@@ -41,11 +39,19 @@ from jax import Array
 from numpy.typing import ArrayLike
 
 from .autocorr import burn_thin, integrated_time, mean_tau
-from .chunks import map_chunks
 from .mode import refine_mode
 from .moves import IndependenceMove, SnookerMove, moves_for
 from .problem import Executables
 from .proposal import fit_proposal
+from .retained import (
+    SamplingResult,
+    derived_failure,
+    eval_blobs,
+    retained,
+    retained_diagnostics,
+    sampling_result,
+)
+from .walkers import eval_any, initial_walkers, proposal_walkers, regularised_cov
 
 BatchMode = Literal["vmap", "map"]
 Derived = Callable[[np.ndarray], Mapping[str, np.ndarray]]
@@ -157,43 +163,6 @@ class SamplerConfig:
             raise ValueError(f"threads must be ≥ 1 or None, got {self.threads}")
 
 
-@dataclass
-class SamplingResult:
-    """Retained posterior draws in z-space and what is needed to judge them.
-
-    ``draws`` (chain, draw, ndim) after burn-in and thinning; ``log_prob`` (chain, draw);
-    ``blobs`` per-draw extras from ``blob_fn`` (chain, draw, ...); ``tau`` (ndim,) integrated
-    autocorrelation times in steps; ``ess`` (ndim,) the emcee-based estimate used for stopping
-    (check with :func:`inference.diagnostics.ess_bulk`); ``acceptance`` (chain,);
-    ``seconds`` the whole call (``derived`` included); ``derived``: the caller's quantities
-    of the retained draws (:func:`sample`).
-    """
-
-    draws: np.ndarray
-    log_prob: np.ndarray
-    blobs: dict[str, np.ndarray] | None
-    tau: np.ndarray
-    burn: int
-    thin: int
-    n_steps: int
-    acceptance: np.ndarray
-    seconds: float
-    converged: bool = False
-    message: str = ""
-    ess: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    n_walkers: int = 0
-    derived: Mapping[str, np.ndarray] | None = None
-    """``derived(draws)`` of :func:`sample` for the retained draws (None without it)."""
-
-    @property
-    def n_chains(self) -> int:
-        return self.draws.shape[0]
-
-    def values(self, space: Any) -> dict[str, np.ndarray]:
-        """Draws mapped to named values with ``space.to_values`` → (chain, draw, *shape)."""
-        return {k: np.asarray(v) for k, v in space.to_values(self.draws).items()}
-
-
 # --------------------------------------------------------------------------- JAX side
 def _host_logp(
     log_density: Callable,
@@ -222,86 +191,6 @@ def _host_logp(
         return np.where(np.isfinite(out), out, -np.inf)
 
     return lnp
-
-
-# --------------------------------------------------------------------------- initialisation
-def _regularised_cov(init_cov: ArrayLike, ndim: int) -> np.ndarray:
-    """A usable covariance for the initial ball: symmetric, finite, eigenvalues ≥ 1e-8·max."""
-    c = np.array(init_cov, dtype=float)
-    if c.ndim == 0:
-        c = np.eye(ndim) * c
-    elif c.ndim == 1:
-        c = np.diag(c)
-    if c.shape != (ndim, ndim):
-        raise ValueError(f"init_cov has shape {c.shape}, expected ({ndim}, {ndim})")
-    bad = ~np.isfinite(np.diag(c)) | (np.diag(c) <= 0)
-    c[bad, :] = 0.0
-    c[:, bad] = 0.0
-    c[bad, bad] = 1.0  # unidentified / unknown: the O(1) size of a z coordinate
-    c[~np.isfinite(c)] = 0.0
-    c = 0.5 * (c + c.T)
-    w, v = np.linalg.eigh(c)
-    top = max(float(w.max()), 1e-300)
-    w = np.clip(w, 1e-8 * top, None)
-    return (v * w) @ v.T
-
-
-def _initial_walkers(
-    lnp: Callable, z_init: np.ndarray, cov: np.ndarray, n: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` walkers from N(z_init, cov) with finite log density (redrawn, shrinking if needed)."""
-    chol = np.linalg.cholesky(cov)
-    coords = z_init + rng.standard_normal((n, z_init.size)) @ chol.T
-    lp = _eval_halves(lnp, coords)
-    shrink = 1.0
-    for attempt in range(60):
-        bad = ~np.isfinite(lp)
-        if not bad.any():
-            return coords, lp
-        if attempt >= 10:
-            shrink *= 0.7
-        coords[bad] = z_init + shrink * rng.standard_normal((bad.sum(), z_init.size)) @ chol.T
-        lp[bad] = _eval_any(lnp, coords[bad], n // 2)
-    raise RuntimeError(
-        f"could not place {int(bad.sum())} of {n} initial walkers where the log density is "
-        "finite, even in a ball shrunk 60-fold around z_init: check the support of the "
-        "log-density (constraints, NaNs) near z_init"
-    )
-
-
-def _proposal_walkers(
-    lnp: Callable, proposal: Any, n: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` walkers drawn from the fitted proposal, redrawn where the density is not finite."""
-    coords = proposal.sample(n, rng)
-    lp = _eval_halves(lnp, coords)
-    for _ in range(60):
-        bad = ~np.isfinite(lp)
-        if not bad.any():
-            return coords, lp
-        coords[bad] = proposal.sample(int(bad.sum()), rng)
-        lp[bad] = _eval_any(lnp, coords[bad], n // 2)
-    raise RuntimeError("could not place the walkers where the log density is finite")
-
-
-def _eval_halves(lnp: Callable, coords: np.ndarray) -> np.ndarray:
-    """Evaluate in batches of n/2 so that only emcee's batch size is ever compiled."""
-    h = coords.shape[0] // 2
-    return np.concatenate([lnp(coords[:h]), lnp(coords[h:])])
-
-
-def _eval_any(lnp: Callable, coords: np.ndarray, batch: int) -> np.ndarray:
-    """Evaluate any number of points in batches of ``batch`` (the compiled size, no new
-    compiles), several batches on one thread per core (:func:`inference.chunks.map_chunks`):
-    the mode's finite differences and the proposal's importance draws are hundreds of
-    points, the sampler's steps one batch (in the calling thread)."""
-    return map_chunks(lnp, [coords], batch)
-
-
-def _flatten_walkers(x: np.ndarray) -> np.ndarray:
-    """(step, walker, ...) → (walker·step, ...), walker-major."""
-    x = np.swapaxes(x, 0, 1)
-    return x.reshape((x.shape[0] * x.shape[1], *x.shape[2:]))
 
 
 # --------------------------------------------------------------------------- public API
@@ -351,21 +240,23 @@ def sample(
     nw = config.walkers(ndim)
     data = jax.device_put(data)  # once, not on every call
     lnp = _host_logp(log_density, data, executables, batch_mode)
-    lp0 = _eval_any(lnp, z_init[None, :], nw // 2)[0]
+    lp0 = eval_any(lnp, z_init[None, :], nw // 2)[0]
     if not np.isfinite(lp0):
         raise ValueError("log_density(z_init) is not finite: start from a point in the support")
 
     rng = np.random.default_rng(config.seed)
     psd = None if prior_sd is None else np.asarray(prior_sd, dtype=float).reshape(ndim)
-    cov0 = _regularised_cov(init_cov, ndim)
+    cov0 = regularised_cov(init_cov, ndim)
     samplers, states = _ensembles(lnp, z_init, cov0, nw, config, rng, psd)
     n_steps, tau, ess, converged, extra, why = _run(samplers, states, config, nw, derived)
-    blobs_of = None if blob_fn is None else partial(_eval_blobs, blob_fn, executables=executables)
-    res = _result(samplers, n_steps, tau, ess, converged, config, nw, blobs_of, data, t0, why)
-    if derived is not None:
-        res.derived = extra if extra is not None else derived(res.draws)
-        res.seconds = time.perf_counter() - t0
-    return res
+    blobs_of = None if blob_fn is None else partial(eval_blobs, blob_fn, executables=executables)
+    if derived is None:
+        derived_of = None
+    else:  # the last check's value where it evaluated them, else of the retained draws
+        derived_of = derived if extra is None else (lambda _draws: extra)
+    return sampling_result(
+        samplers, n_steps, tau, ess, converged, config, nw, blobs_of, data, t0, why, derived_of
+    )
 
 
 def _ensembles(
@@ -385,7 +276,7 @@ def _ensembles(
     fitted = None
     if config.moves in ("de-independence", "adaptive-independence"):
         # the proposal evaluates all walkers at once: keep to the compiled half-batch size
-        lnp_sampler = partial(_eval_any, lnp, batch=nw // 2)
+        lnp_sampler = partial(eval_any, lnp, batch=nw // 2)
         start, cov, _info = refine_mode(lnp_sampler, z_init, cov)
         proposal = (start, cov * config.proposal_scale**2)
     if config.moves == "adaptive-independence":
@@ -408,9 +299,9 @@ def _ensembles(
     samplers, states = [], []
     for _ in range(config.n_chains):
         if fitted is not None:  # walkers start as draws of the fitted proposal
-            coords, lp = _proposal_walkers(lnp, fitted, nw, rng)
+            coords, lp = proposal_walkers(lnp, fitted, nw, rng)
         else:
-            coords, lp = _initial_walkers(lnp, start, cov, nw, rng)
+            coords, lp = initial_walkers(lnp, start, cov, nw, rng)
         rs = np.random.RandomState(rng.integers(2**31 - 1))
         moves = moves_for(config.moves, proposal, config.proposal_df, config.de_weight)
         samplers.append(emcee.EnsembleSampler(nw, ndim, lnp_sampler, moves=moves, vectorize=True))
@@ -456,11 +347,11 @@ def _run(
                 np.max(tau)
             )
             if config.stop_rule == "bulk" and long_enough:
-                ess, rhat = _retained_diagnostics(samplers, tau, n_steps, config, nw)
+                ess, rhat = retained_diagnostics(samplers, tau, n_steps, config, nw)
                 converged = float(np.min(ess)) >= config.target_ess and rhat <= config.rhat_max
                 if converged and derived is not None:
-                    extra = derived(_retained(samplers, tau, n_steps, config, nw)[2])
-                    why = _derived_failure(extra, config)
+                    extra = derived(retained(samplers, tau, n_steps, config, nw)[2])
+                    why = derived_failure(extra, config)
                     converged = not why
             else:
                 converged = long_enough and float(np.min(ess)) >= config.target_ess
@@ -474,102 +365,7 @@ def _run(
     return n_steps, tau, ess, converged, extra, why
 
 
-def _derived_failure(extra: Mapping[str, np.ndarray], config: SamplerConfig) -> str:
-    """Which scalar quantity of ``extra`` ((chain, draw) arrays) fails bulk ESS ≥
-    ``target_ess`` or rank R̂ ≤ ``rhat_max``, and why; the empty string where none does."""
-    from . import mcmc_stats
-
-    for name, x in extra.items():
-        x = np.asarray(x)
-        if x.ndim != 2 or not np.issubdtype(x.dtype, np.number):
-            continue  # not a scalar per draw
-        if not np.all(np.isfinite(x)) or np.ptp(x) == 0:
-            continue  # a constant has no ESS; non-finite draws are the caller's to report
-        ess = mcmc_stats.ess_bulk(x)
-        if not ess >= config.target_ess:
-            return f"the derived {name} has bulk ESS {ess:.0f} < {config.target_ess:g}"
-        rhat = mcmc_stats.rhat_rank(x)
-        if not rhat <= config.rhat_max:
-            return f"the derived {name} has R̂ {rhat:.3f} > {config.rhat_max:g}"
-    return ""
-
-
-def _retained(samplers, tau, n_steps: int, config: SamplerConfig, nw: int):
-    """Burn-in, thinning (``max_draws`` applied) and the retained draws (chain, draw, ndim)."""
-    burn, thin = burn_thin(tau, n_steps)
-    if config.max_draws:
-        thin = max(thin, math.ceil(nw * (n_steps - burn) / config.max_draws))
-    draws = np.stack([_flatten_walkers(s.get_chain()[burn::thin]) for s in samplers])
-    return burn, thin, draws
-
-
-def _retained_diagnostics(samplers, tau, n_steps: int, config: SamplerConfig, nw: int):
-    """Bulk ESS per coordinate and the largest rank R̂ of the draws that would be retained
-    (R̂ only where every ESS reaches ``target_ess``, else ∞: the stopping rule needs both)."""
-    from . import mcmc_stats
-
-    _, _, draws = _retained(samplers, tau, n_steps, config, nw)
-    ess = np.array([mcmc_stats.ess_bulk(draws[..., i]) for i in range(draws.shape[-1])])
-    ess = np.where(np.isfinite(ess), ess, 0.0)
-    if np.min(ess) < config.target_ess:  # not converged whatever R̂ is: skip its ranks
-        return ess, math.inf
-    rhat = max(mcmc_stats.rhat_rank(draws[..., i]) for i in range(draws.shape[-1]))
-    return ess, float(np.nan_to_num(rhat, nan=np.inf))
-
-
-def _result(
-    samplers, n_steps, tau, ess, converged, config, nw, blobs_of, data, t0, why: str = ""
-) -> SamplingResult:
-    """The retained draws (burn-in cut, thinned), the blobs and the verdict."""
-    burn, thin, draws = _retained(samplers, tau, n_steps, config, nw)
-    log_prob = np.stack([_flatten_walkers(s.get_log_prob()[burn::thin]) for s in samplers])
-    if converged:
-        message = (
-            f"converged after {n_steps} steps: tau_max={np.max(tau):.1f}, "
-            f"ESS≈{np.min(ess):.0f} ≥ {config.target_ess:g}"
-        )
-    else:
-        message = (
-            f"NOT converged: max_steps={config.max_steps} reached with tau_max={np.max(tau):.1f} "
-            f"(need ≥ {config.tau_factor:g}·tau = {config.tau_factor * np.max(tau):.0f} steps) "
-            f"and ESS≈{np.min(ess):.0f} (target {config.target_ess:g})"
-            + (f", and {why}" if why else "")
-            + "; the draws are unreliable: run longer, reparametrise, or marginalise linear "
-            "parameters"
-        )
-        warnings.warn(message, RuntimeWarning, stacklevel=3)
-    blobs = None if blobs_of is None else blobs_of(draws, data, nw // 2)
-    return SamplingResult(
-        draws=draws,
-        log_prob=log_prob,
-        blobs=blobs,
-        tau=tau,
-        burn=burn,
-        thin=thin,
-        n_steps=n_steps,
-        acceptance=np.array([np.mean(s.acceptance_fraction) for s in samplers]),
-        seconds=time.perf_counter() - t0,
-        converged=converged,
-        message=message,
-        ess=ess,
-        n_walkers=nw,
-    )
-
-
 def _advance(job: tuple[emcee.EnsembleSampler, emcee.State, int, bool]) -> emcee.State:
     """``k`` more steps of one ensemble from its state (a job for the thread pool)."""
     sampler, state, k, started = job
     return sampler.run_mcmc(state, k, progress=False, skip_initial_state_check=started)
-
-
-def _eval_blobs(
-    blob_fn: Callable, draws: np.ndarray, data: Any, chunk: int, *, executables: Executables
-) -> dict:
-    nc, nd, ndim = draws.shape
-    flat = draws.reshape(nc * nd, ndim)
-    batched = executables.jit("blobs", jax.vmap(blob_fn, in_axes=(0, None)))
-    size = max(chunk, min(4096, flat.shape[0]))
-    joined = map_chunks(lambda z: batched(z, data), [flat], size, threads=1)
-    if not isinstance(joined, Mapping):
-        joined = {"blob": joined}
-    return {k: np.asarray(v).reshape(nc, nd, *np.shape(v)[1:]) for k, v in joined.items()}

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import chekan.jaxconfig  # noqa: F401  (float64, as for every caller of the store)
 from chekan.runtime.store import ExecutableStore, source_fingerprint
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -160,7 +161,7 @@ def test_other_code_never_loads_a_stored_executable(tmp_path):
 
 
 def test_other_xla_flags_never_load_a_stored_executable(tmp_path):
-    """XLA_FLAGS change the machine code of the same program (here LLVM's optimisation
+    """XLA_FLAGS change the machine code of the same module (here LLVM's optimisation
     level): a process with other flags compiles its own, then loads that one."""
     first = _run(tmp_path, "code-v1")
     other = "--xla_backend_optimization_level=0"
@@ -171,9 +172,9 @@ def test_other_xla_flags_never_load_a_stored_executable(tmp_path):
     assert _run(tmp_path, "code-v1")[0] == "loaded"
 
 
-def test_a_new_fingerprint_of_the_same_program_reuses_its_executable(tmp_path):
+def test_a_new_fingerprint_of_the_same_module_reuses_its_executable(tmp_path):
     first = _run(tmp_path, "code-v1")
-    again = _run(tmp_path, "code-v1-edited-elsewhere")  # traced, then found by its program
+    again = _run(tmp_path, "code-v1-edited-elsewhere")  # traced, then found by its module
     assert again[0] == "loaded" and again[1:3] == first[1:3]
     assert len(list(tmp_path.glob("*.jaxexe"))) == 2  # filed under the new key too
     assert _run(tmp_path, "code-v1-edited-elsewhere")[0] == "loaded"
@@ -182,7 +183,7 @@ def test_a_new_fingerprint_of_the_same_program_reuses_its_executable(tmp_path):
 def test_an_unreadable_file_is_discarded_and_compiled_afresh(tmp_path):
     _run(tmp_path, "code-v1")
     (path,) = tmp_path.glob("*.jaxexe")
-    for p in tmp_path.rglob("*.jaxexe"):  # the keyed file and the one filed by program
+    for p in tmp_path.rglob("*.jaxexe"):  # the keyed file and the one filed by module
         p.write_bytes(b"not an executable")
     out = _run(tmp_path, "code-v1")
     assert out[0] == "compiled"
@@ -248,7 +249,7 @@ def test_a_store_over_its_cap_deletes_the_least_recently_used(tmp_path):
     (tmp_path / "recent").mkdir()
     (tmp_path / "recent" / "calibrate-map.json").write_text("{}")  # not an executable
     store.loaded["k1"] = object()  # in use here
-    assert store.prune() == 5  # 16 000 bytes down to ≤ 7 500: k0, k2, k3, k4, k5 (program/)
+    assert store.prune() == 5  # 16 000 bytes down to ≤ 7 500: k0, k2, k3, k4, k5 (module/)
     left = sorted(p.stem for p in tmp_path.rglob("*.jaxexe"))
     assert left == ["k1", "k6", "k7", "k7p"]
     assert len({p.stat().st_ino for p in tmp_path.rglob("*.jaxexe")}) * 2_000 <= PRUNE_TO * 10_000

@@ -268,7 +268,7 @@ def test_many_points_are_evaluated_in_order_whatever_the_threads() -> None:
     sampler's size is evaluated in the calling thread."""
     import threading
 
-    from inference.sampling import _eval_any
+    from inference.walkers import eval_any as _eval_any
 
     seen: list[str] = []
 
@@ -318,23 +318,23 @@ def test_bulk_rule_ranks_for_r_hat_only_where_every_ess_passes(monkeypatch) -> N
         return rhat_rank(x)
 
     def watched(samplers, tau, n_steps, config, nw):
-        _, _, draws = sampling._retained(samplers, tau, n_steps, config, nw)
+        _, _, draws = sampling.retained(samplers, tau, n_steps, config, nw)
         passes.append(min(ess_bulk(draws[..., i]) for i in range(draws.shape[-1])) >= 300.0)
         return retained(samplers, tau, n_steps, config, nw)
 
     def every_check(samplers, tau, n_steps, config, nw):  # the rule before: R̂ always
-        _, _, draws = sampling._retained(samplers, tau, n_steps, config, nw)
+        _, _, draws = sampling.retained(samplers, tau, n_steps, config, nw)
         ess = np.array([ess_bulk(draws[..., i]) for i in range(draws.shape[-1])])
         rhat = max(rhat_rank(draws[..., i]) for i in range(draws.shape[-1]))
         return np.where(np.isfinite(ess), ess, 0.0), float(np.nan_to_num(rhat, nan=np.inf))
 
-    retained = sampling._retained_diagnostics
+    retained = sampling.retained_diagnostics
     monkeypatch.setattr(mcmc_stats, "rhat_rank", counted_rhat)
-    monkeypatch.setattr(sampling, "_retained_diagnostics", watched)
+    monkeypatch.setattr(sampling, "retained_diagnostics", watched)
     fast = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler())
     assert fast.converged and len(passes) >= 2 and not passes[0]
     assert sorted(set(ranked)) == [k + 1 for k, ok in enumerate(passes) if ok]
-    monkeypatch.setattr(sampling, "_retained_diagnostics", every_check)
+    monkeypatch.setattr(sampling, "retained_diagnostics", every_check)
     full = sample(_banana_t, None, np.zeros(3), np.eye(3) * 0.1, cfg, executables=Compiler())
     assert full.n_steps == fast.n_steps
     np.testing.assert_array_equal(full.draws, fast.draws)

@@ -222,6 +222,50 @@ def _directions(axis: np.ndarray) -> np.ndarray:
     return np.where((np.asarray(axis) == "x")[:, None], [1.0, 0.0], [0.0, 1.0])
 
 
+def _bin_fields(rows: list, H: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The bins' fields of :class:`RecordData` (which hold each bin lies in and the one
+    before it, d0, spacing, samples, means, counts, mask) and the bins' mid-times (s)."""
+    N = len(rows)
+    hold_of = np.array([r[0] for r in rows])
+    own = np.zeros((N, H))
+    own[np.arange(N), hold_of] = 1.0
+    prev = np.zeros((N, H))
+    has_prev = hold_of > 0
+    prev[np.flatnonzero(has_prev), hold_of[has_prev] - 1] = 1.0
+    cnt = np.stack([r[2] for r in rows]).astype(float)
+    d0 = np.array([r[3] for r in rows])
+    fields: dict[str, np.ndarray] = {
+        "own": own,
+        "prev": prev,
+        "bin_hold": hold_of.astype(np.int32),
+        "d0": np.where(hold_of > 0, d0, SETTLED_D0_S),  # first hold: settled from the start
+        "dstep": np.array([r[4] for r in rows]),
+        "n_t": np.array([r[5] for r in rows], dtype=float),
+        "y": np.stack([r[1] for r in rows]),
+        "cnt": cnt,
+        "mask": cnt > 0,
+    }
+    return fields, np.array([r[6] for r in rows])
+
+
+def _x_terms(record, holds: HoldTable, mv_tx, mv_mask, slew_axis, types, m_level_ref, u_pix):
+    """The X rounds' response columns at the holds and along the slews about X, and their
+    prior variances (:func:`chekan.joint.xresponse.x_response_terms`)."""
+    x_kinds, x_types = types_about(types, slew_axis, "x")
+    return x_response_terms(
+        holds.theta_rad,
+        holds.hold_axis,
+        float(record.g_local_mgal),
+        mv_tx,
+        (slew_axis == "x")[:, None] & mv_mask,
+        x_kinds,
+        x_types,
+        m_level_pix=float(np.mean(m_level_ref)),
+        m0_pix=float(record.ccd_center_pix),
+        m0_u_pix=u_pix,
+    )
+
+
 def prepare_record(
     record,
     holds: HoldTable,
@@ -248,18 +292,7 @@ def prepare_record(
     if holds.fresh is not None:
         hold_T = np.where(holds.fresh, SETTLED_D0_S, hold_T)
     rows = _bin_rows(t, m, holds, t_last, bin_edges_s, gap_before(t, record.sample_rate_hz))
-    N = len(rows)
-    hold_of = np.array([r[0] for r in rows])
-    own = np.zeros((N, H))
-    own[np.arange(N), hold_of] = 1.0
-    prev = np.zeros((N, H))
-    has_prev = hold_of > 0
-    prev[np.flatnonzero(has_prev), hold_of[has_prev] - 1] = 1.0
-    y = np.stack([r[1] for r in rows])
-    cnt = np.stack([r[2] for r in rows]).astype(float)
-    d0 = np.array([r[3] for r in rows])
-    d0 = np.where(hold_of > 0, d0, SETTLED_D0_S)  # first hold: settled from the start
-    t_mid = np.array([r[6] for r in rows])
+    bins, t_mid = _bin_fields(rows, H)
     t0, t1 = float(t.min()), float(t.max())
     s = 2.0 * (t_mid - t0) / max(t1 - t0, 1.0) - 1.0
     P = np.polynomial.legendre.legvander(s, drift_degree)[:, 1:]  # no constant
@@ -270,18 +303,8 @@ def prepare_record(
     basis, prior_var, mv_basis, S, S_x, S_c = _angle_bases(
         holds, mv_tx, mv_ty, mv_mask, slew_axis, types, L, specs
     )
-    x_kinds, x_types = types_about(types, slew_axis, "x")
-    x_basis, mv_x_basis, x_prior_var = x_response_terms(
-        holds.theta_rad,
-        holds.hold_axis,
-        float(record.g_local_mgal),
-        mv_tx,
-        (slew_axis == "x")[:, None] & mv_mask,
-        x_kinds,
-        x_types,
-        m_level_pix=float(np.mean(m_level_ref)),
-        m0_pix=float(record.ccd_center_pix),
-        m0_u_pix=horizontal_u_pix,
+    x_basis, mv_x_basis, x_prior_var = _x_terms(
+        record, holds, mv_tx, mv_mask, slew_axis, types, m_level_ref, horizontal_u_pix
     )
     # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
     arrays = {
@@ -295,15 +318,7 @@ def prepare_record(
         "x_basis": x_basis,
         "x_prior_var": x_prior_var,
         "mv_x_basis": mv_x_basis,
-        "own": np.asarray(own),
-        "prev": np.asarray(prev),
-        "bin_hold": hold_of.astype(np.int32),
-        "d0": np.asarray(d0),
-        "dstep": np.array([r[4] for r in rows]),
-        "n_t": np.array([r[5] for r in rows], dtype=float),
-        "y": np.asarray(y),
-        "cnt": np.asarray(cnt),
-        "mask": cnt > 0,
+        **bins,
         "mv_tx": np.asarray(mv_tx),
         "mv_ty": np.asarray(mv_ty),
         "mv_lag": np.asarray(mv_lag),
@@ -318,7 +333,7 @@ def prepare_record(
         "hold_mask": np.ones(H, dtype=bool),  # False for padding (see RecordData.pad)
     }
     data = RecordData(**device_arrays(arrays))
-    structure = ModelStructure(H, N, mv_tx.shape[1], drift_degree, L, S, x_basis.shape[1])
+    structure = ModelStructure(H, len(rows), mv_tx.shape[1], drift_degree, L, S, x_basis.shape[1])
     return RecordModel(
         structure,
         data,

@@ -96,7 +96,7 @@ class Engine:
 
     def prefetch(self, name: str, data: RecordData, *extra) -> None:
         """Start loading the stored executable ``name`` (a MAP-side one: ``(z, h, data,
-        *extra)``) in the background; z on the host (``jnp.zeros`` would compile a program
+        *extra)``) in the background; z on the host (``jnp.zeros`` would compile an executable
         in a new process, 20 ms)."""
         self.store.prefetch(name, *self._map_side_args(data, *extra))
 
@@ -134,7 +134,7 @@ FIRST_RUN_NOTICE = (
 
 def compiled_before(model: RecordModel) -> bool:
     """Whether this structure's EM pass is stored (or loaded): False on the first run of a
-    program (a new model structure), which compiles its executables before it computes
+    tilt program (a new model structure), which compiles its executables before it computes
     (:data:`FIRST_RUN_NOTICE` says so first)."""
     return engine_for(model.structure).stored(EM_PASS, model.data)
 

@@ -16,12 +16,12 @@ The key of an executable is everything that decides what it computes:
 ``fingerprint`` is the caller's statement of *which code* the function runs (a hash of the
 model's source files, say): the store cannot see inside a closure, so a wrong fingerprint
 would load a stale executable. On a miss the function is traced and lowered, and the
-executable is also filed under the hash of its lowered program (``program/``): after an
+executable is also filed under the hash of its lowered StableHLO module (``module/``): after an
 edit that does not change what a function computes, a new fingerprint costs a trace, not
 a compile. Files are written atomically; a file that cannot be loaded is deleted and the
 function recompiled (never a wrong answer, at worst a compile).
 
-Serialised executables are machine code: load only files this program wrote (the store's
+Serialised executables are machine code: load only files that chekan wrote (the store's
 folder is the user's cache, like JAX's own).
 
 The folder is capped (``max_bytes``, default ``MAX_STORE_BYTES``): after each file it
@@ -289,7 +289,7 @@ class ExecutableStore:
                 if key not in self.unproven:  # not a freshly loaded file: a real error
                     raise
                 # a stored executable that loads but cannot run: compile afresh (and
-                # overwrite it, under its key and under its program)
+                # overwrite it, under its key and under its module)
                 self.events.append((name, "discarded"))
                 with self.locks(key):
                     exe = self._load_or_compile(key, name, fn, leaves, treedef, dyn, reuse=False)
@@ -451,34 +451,34 @@ class ExecutableStore:
 
         lowered = jax.jit(flat_fn).lower(*[leaves[i] for i in dyn])
         out_tree = out_box[-1]
-        # the same program under another fingerprint (code edited elsewhere): reuse it
+        # the same module under another fingerprint (code edited elsewhere): reuse it
         # the argument tree is part of it: jit prunes unused (e.g. zero-size) arguments, so two
         # trees can lower to one text, and an executable keeps the tree it was compiled for
-        program = hashlib.sha256(
+        module = hashlib.sha256(
             lowered.as_text().encode() + str(treedef).encode() + self._machine.encode()  # type: ignore[attr-defined]
         )
-        by_program = self._path(f"program/{_FORMAT.replace('/', '-')}-{program.hexdigest()[:40]}")
-        if reuse and by_program is not None and by_program.is_file():
-            loaded = self._load(by_program, name, key)
+        by_module = self._path(f"module/{_FORMAT.replace('/', '-')}-{module.hexdigest()[:40]}")
+        if reuse and by_module is not None and by_module.is_file():
+            loaded = self._load(by_module, name, key)
             if loaded is not None:
                 if path is not None:
-                    _link_or_copy(by_program, path)
+                    _link_or_copy(by_module, path)
                     self.prune()
                 return loaded
         with XLA.alone(), _compilation_cache_off():
             compiled = lowered.compile()
         self.events.append((name, "compiled"))
-        if path is not None and by_program is not None:
-            self._save(by_program, name, compiled, out_tree)
-            if by_program.is_file():
-                _link_or_copy(by_program, path)
+        if path is not None and by_module is not None:
+            self._save(by_module, name, compiled, out_tree)
+            if by_module.is_file():
+                _link_or_copy(by_module, path)
             self.prune()
         return compiled, out_tree
 
     def prune(self) -> int:
         """Delete the least recently used executables while the folder holds more than
         ``max_bytes`` of them, down to ``PRUNE_TO`` of it; those this process has loaded
-        or compiled stay. A file with two names (keyed and filed by program: hard links)
+        or compiled stay. A file with two names (keyed and filed by module: hard links)
         counts once and goes with both. Returns the number of files deleted."""
         if self.folder is None:
             return 0
