@@ -20,7 +20,7 @@ from .problem import Executables
 from .walkers import flatten_walkers
 
 if TYPE_CHECKING:
-    from .sampling import SamplerConfig
+    from .sampler_config import SamplerConfig
 
 __all__ = [
     "SamplingResult",

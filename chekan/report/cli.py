@@ -15,7 +15,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     from chekan.files.kinds import report_kind
     from chekan.files.outputs import Output, check_outputs
     from chekan.report import render_report
-    from chekan.report.dcc_read import read_any_result
+    from chekan.report.pdf_certificate import read_any_result
 
     res = read_any_result(args.result)  # a result JSON, a DCC, or a PDF certificate
     out = args.out

@@ -3,7 +3,8 @@
 The result JSON is embedded (``dcc:byteData`` ``chekan-result.json``); every parameter's
 value and expanded uncertainty in the DCC's ``si:real`` elements must equal the embedded
 result's bit for bit (both are written with ``repr`` precision), else the file is refused.
-:func:`read_any_result` reads a result JSON, a DCC or a PDF certificate alike.
+:func:`chekan.report.pdf_certificate.read_any_result` reads a result JSON, a DCC or a PDF
+certificate alike.
 """
 
 from __future__ import annotations
@@ -113,10 +114,3 @@ def read_result_or_dcc(path: str | os.PathLike) -> dict[str, Any]:
     from chekan.results.document import read_result
 
     return read_dcc(path) if is_dcc(path) else read_result(Path(path))
-
-
-def read_any_result(path: str | os.PathLike) -> dict[str, Any]:
-    """The result of a result JSON, a DCC or a PDF certificate that embeds one."""
-    from chekan.report.pdf_certificate import is_pdf, read_pdf_result
-
-    return read_pdf_result(path) if is_pdf(path) else read_result_or_dcc(path)

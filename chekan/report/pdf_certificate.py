@@ -110,3 +110,10 @@ def read_pdf_result(path: str | os.PathLike) -> dict[str, Any]:
         if from_dcc != result:
             raise FormatError(p, None, f"the embedded {DCC_NAME} and {EMBEDDED_NAME} disagree")
     return result
+
+
+def read_any_result(path: str | os.PathLike) -> dict[str, Any]:
+    """The result of a result JSON, a DCC or a PDF certificate that embeds one."""
+    from chekan.report.dcc_read import read_result_or_dcc
+
+    return read_pdf_result(path) if is_pdf(path) else read_result_or_dcc(path)
