@@ -82,11 +82,22 @@ def calibrate(
     store = executable_store()
     label = preload_label(result, opts)
     store.preload(label)
-    from chekan.joint import estimate  # heavy imports only when needed
-
-    out = estimate(data, kind=kind, classical=cres, base=result, options=opts)
+    out = joint_stage(data, kind, cres, result, opts)
     store.remember(label)
     return out
+
+
+def joint_stage(
+    data: Record | Protocol, kind: str, cres, result: dict, opts: CalibrationOptions
+) -> dict:
+    """The ``map`` or ``bayes`` result of ``data``: the joint fit
+    (:func:`chekan.joint.estimate`), written over its classical ``result`` (not changed) by
+    :func:`chekan.joint.results.joint_result`."""
+    from chekan.joint import estimate, joint_result  # heavy imports only when needed
+
+    source = str(result.get("record", "record"))  # the input's name, for messages
+    fitted = estimate(data, kind=kind, classical=cres, source=source, options=opts)
+    return joint_result(result, fitted, opts)
 
 
 def preload_label(result: dict, opts: CalibrationOptions) -> str:

@@ -38,7 +38,7 @@ def _sd_b(rec, settle_s, spec, shape=None):
     fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
     assert fit.result.converged
     md = map_derived(fit)
-    return md["b1"], md["b2"]
+    return md.values["b1"], md.values["b2"]
 
 
 def test_spec_reads_the_bound_as_rectangular_by_default_and_from_the_header():

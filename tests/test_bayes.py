@@ -89,9 +89,9 @@ def test_map_recovers_truth(short_session):
     md = map_derived(fit)
     t = truth.derived()
     for k in ("b1", "b2", "a", "b1_0", "b2_0", "eps1_arcmin", "eps2_arcmin", "dgamma_arcmin"):
-        mean, sd = md[k]
+        mean, sd = md.values[k]
         assert abs(mean - t[k]) < 4 * sd, (k, mean, sd, t[k])
-    assert abs(md["tau_s"][0] - truth.tau_s) < 4 * md["tau_s"][1]
+    assert abs(md.values["tau_s"][0] - truth.tau_s) < 4 * md.values["tau_s"][1]
     assert 1.0 < float(h["sigma_theta_arcsec"]) < 3.5  # true 2″
     assert 0.03 < float(h["sigma_hold_pix"]) < 0.15  # true 0.08 pix
 
@@ -116,7 +116,7 @@ def test_map_slow_damping_recentres_level_and_converges_em(short_program):
     md = map_derived(fit)
     t = truth.derived()
     for k in ("b1", "b2", "a"):
-        mean, sd = md[k]
+        mean, sd = md.values[k]
         assert abs(mean - t[k]) < 3 * sd, (k, mean, sd, t[k])
 
 
@@ -176,6 +176,9 @@ def test_posterior_end_to_end(short_session, tmp_path):
         assert group in idata.groups()
     assert idata.posterior["b1"].shape[0] == 4  # four independent ensembles = chains
     json.dumps(res)  # serialisable as is
+    from test_result_keys import private_keys
+
+    assert list(private_keys(res)) == []  # no private key in a bayes result either
 
 
 def test_protocol_posterior_centred_on_printed_b(paper_protocol):

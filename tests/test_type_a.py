@@ -193,19 +193,20 @@ def test_reported_sd_and_budget_carry_the_type_a_terms(fitted):
     C = np.where(np.isfinite(fit.result.cov_z), fit.result.cov_z, 0.0)
     var = np.einsum("ij,jk,ik->i", Jz, C, Jz) + np.einsum("ij,jk,ik->i", Jb, Minv, Jb)
     np.testing.assert_allclose([r.u2 for r in rel], var, rtol=1e-4)
-    sd = md["b1"][1]
-    assert sd**2 == pytest.approx(laplace + md["_u_hyper"]["b1"] ** 2, rel=1e-10)
-    assert 3 < md["_nu_eff"]["b1"] < 1e4
+    sd = md.values["b1"][1]
+    assert sd**2 == pytest.approx(laplace + md.u_hyper["b1"] ** 2, rel=1e-10)
+    assert 3 < md.nu_eff["b1"] < 1e4
     from chekan.joint.budget import budget_entries, uncertainty_budget
     from chekan.results.document import param_entry
 
     raw = uncertainty_budget(fit)
-    raw["b1"]["hyperparameters"] = md["_u_hyper"]["b1"]
+    raw["b1"]["hyperparameters"] = md.u_hyper["b1"]
     params = {
-        n: param_entry(md[n][0], md[n][1], 0.95, nu_eff=md["_nu_eff"][n]) for n in ("b1", "b2")
+        n: param_entry(md.values[n][0], md.values[n][1], 0.95, nu_eff=md.nu_eff[n])
+        for n in ("b1", "b2")
     }
-    bud = budget_entries(raw, params, md["_nu_eff"])["b1"]
-    k = coverage_factor(md["_nu_eff"]["b1"])
+    bud = budget_entries(raw, params, md.nu_eff)["b1"]
+    k = coverage_factor(md.nu_eff["b1"])
     assert k > 2.0
     assert bud["coverage_factor"] == k and bud["expanded"] == pytest.approx(k * sd, rel=1e-12)
     lines = [

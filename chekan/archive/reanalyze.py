@@ -184,15 +184,14 @@ def solve_many_map(paths: Sequence[str | Path], options=None) -> list[dict | Exc
     """
     from dataclasses import replace
 
-    from chekan.joint import estimate
-    from chekan.pipeline import CalibrationOptions, classical_stage
+    from chekan.pipeline import CalibrationOptions, classical_stage, joint_stage
 
     opts = replace(options or CalibrationOptions(), method="map", progress=False)
     out: list[dict | Exception] = []
     for p in paths:
         try:
             data, kind, cres, base = classical_stage(p, opts)
-            out.append(estimate(data, kind=kind, classical=cres, base=base, options=opts))
+            out.append(joint_stage(data, kind, cres, base, opts))
         except Exception as e:  # one bad input never spoils the chunk
             out.append(e)
     return out

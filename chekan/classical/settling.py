@@ -24,6 +24,11 @@ from typing import Any
 import numpy as np
 
 from chekan.physics.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
+from chekan.results.document import (
+    ITEM_KEYS as ITEM_KEYS,
+)  # the items that settled_items recomputes
+from chekan.results.document import certified_instability as certified_instability
+from chekan.results.document import with_settled
 
 #: A transient above this in some hold mean (pix; ≈ 0.07 mGal, 3 % of the verdict's 0.05 %
 #: of the 5 Gal range) makes the hold means unsettled: the joint result's classical items
@@ -42,42 +47,67 @@ TRANSIENT_WINDOW_S = 600.0
 _MIN_SAMPLES = 8
 
 
-#: The classical items of a result that :func:`settled_items` recomputes.
-ITEM_KEYS = (
-    "rounds",
-    "mean_b_mgal_per_pix",
-    "residuals_mgal",
-    "reduced_error_percent",
-    "discrepancy_between_rounds_percent",
-    "range_margin_gal",
-    "classical_by_axis",
-)
+@dataclass(frozen=True)
+class JointValues:
+    """What a joint fit's settled items rest on (:func:`settle`): its quadratic coefficient
+    ``a`` (mGal/pix², record convention), the means of b₁, b₂, ε₁, ε₂, Δγ (arcmin) and τ (s)
+    by name (a missing one reads 0), the level readings {"m1", "m2"} (pix), g (mGal), the
+    CCD centre m₀ (pix) and whether the fit converged."""
+
+    a: float | None
+    means: Mapping[str, float]
+    m_level_pix: Mapping[str, float]
+    g_local_mgal: float
+    ccd_center_pix: float
+    converged: bool
+
+    @classmethod
+    def of_result(cls, result: Mapping[str, Any]) -> JointValues:
+        """The values a ``chekan-result/1`` dict states (``a`` fixed: ``fixed.a``)."""
+        p = result["parameters"]
+        return cls(
+            a=p["a"]["mean"] if "a" in p else (result.get("fixed") or {}).get("a"),
+            means={n: e.get("mean", 0.0) for n, e in p.items()},
+            m_level_pix=result.get("level_reading_pix") or {},
+            g_local_mgal=result["g_local_mgal"],
+            ccd_center_pix=result.get("ccd_center_pix", 1024.0),
+            converged=bool((result.get("diagnostics") or {}).get("converged")),
+        )
+
+    @property
+    def tau_s(self) -> float | None:
+        """The lag τ (s), or None (a classical result has none)."""
+        tau = self.means.get("tau_s")
+        return float(tau) if isinstance(tau, int | float) and tau > 0 else None
+
+    def model(self):  # -> chekan.physics.sensor.SensorParams | None
+        """The forward model (chekan.physics.sensor: eqs. 6, 10 with ε₁, ε₂, Δγ) for the readings at
+        any attitude; None where a ≤ 0 (a = g/(2K²) > 0 for a real pendulum)."""
+        from chekan.physics import sensor as model
+
+        a = self.a
+        if not (isinstance(a, int | float) and a > 0):
+            return None
+        g = float(self.g_local_mgal)
+        lv = self.m_level_pix
+
+        def mean(name: str) -> float:
+            return float(self.means.get(name, 0.0))
+
+        return model.make_params(
+            g_mgal=g,
+            K_pix_per_rad=float(model.K_from_a(float(a), g)),
+            b_mgal_per_pix=[mean("b1"), mean("b2")],
+            m_level_pix=[float(lv["m1"]), float(lv["m2"])],
+            eps_rad=[mean("eps1_arcmin") / ARCMIN_PER_RAD, mean("eps2_arcmin") / ARCMIN_PER_RAD],
+            gamma_rad=mean("dgamma_arcmin") / ARCMIN_PER_RAD,
+            m0_pix=float(self.ccd_center_pix),
+        )
 
 
 def fitted_model(result: Mapping[str, Any]):  # -> chekan.physics.sensor.SensorParams | None
-    """The result's forward model (chekan.physics.sensor: eqs. 6, 10 with ε₁, ε₂, Δγ) for its
-    readings at any attitude; None where a ≤ 0 (a = g/(2K²) > 0 for a real pendulum)."""
-    from chekan.physics import sensor as model
-
-    p = result["parameters"]
-    a = p["a"]["mean"] if "a" in p else (result.get("fixed") or {}).get("a")
-    if not (isinstance(a, int | float) and a > 0):
-        return None
-    g = float(result["g_local_mgal"])
-    lv = result.get("level_reading_pix") or {}
-
-    def mean(name: str) -> float:
-        return float(p.get(name, {}).get("mean", 0.0))
-
-    return model.make_params(
-        g_mgal=g,
-        K_pix_per_rad=float(model.K_from_a(float(a), g)),
-        b_mgal_per_pix=[mean("b1"), mean("b2")],
-        m_level_pix=[float(lv["m1"]), float(lv["m2"])],
-        eps_rad=[mean("eps1_arcmin") / ARCMIN_PER_RAD, mean("eps2_arcmin") / ARCMIN_PER_RAD],
-        gamma_rad=mean("dgamma_arcmin") / ARCMIN_PER_RAD,
-        m0_pix=float(result.get("ccd_center_pix", 1024.0)),
-    )
+    """The result's forward model (:meth:`JointValues.model`); None where a ≤ 0."""
+    return JointValues.of_result(result).model()
 
 
 def model_at_holds(params, holds: Any) -> np.ndarray:
@@ -122,16 +152,22 @@ def lagged_hold_means(params, holds: Any, record: Any, tau_s: float) -> np.ndarr
 
 def result_tau_s(result: Mapping[str, Any]) -> float | None:
     """The result's lag τ (s), or None (a classical result has none)."""
-    tau = (result["parameters"].get("tau_s") or {}).get("mean")
-    return float(tau) if isinstance(tau, int | float) and tau > 0 else None
+    return JointValues.of_result(result).tau_s
 
 
 def unsettled_transient_pix(result: Mapping[str, Any], holds: Any, record: Any):
+    """What the sensor's lag leaves in each hold's settled mean (n, 2), pix
+    (:func:`transient_pix` of the result's values). None for a result without a model or
+    without τ (classical)."""
+    return transient_pix(JointValues.of_result(result), holds, record)
+
+
+def transient_pix(values: JointValues, holds: Any, record: Any):
     """What the sensor's lag leaves in each hold's settled mean (n, 2), pix: the model's
     mean over the hold with the lag followed (:func:`lagged_hold_means`) minus its
-    equilibrium there. None for a result without a model or without τ (classical)."""
-    params = fitted_model(result)
-    tau = result_tau_s(result)
+    equilibrium there. None for values without a model or without τ."""
+    params = values.model()
+    tau = values.tau_s
     if params is None or record is None or tau is None:
         return None
     out = lagged_hold_means(params, holds, record, tau) - model_at_holds(params, holds)
@@ -172,6 +208,61 @@ def transient_bound_pix(holds: Any, record: Any, tau_s: float) -> float:
     return worst
 
 
+@dataclass(frozen=True)
+class Settling:
+    """What :func:`settle` found for a joint fit: whether it ``converged``; if not, the
+    classical fit's ``unsettled`` flag (:func:`unsettled_hold_means`, or None); if so, the
+    largest transient left in a hold mean (``transient_max_pix``, pix; None: the hold means
+    are settled), τ and the settling time (s), and the classical fit of the hold means
+    less the transient (``refit``; None where it failed), with the record's prior b and
+    CCD range that its items are stated against."""
+
+    converged: bool
+    unsettled: Unsettled | None = None
+    transient_max_pix: float | None = None
+    tau_s: float | None = None
+    settle_s: float | None = None
+    refit: Any = None  # chekan.classical.fit.ClassicalResult | None
+    b_prior: Any = None
+    ccd_range_pix: Any = None
+
+
+def settle(
+    values: JointValues,
+    holds: Any,
+    record: Any,
+    *,
+    classical: Any = None,
+    a_fixed: float | None = None,
+) -> Settling:
+    """Whether the lag leaves more than :data:`UNSETTLED_PIX` in some hold mean of a joint fit
+    (:func:`transient_pix`) and, where it does, the classical method (eqs. 21–25, as
+    Calibr.exe) on the hold means less that transient (:class:`Settling`). A fit that did
+    not converge has no transient to trust: the ``classical`` fit's
+    :func:`unsettled_hold_means` is given where it applies."""
+    if not values.converged:
+        unsettled = None
+        if classical is not None:
+            unsettled = unsettled_hold_means(holds, record, classical, a_fixed=a_fixed)
+        return Settling(converged=False, unsettled=unsettled)
+    tau = values.tau_s
+    transient = None
+    if tau is not None and transient_bound_pix(holds, record, tau) > UNSETTLED_PIX:
+        transient = transient_pix(values, holds, record)
+    if transient is None or not np.nanmax(np.abs(transient)) > UNSETTLED_PIX:
+        return Settling(converged=True)  # the hold means settled
+    cres = _refit(holds, record, np.asarray(holds.m_mean_pix) - transient, a_fixed=a_fixed)
+    return Settling(
+        converged=True,
+        transient_max_pix=float(np.nanmax(np.abs(transient))),
+        tau_s=tau,
+        settle_s=float(holds.settle_s),
+        refit=cres,
+        b_prior=record.b_prior,
+        ccd_range_pix=record.ccd_range_pix,
+    )
+
+
 def settled_items(
     result: Mapping[str, Any],
     holds: Any,
@@ -190,45 +281,14 @@ def settled_items(
     did not converge, the items stay Calibr.exe's; in the latter case with the
     ``classical`` fit's :func:`unsettled_hold_means` where it applies. Either way the
     instability (item д), the verdict) is that of the result's own b₁, b₂, the certified
-    values (:func:`certified_instability`)."""
-    out = certified_instability(result)
-    tau = result_tau_s(result)
-    if not (result.get("diagnostics") or {}).get("converged"):  # no transient to trust:
-        if classical is not None and "unsettled_hold_means" not in out:  # Calibr.exe's items
-            unsettled = unsettled_hold_means(holds, record, classical, a_fixed=a_fixed)
-            if unsettled is not None:
-                out["unsettled_hold_means"] = unsettled.entry()
-        return out
-    transient = None
-    if tau is not None and transient_bound_pix(holds, record, tau) > UNSETTLED_PIX:
-        transient = unsettled_transient_pix(result, holds, record)
-    if transient is None or not np.nanmax(np.abs(transient)) > UNSETTLED_PIX:
-        out.pop("unsettled_hold_means", None)  # the classical fit's flag: the model finds
-        return out  # the hold means settled
-    from chekan.results.document import classical_result
-
-    cres = _refit(holds, record, np.asarray(holds.m_mean_pix) - transient, a_fixed=a_fixed)
-    if cres is None:
-        return out  # Calibr.exe's items stand, with their flag
-    items = classical_result(
-        cres, header=dict(result), b_prior=record.b_prior, ccd_range_pix=record.ccd_range_pix
+    values (:func:`certified_instability`): :func:`settle` of the result's values, written by
+    :func:`chekan.results.document.with_settled`."""
+    if "unsettled_hold_means" in result:  # the flag is there already
+        classical = None
+    found = settle(
+        JointValues.of_result(result), holds, record, classical=classical, a_fixed=a_fixed
     )
-    out.pop("unsettled_hold_means", None)  # the items are settled now
-    kept = ("reduced_error_percent", "discrepancy_between_rounds_percent", "mean_b_mgal_per_pix")
-    before = {k: result[k] for k in kept if k in result}
-    before.update({k: dict(v) for k, v in (result.get("classical") or {}).items()})
-    out["hold_transient"] = {
-        "max_pix": float(np.nanmax(np.abs(transient))),
-        "tau_s": tau,
-        "settle_s": float(holds.settle_s),
-        "calibr_exe": before,
-    }
-    for key in ITEM_KEYS:
-        out.pop(key, None)
-        if key in items:
-            out[key] = items[key]
-    out["classical"] = {k: items["parameters"][k] for k in ("b1", "b2")}
-    return out
+    return with_settled(result, found)
 
 
 def _refit(holds: Any, record: Any, means: np.ndarray, *, a_fixed: float | None, preview=False):
@@ -244,22 +304,6 @@ def _refit(holds: Any, record: Any, means: np.ndarray, *, a_fixed: float | None,
         return fit_by_axis(table, a_fixed=a_fixed, preview=preview)
     except (ChekanError, ValueError, np.linalg.LinAlgError):
         return None
-
-
-def certified_instability(result: Mapping[str, Any]) -> dict:
-    """``result`` (not changed) with the instability of its own b₁, b₂ against the prior,
-    δb = (b − b_prior)/b_prior · 100 %: the certificate judges the values it states (with
-    their U), not the classical ones beside them."""
-    out = dict(result)
-    prior = result.get("b_prior") or {}
-    inst = {}
-    for name in ("b1", "b2"):
-        b, p = (result["parameters"].get(name) or {}).get("mean"), prior.get(name)
-        if isinstance(b, int | float) and isinstance(p, int | float) and p:
-            inst[name] = float((b - p) / p * 100.0)
-    if inst:
-        out["instability_percent"] = inst
-    return out
 
 
 def tau_from_transients(record, holds) -> float:

@@ -15,7 +15,8 @@ module             what it does
 ``budget``         the uncertainty budget of b and U = k·u
 ``sampling``       emcee on the marginal posterior
 ``predictive``     posterior predictive, drift curve, NetCDF
-``estimate``       the ``map`` and ``bayes`` results
+``estimate``       the ``map`` and ``bayes`` fits (:mod:`chekan.joint.fitted`)
+``results``        the ``map`` and ``bayes`` result dicts, written from those fits
 ``legacy``         the joint model of a legacy protocol (per-round characteristic)
 =================  ==========================================================
 
@@ -25,10 +26,11 @@ What is compiled for a structure, kept, loaded and cleared lives in :mod:`chekan
 
 from chekan.classical.settling import tau_from_transients
 from chekan.joint.binning import BIN_EDGES_S, prepare, prepare_record
-from chekan.joint.estimate import estimate, map_result, posterior_result
+from chekan.joint.estimate import estimate
 from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.map import MapFit, fit_map_em
 from chekan.joint.problem import CalibrationProblem, default_hyper
+from chekan.joint.results import joint_result, map_result, posterior_result
 from chekan.joint.start import initial_values
 from chekan.runtime.engine import clear_caches, engine_for, problem_for
 from chekan.runtime.padding import padded_shape
@@ -46,6 +48,7 @@ __all__ = [
     "estimate",
     "fit_map_em",
     "initial_values",
+    "joint_result",
     "map_result",
     "padded_shape",
     "posterior_result",

@@ -12,6 +12,9 @@ share), a (the prior of K), other priors; scaled to the reported sd.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import numpy as np
 
 from chekan.errors import ChekanError
@@ -100,7 +103,11 @@ def _influence(J: np.ndarray) -> np.ndarray:
     return (V[:, keep] / w[keep]) @ V[:, keep].T @ J.T
 
 
-def budget_entries(budget_raw: dict, params: dict, nu_eff: dict | None = None) -> dict:
+def budget_entries(
+    budget_raw: Mapping[str, Mapping[str, float]],
+    params: Mapping[str, Mapping[str, Any]],
+    nu_eff: Mapping[str, float] | None = None,
+) -> dict:
     """The result's ``uncertainty_budget``: each group scaled so that they add up (in
     quadrature) to the reported sd; the total u, the effective degrees of freedom
     ``nu_eff`` (None: not evaluated, k = 2), the coverage factor k = t₉₅.₄₅(ν_eff)
@@ -118,7 +125,7 @@ def budget_entries(budget_raw: dict, params: dict, nu_eff: dict | None = None) -
             lin = float(np.hypot(lin, raw["hyperparameters"]))
         sd = params[name]["sd"]
         scale = sd / lin if lin > 0 and sd else 1.0
-        e = {k: v * scale for k, v in raw.items()}
+        e: dict[str, float | None] = {k: v * scale for k, v in raw.items()}
         e["total"] = sd
         nu = (nu_eff or {}).get(name)
         k = coverage_factor(nu) if nu is not None else 2.0

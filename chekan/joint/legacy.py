@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -57,11 +58,9 @@ import numpy as np
 import chekan.jaxconfig  # noqa: F401
 from chekan.classical.fit import increments_from_protocol
 from chekan.errors import ChekanError
-from chekan.joint.angles import AngleSensorSpec, angle_sensor_entry, commanded_groups
-from chekan.joint.budget import budget_entries
-from chekan.physics.parameters import unit_of
+from chekan.joint.angles import AngleSensorSpec, commanded_groups
+from chekan.joint.fitted import ProtocolEstimate, ProtocolPosterior
 from chekan.physics.units import ARCSEC_PER_RAD
-from chekan.results.document import param_entry, posterior_entry
 from chekan.runtime.compiler import Compiler
 from inference.map import fit_map
 from inference.params import Param, ParamSpace
@@ -253,8 +252,9 @@ def _whitened_residuals(v, d):
     return jnp.concatenate([w1.reshape(-1), w2.reshape(-1)])
 
 
-def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
-    """The ``map`` or ``bayes`` result of a legacy protocol (module docstring)."""
+def estimate_protocol(protocol, *, classical, options) -> ProtocolEstimate:
+    """The ``map`` or ``bayes`` fit of a legacy protocol (module docstring), written by
+    :func:`chekan.joint.results.protocol_result`."""
     t0 = time.perf_counter()
     pm = protocol_model(protocol, options)
     lsq = LeastSquaresProblem(pm.theta_space, _whitened_residuals, Compiler())
@@ -266,54 +266,25 @@ def estimate_protocol(protocol, *, classical, base: dict, options) -> dict:
     init["a"] = pm.a0
     mdata = {**pm.data, "hyp": {k: jnp.asarray(v) for k, v in pm.hyp.items()}}
     res = fit_map(lsq, mdata, init)
-    out = dict(base)
-    out["method"] = options.method
-    out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2")}
-    out.pop("fixed", None)
-    diag = {
-        "converged": bool(res.converged),
-        "map_steps": int(res.num_steps),
-        "problems": [],
-        "model": "characteristic per round (eq. 21) with shared angle errors marginalised"
-        + ("" if pm.spec is None else "; systematic angle errors shared by all rounds (Type B)"),
-    }
-    out["angle_sensor"] = angle_sensor_entry(pm.spec)
     if options.method == "map":
-        _map_parameters(out, pm, res, options.hdi_prob)
-        diag["seconds"] = time.perf_counter() - t0
-        out["diagnostics"] = diag
-        return out
-    draws, samp, more = _bayes_parameters(out, pm, res, options)
-    diag.update(more, converged=bool(more["converged"] and res.converged))
-    diag["seconds"] = time.perf_counter() - t0
-    out["diagnostics"] = diag
+        hyp = pm.hyp
+        raw = _budget(
+            pm.table, pm.spec, hyp["sigma_theta_arcsec"], hyp["sigma_e_mgal"], pm.theta_space
+        )
+        return ProtocolEstimate(pm, res, raw, None, None, time.perf_counter() - t0)
+    post = _posterior(pm, res, options)
+    sigma_theta = float(post.summary["sigma_theta_arcsec"]["mean"])
+    sigma_e = float(post.summary["sigma_e_mgal"]["mean"])
+    raw = _budget(pm.table, pm.spec, sigma_theta, sigma_e, pm.theta_space)
+    seconds = time.perf_counter() - t0
+    netcdf = None
     if options.netcdf:
-        out["posterior_netcdf"] = str(_write_netcdf(draws, samp, pm, options.netcdf))
-    return out
+        netcdf = _write_netcdf(post.draws, post.sampling, pm, options.netcdf)
+    return ProtocolEstimate(pm, res, raw, post, netcdf, seconds)
 
 
-def _per_round(R: int, entry) -> list[dict]:
-    """``[{"b1": entry(r, 1), "b2": entry(r, 2)} for each round r]`` (per-round b names)."""
-    return [{f"b{j}": entry(f"b_r{r + 1}_s{j}") for j in (1, 2)} for r in range(R)]
-
-
-def _map_parameters(out: dict, pm: ProtocolModel, res, hp: float) -> None:
-    """The MAP's parameters, per-round b and budget into ``out``."""
-    R = pm.rounds
-    sd = res.sd()
-    cov_b = res.cov_values([f"b_r{r + 1}_s{j + 1}" for r in range(R) for j in range(2)])
-    params = _joint_b(res.values, cov_b, R, hp)
-    params["a"] = param_entry(float(res.values["a"]), float(sd["a"]), hp, unit_of("a"))
-    _merge_rounds(out, _per_round(R, lambda n: {"mean": float(res.values[n]), "sd": float(sd[n])}))
-    out["parameters"] = params
-    hyp = pm.hyp
-    raw = _budget(pm.table, pm.spec, hyp["sigma_theta_arcsec"], hyp["sigma_e_mgal"], pm.theta_space)
-    out["uncertainty_budget"] = budget_entries(raw, params)
-
-
-def _bayes_parameters(out: dict, pm: ProtocolModel, res, options) -> tuple[dict, Any, dict]:
-    """The posterior's parameters, per-round b and budget into ``out``; returns the draws,
-    the sampler's result and the diagnostics it adds."""
+def _posterior(pm: ProtocolModel, res, options) -> ProtocolPosterior:
+    """The posterior of b, a, σ_θ, σ_e, with the mean over rounds of each system's b."""
     from inference.diagnostics import convergence_report, summarize_draws
     from inference.sampling import sample
 
@@ -331,30 +302,7 @@ def _bayes_parameters(out: dict, pm: ProtocolModel, res, options) -> tuple[dict,
         )
     summ = summarize_draws(draws, hdi_prob=options.hdi_prob)
     ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
-    params = {
-        name: posterior_entry(summ[name], unit_of(name))
-        for name in ("b1", "b2", "a", "sigma_theta_arcsec", "sigma_e_mgal")
-    }
-    keys = ("mean", "sd", "hdi_low", "hdi_high")
-    _merge_rounds(out, _per_round(pm.rounds, lambda n: {k: summ[n][k] for k in keys}))
-    out["parameters"] = params
-    sigma_theta = float(params["sigma_theta_arcsec"]["mean"])
-    raw = _budget(
-        pm.table, pm.spec, sigma_theta, float(params["sigma_e_mgal"]["mean"]), pm.theta_space
-    )
-    out["uncertainty_budget"] = budget_entries(raw, params)
-    return (
-        draws,
-        samp,
-        {
-            "converged": bool(ok),
-            "problems": problems,
-            "r_hat_max": float(max(s["r_hat"] for s in summ.values())),
-            "ess_bulk_min": float(min(s["ess_bulk"] for s in summ.values())),
-            "n_draws": int(samp.draws.shape[0] * samp.draws.shape[1]),
-            "n_steps": int(samp.n_steps),
-        },
-    )
+    return ProtocolPosterior(samp, draws, summ, bool(ok), tuple(problems))
 
 
 def _log_density(pm: ProtocolModel):
@@ -394,7 +342,7 @@ def _sampler_config(options):
     )
 
 
-def _write_netcdf(draws: dict, samp, pm: ProtocolModel, path) -> Path:
+def _write_netcdf(draws: Mapping[str, np.ndarray], samp, pm: ProtocolModel, path) -> Path:
     from chekan.files.durable import fsync_dir
     from inference.arviz_io import save_netcdf, to_inference_data
 
@@ -405,22 +353,3 @@ def _write_netcdf(draws: dict, samp, pm: ProtocolModel, path) -> Path:
         attrs={"model": "chekan.joint.legacy"},
     )
     return save_netcdf(idata, path, sync_dir=fsync_dir)
-
-
-def _joint_b(values, cov_b, R, hp) -> dict:
-    """b_j = mean over rounds, with the covariance of the per-round estimates."""
-    out = {}
-    for j in range(2):
-        idx = [2 * r + j for r in range(R)]
-        w = np.full(R, 1.0 / R)
-        mean = float(sum(values[f"b_r{r + 1}_s{j + 1}"] for r in range(R)) / R)
-        sd = float(np.sqrt(w @ cov_b[np.ix_(idx, idx)] @ w))
-        out[f"b{j + 1}"] = param_entry(mean, sd, hp, unit_of(f"b{j + 1}"))
-    return out
-
-
-def _merge_rounds(out: dict, rounds: list[dict]) -> None:
-    """Put the model's per-round b beside the classical ones (``model_b1``, ``model_b2``)."""
-    for r, est in zip(out.get("rounds", []), rounds, strict=False):
-        r["model_b1"] = est["b1"]
-        r["model_b2"] = est["b2"]

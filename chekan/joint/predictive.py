@@ -106,7 +106,7 @@ def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
     from inference.arviz_io import save_posterior_netcdf
 
     C, Dn = samp.draws.shape[:2]
-    post = {k: v for k, v in draws.items() if not k.startswith("_")}
+    post = dict(draws.quantities)  # draws: chekan.joint.reported.ReportedDraws
     y = np.asarray(model.data.y)
     mask = np.asarray(model.data.mask)
     nrep = rep.shape[0]
@@ -118,7 +118,7 @@ def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
                 (1, nrep, len(cols), rep.shape[-1]),
             )
         },
-        "log_likelihood": {"bin_mean_pix": draws["_loglik"]},
+        "log_likelihood": {"bin_mean_pix": draws.loglik},
         "sample_stats": {"lp": samp.log_prob},
         "observed_data": {"bin_mean_pix": np.where(mask, y, np.nan)},
     }

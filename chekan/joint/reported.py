@@ -5,7 +5,8 @@ posterior draw, with β drawn given θ."""
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -17,15 +18,55 @@ from chekan.runtime.engine import engine_for
 from inference.chunks import map_chunks
 
 
-def map_derived(fit: MapFit) -> dict:
-    """Derived quantities at the MAP with delta-method sds: ``{name: (value, sd)}``.
+@dataclass(frozen=True)
+class MapDerived:
+    """The reported quantities at the MAP (:func:`map_derived`): ``values`` {name: (value,
+    sd)} of the physical quantities (``PHYSICAL``), ``hyper`` {name: value} the
+    hyperparameters at their EM values (no sd); ``nu_eff`` and ``u_hyper`` each physical
+    quantity's effective degrees of freedom and uₕ (:mod:`chekan.joint.typea`);
+    ``m_level_pix`` (2,) the estimated level readings;
+    ``type_a_clipped``: the information on the noise variances was not positive definite
+    (:func:`inference.dof.log_var_cov` took its positive part)."""
+
+    values: Mapping[str, tuple[float, float]]
+    hyper: Mapping[str, float]
+    nu_eff: Mapping[str, float]
+    u_hyper: Mapping[str, float]
+    m_level_pix: np.ndarray
+    type_a_clipped: bool
+
+
+@dataclass(frozen=True)
+class ReportedDraws(Mapping[str, np.ndarray]):
+    """Every reported quantity of posterior draws (a mapping {name: (chain, draw, ...)}, what
+    the sampler's stopping rule checks and the posterior reports) and, apart, the pointwise
+    log-likelihood of each bin mean given each draw (``loglik``: (chain, draw, bins, 2))."""
+
+    quantities: Mapping[str, np.ndarray]
+    loglik: np.ndarray
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.quantities[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.quantities)
+
+    def __len__(self) -> int:
+        return len(self.quantities)
+
+
+#: the key under which :func:`chekan.joint.derived.draws_fn` returns the pointwise
+#: log-likelihood beside the reported quantities (split off by :func:`posterior_draws`)
+LOGLIK_KEY = "_loglik"
+
+
+def map_derived(fit: MapFit) -> MapDerived:
+    """Derived quantities at the MAP with delta-method sds (:class:`MapDerived`).
 
     With θ ~ N(θ̂, C) and β | θ ~ N(β̂(θ), M⁻¹):
     var g = (∂g/∂θ + ∂g/∂β ∂β̂/∂θ) C (…)ᵀ + ∂g/∂β M⁻¹ (∂g/∂β)ᵀ + uₕ²,
     uₕ² the variance from the hyperparameters' estimation (:mod:`chekan.joint.typea`).
-    Hyperparameters are reported at their EM values (sd None); ``_m_level`` holds the
-    estimated level readings, ``_nu_eff`` and ``_u_hyper`` each quantity's effective
-    degrees of freedom and uₕ (:mod:`chekan.joint.typea`).
+    Hyperparameters are reported at their EM values (sd None).
     """
     model, res, h = fit.model, fit.result, fit.hyper
     data = model.data
@@ -42,25 +83,31 @@ def map_derived(fit: MapFit) -> dict:
     sd = np.sqrt(np.maximum(var + u_hyper, 0.0))
     if not finite.all():
         sd = np.where(np.abs(Jz[:, ~finite]).sum(axis=1) > 0, np.inf, sd)
-    out: dict[str, Any] = {n: (float(val[i]), float(sd[i])) for i, n in enumerate(PHYSICAL)}
     s = np.asarray(h["noise_scale"]) * np.asarray(data.sigma_base)
-    out["sigma1_pix"] = (float(s[0]), None)
-    out["sigma2_pix"] = (float(s[1]), None)
-    out["sigma_theta_arcsec"] = (float(h["sigma_theta_arcsec"]), None)
-    out["sigma_hold_pix"] = (float(h["sigma_hold_pix"]), None)
-    out["slew_error"] = (float(h["slew_error"]), None)
-    out["_m_level"] = np.asarray(data.m_ref) + np.asarray(beta)[blocks["c"]]
-    out["_nu_eff"] = {n: rel[i].nu_eff for i, n in enumerate(PHYSICAL)}
-    out["_type_a_clipped"] = any(r.clipped for r in rel)
-    out["_u_hyper"] = {n: float(np.sqrt(max(u_hyper[i], 0.0))) for i, n in enumerate(PHYSICAL)}
-    return out
+    hyper = {
+        "sigma1_pix": float(s[0]),
+        "sigma2_pix": float(s[1]),
+        "sigma_theta_arcsec": float(h["sigma_theta_arcsec"]),
+        "sigma_hold_pix": float(h["sigma_hold_pix"]),
+        "slew_error": float(h["slew_error"]),
+    }
+    return MapDerived(
+        values={n: (float(val[i]), float(sd[i])) for i, n in enumerate(PHYSICAL)},
+        hyper=hyper,
+        nu_eff={n: rel[i].nu_eff for i, n in enumerate(PHYSICAL)},
+        u_hyper={n: float(np.sqrt(max(u_hyper[i], 0.0))) for i, n in enumerate(PHYSICAL)},
+        m_level_pix=np.asarray(data.m_ref) + np.asarray(beta)[blocks["c"]],
+        type_a_clipped=any(r.clipped for r in rel),
+    )
 
 
-def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 256) -> dict:
+def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 256) -> ReportedDraws:
     """Every reported quantity for each posterior draw ``zs`` (n, 12), β drawn given θ
-    with ``keys``; in fixed-size chunks on both cores (one compile, bounded memory; the size:
-    ``docs/tuning.md``)."""
+    with ``keys``, and the pointwise log-likelihood; in fixed-size chunks on both cores
+    (one compile, bounded memory; the size: ``docs/tuning.md``)."""
     model = fit.model
     fn = engine_for(model.structure).draws
     dur_h = model.duration_h  # traced, as in map_derived
-    return map_chunks(lambda z, k: fn(z, k, model.data, dur_h), [zs, keys], chunk)
+    flat = map_chunks(lambda z, k: fn(z, k, model.data, dur_h), [zs, keys], chunk)
+    quantities = {k: np.asarray(v) for k, v in flat.items() if k != LOGLIK_KEY}
+    return ReportedDraws(quantities, np.asarray(flat[LOGLIK_KEY]))

@@ -12,13 +12,17 @@ draws of θ and h are returned with those quantities
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from chekan.joint.map import MapFit
 from chekan.options import CalibrationOptions
 from chekan.runtime.engine import problem_for
+
+if TYPE_CHECKING:
+    from chekan.joint.reported import ReportedDraws
+    from inference.sampling import SamplingResult
 
 
 def sampler_config(options: CalibrationOptions, **overrides):
@@ -68,10 +72,11 @@ def sampler_config(options: CalibrationOptions, **overrides):
     return SamplerConfig(**kw)
 
 
-def sample_posterior(fit: MapFit, options: CalibrationOptions):
-    """Draws of (θ, h) from the marginal posterior, started at the MAP, and every reported
-    quantity of the kept draws (``SamplingResult.derived``: :func:`reported_draws`, on
-    which the stopping rule is checked too)."""
+def sample_posterior(fit: MapFit, options: CalibrationOptions) -> SamplingResult:
+    """Draws of (θ, h) from the marginal posterior, started at the MAP, with the sampler's
+    statistics, and every reported quantity of the kept draws (``SamplingResult.derived``,
+    a :class:`~chekan.joint.reported.ReportedDraws`: :func:`reported_draws`, on which the
+    stopping rule is checked too)."""
     from inference.sampling import sample
 
     prob = problem_for(fit.model.structure)
@@ -100,15 +105,21 @@ def sample_posterior(fit: MapFit, options: CalibrationOptions):
     )
 
 
-def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> dict[str, np.ndarray]:
+def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> ReportedDraws:
     """Every reported quantity of the draws (chain, draw, 12) of z, β drawn given θ with
     keys from ``seed`` (:func:`chekan.joint.reported.posterior_draws`): {name: (chain,
-    draw, ...)}."""
+    draw, ...)}, and the pointwise log-likelihood (chain, draw, bins, 2)."""
     import jax
 
-    from chekan.joint.reported import posterior_draws
+    from chekan.joint.reported import ReportedDraws, posterior_draws
 
     C, Dn = draws.shape[:2]
     keys = jax.random.split(jax.random.PRNGKey(seed), C * Dn)
     flat = posterior_draws(fit, draws.reshape(C * Dn, -1), keys)
-    return {k: np.asarray(v).reshape(C, Dn, *np.shape(v)[1:]) for k, v in flat.items()}
+
+    def per_chain(v: np.ndarray) -> np.ndarray:
+        return np.asarray(v).reshape(C, Dn, *np.shape(v)[1:])
+
+    return ReportedDraws(
+        {k: per_chain(v) for k, v in flat.quantities.items()}, per_chain(flat.loglik)
+    )

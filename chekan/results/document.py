@@ -10,9 +10,10 @@ import datetime as _dt
 import hashlib
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from statistics import NormalDist
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,6 +21,9 @@ import chekan
 from chekan.errors import FormatError
 from chekan.options import METHODS
 from chekan.physics.parameters import PARAMETER_UNITS
+
+if TYPE_CHECKING:
+    from chekan.classical.settling import Settling
 
 FORMAT = "chekan-result/1"
 REQUIRED_KEYS = ("format", "serial", "record", "method", "g_local_mgal", "parameters")
@@ -89,7 +93,7 @@ def param_entry(
     return e
 
 
-def posterior_entry(summary_row: dict, unit: str = "") -> dict:
+def posterior_entry(summary_row: Mapping[str, Any], unit: str = "") -> dict:
     """A parameter entry from a posterior summary row (mean, sd, HDI, R-hat, bulk ESS)."""
     keys = ("mean", "sd", "hdi_low", "hdi_high")
     e = {k: summary_row[k] for k in keys}
@@ -295,6 +299,74 @@ def _axis_entry(fit, cert, header: dict, b_prior, ccd_range_pix) -> dict:
     entry["sigma_mgal"] = fit.sigma_mgal
     entry["used_by_certificate"] = fit is cert
     return entry
+
+
+#: The classical items of a joint result that a settled refit replaces (:func:`with_settled`).
+ITEM_KEYS = (
+    "rounds",
+    "mean_b_mgal_per_pix",
+    "residuals_mgal",
+    "reduced_error_percent",
+    "discrepancy_between_rounds_percent",
+    "range_margin_gal",
+    "classical_by_axis",
+)
+
+
+def certified_instability(result: Mapping[str, Any]) -> dict:
+    """``result`` (not changed) with the instability of its own b₁, b₂ against the prior,
+    δb = (b − b_prior)/b_prior · 100 %: the certificate judges the values it states (with
+    their U), not the classical ones beside them."""
+    out = dict(result)
+    prior = result.get("b_prior") or {}
+    inst = {}
+    for name in ("b1", "b2"):
+        b, p = (result["parameters"].get(name) or {}).get("mean"), prior.get(name)
+        if isinstance(b, int | float) and isinstance(p, int | float) and p:
+            inst[name] = float((b - p) / p * 100.0)
+    if inst:
+        out["instability_percent"] = inst
+    return out
+
+
+def with_settled(result: Mapping[str, Any], found: Settling) -> dict:
+    """The joint ``result`` (not changed) with what :func:`chekan.classical.settling.settle`
+    found: the certified instability (:func:`certified_instability`); unconverged, the
+    classical fit's ``unsettled_hold_means`` where it had none; settled hold means, no such
+    flag; a settled refit, its items (:data:`ITEM_KEYS`) and classical b in place of
+    Calibr.exe's, which go under ``hold_transient.calibr_exe`` with the transient's size."""
+    out = certified_instability(result)
+    if not found.converged:
+        if found.unsettled is not None and "unsettled_hold_means" not in out:
+            out["unsettled_hold_means"] = found.unsettled.entry()
+        return out
+    if found.transient_max_pix is None:
+        out.pop("unsettled_hold_means", None)  # the classical fit's flag: the model finds
+        return out  # the hold means settled
+    if found.refit is None:
+        return out  # Calibr.exe's items stand, with their flag
+    items = classical_result(
+        found.refit,
+        header=dict(result),
+        b_prior=found.b_prior,
+        ccd_range_pix=found.ccd_range_pix,
+    )
+    out.pop("unsettled_hold_means", None)  # the items are settled now
+    kept = ("reduced_error_percent", "discrepancy_between_rounds_percent", "mean_b_mgal_per_pix")
+    before = {k: result[k] for k in kept if k in result}
+    before.update({k: dict(v) for k, v in (result.get("classical") or {}).items()})
+    out["hold_transient"] = {
+        "max_pix": found.transient_max_pix,
+        "tau_s": found.tau_s,
+        "settle_s": found.settle_s,
+        "calibr_exe": before,
+    }
+    for key in ITEM_KEYS:
+        out.pop(key, None)
+        if key in items:
+            out[key] = items[key]
+    out["classical"] = {k: items["parameters"][k] for k in ("b1", "b2")}
+    return out
 
 
 def write_result(path: str | Path, result: dict) -> Path:

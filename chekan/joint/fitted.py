@@ -1,0 +1,102 @@
+"""What the joint estimators return: typed, frozen fits, formatted into the
+``chekan-result/1`` dict by :mod:`chekan.joint.results` alone.
+
+:class:`MapEstimate` (``--method map`` on a record), :class:`PosteriorEstimate` (``bayes``),
+:class:`ProtocolEstimate` (either, on a legacy protocol); each with the classical items'
+:class:`~chekan.classical.settling.Settling` where a record's lag is fitted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from chekan.classical.settling import Settling
+from chekan.joint.map import MapFit
+from chekan.joint.reported import MapDerived
+
+if TYPE_CHECKING:
+    from chekan.joint.legacy import ProtocolModel
+    from inference.map import MapResult
+    from inference.sampling import SamplingResult
+
+#: The raw uncertainty budget of b₁, b₂: {name: {source: sd}} with ``total_linearised``
+#: (:func:`chekan.joint.budget.uncertainty_budget`).
+RawBudget = Mapping[str, Mapping[str, float]]
+#: A posterior summary: {name: {mean, sd, hdi_low, hdi_high, r_hat, ess_bulk, …}}
+#: (:func:`inference.diagnostics.summarize_draws`).
+Summary = Mapping[str, Mapping[str, Any]]
+
+
+def capped_passes(fit: MapFit) -> list[int]:
+    """The MAP passes (1-based) after which the EM of the hyperparameters stopped at its cap
+    still moving (not towards zero)."""
+    return [p["iteration"] + 1 for p in fit.history if p.get("hyper_converged") is False]
+
+
+def map_converged(fit: MapFit) -> bool:
+    """Whether the MAP converged, its hyperparameters' EM included."""
+    return bool(fit.result.converged) and not capped_passes(fit)
+
+
+@dataclass(frozen=True)
+class MapEstimate:
+    """The ``map`` fit of a record: the MAP, its derived quantities with delta-method sds,
+    the raw uncertainty budget, the classical items' settling and the seconds taken."""
+
+    fit: MapFit
+    derived: MapDerived
+    budget: RawBudget
+    settling: Settling
+    seconds: float
+
+
+@dataclass(frozen=True)
+class PosteriorEstimate:
+    """The ``bayes`` fit of a record: the MAP it started from, the raw budget, the sampler's
+    result (draws, statistics and the reported draws as ``sampling.derived``,
+    :class:`~chekan.joint.reported.ReportedDraws`), their summary and convergence verdict
+    (``draws_converged``, ``problems``), the posterior predictive replicates of the
+    residual table δg (draws, R, 2, angles), the NetCDF written (or None), the settling and
+    the seconds taken (up to the summary)."""
+
+    fit: MapFit
+    budget: RawBudget
+    sampling: SamplingResult
+    summary: Summary
+    draws_converged: bool
+    problems: tuple[str, ...]
+    replicates: np.ndarray
+    netcdf: Path | None
+    settling: Settling
+    seconds: float
+
+
+@dataclass(frozen=True)
+class ProtocolPosterior:
+    """The ``bayes`` posterior of a protocol: the sampler's result, the named draws (the
+    per-round b and their mean b₁, b₂), their summary and convergence verdict."""
+
+    sampling: SamplingResult
+    draws: Mapping[str, np.ndarray]
+    summary: Summary
+    converged: bool
+    problems: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ProtocolEstimate:
+    """The ``map`` or ``bayes`` fit of a legacy protocol: its model, the MAP, the raw budget
+    (at the MAP's hyperparameters; the posterior means for bayes), the posterior (bayes
+    only), the NetCDF written (or None) and the seconds taken."""
+
+    model: ProtocolModel
+    result: MapResult
+    budget: RawBudget
+    posterior: ProtocolPosterior | None
+    netcdf: Path | None
+    seconds: float
