@@ -27,7 +27,7 @@ def private_keys(obj: Any, path: str = "") -> Iterator[str]:
 
 
 def test_the_finder_finds_a_private_key():
-    assert list(private_keys({"a": [{"b": 1, "_c": {"_d": 2}}]})) == ["a[0]._c", "a[0]._c._d"]
+    assert list(private_keys({"a": [{"b": 1, "_c": {"_d": 2}}]})) == [".a[0]._c", ".a[0]._c._d"]
 
 
 @pytest.mark.parametrize("method", ["classical", "map"])
