@@ -8,16 +8,18 @@ by ``chekan calibrate``, re-analysis, validation, the live page and the demo, so
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from chekan.classical.settling import unsettled_hold_means
+from chekan.classical.fit import ClassicalResult
+from chekan.classical.settling import Unsettled, unsettled_hold_means
 from chekan.errors import ChekanError
 from chekan.options import METHODS, CalibrationOptions
 from chekan.records import Record
 from chekan.records.framing import count_rows
-from chekan.records.holds import gaps_entry, program_coverage
+from chekan.records.holds import HoldTable, gaps_entry, program_coverage
 from chekan.records.inputs import input_kind, read_input
 from chekan.records.protocol import Protocol
 from chekan.results.document import base_result, classical_result, tilt_program_entry
@@ -171,65 +173,89 @@ def with_angle_calibration(
     return data if cal is None else corrected(data, cal)
 
 
-def classical_of(
-    data: Record | Protocol, opts: CalibrationOptions, *, input_path: str | Path | None = None
-):
-    """The classical method on ``data``: ``(kind, classical fit, result)``.
+@dataclass(frozen=True)
+class ClassicalFit:
+    """The classical method on one input (:func:`classical_fit`): the input's kind, the fit
+    (its problems include the program's coverage and, for ``--method classical``, the
+    unsettled hold means), and of a record its holds, what of the program it lacks
+    (:func:`chekan.records.holds.program_coverage`, or None) and its unsettled hold means
+    (or None)."""
 
-    Every method starts here (the classical fit seeds the MAP and is reported beside it).
-    """
+    kind: str
+    result: ClassicalResult
+    holds: HoldTable | None = None
+    coverage: dict | None = None
+    unsettled: Unsettled | None = None
+
+
+def classical_fit(data: Record | Protocol, opts: CalibrationOptions) -> ClassicalFit:
+    """The classical method on ``data`` (eqs. 16–25, :mod:`chekan.classical.fit`). Every method
+    starts here (the classical fit seeds the MAP and is reported beside it)."""
+    from chekan.classical import fit as classical
+
     kind = kind_of(data)
+    if not isinstance(data, Record):
+        return ClassicalFit(kind, classical.calibrate_protocol(data, a_fixed=opts.a_fixed))
+    cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
+    coverage = program_coverage(holds, data.meta)
+    if coverage is not None:
+        cres = dataclasses.replace(cres, problems=[*cres.problems, *coverage["problems"]])
+    unsettled = None
+    if (
+        opts.method == "classical"
+    ):  # a joint result settles its items (chekan.classical.settling.settle)
+        unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
+    if unsettled is not None:
+        flagged = dataclasses.replace(cres, problems=[*cres.problems, unsettled.problem])
+        # the per-axis fits name the certificate's own by identity: keep it the flagged one
+        flagged.by_axis = {a: flagged if f is cres else f for a, f in cres.by_axis.items()}
+        cres = flagged
+    return ClassicalFit(kind, cres, holds, coverage, unsettled)
+
+
+def classical_written(
+    data: Record | Protocol,
+    fit: ClassicalFit,
+    opts: CalibrationOptions,
+    *,
+    input_path: str | Path | None = None,
+) -> dict:
+    """The ``chekan-result/1`` dict of a classical fit of ``data``: the header
+    (:func:`chekan.results.document.base_result`), the classical items
+    (:func:`chekan.results.document.classical_result`), and what the input adds (the unsettled hold
+    means, the program's coverage, the record's gaps, the tilt program, the angle
+    calibration, the sensor's temperature)."""
     if isinstance(data, Record):
-        g = data.g_local_mgal
-        m0 = data.ccd_center_pix
-        b_prior = data.b_prior
-        ccd_range = data.ccd_range_pix
+        g, m0 = data.g_local_mgal, data.ccd_center_pix
+        b_prior, ccd_range = data.b_prior, data.ccd_range_pix
     else:
         g = data.g_local_or_fitted()
         m0 = float(data.meta.get("ccd_center_pix", 1024.0))
-        b_prior = None
-        ccd_range = None
+        b_prior, ccd_range = None, None
     header = base_result(
         method=opts.method,
         serial=data.serial,
         input_path=input_path,
-        input_kind=kind,
+        input_kind=fit.kind,
         g_local_mgal=g,
         meta=data.meta,
         hdi_prob=opts.hdi_prob,
         ccd_center_pix=m0,
     )
-    if kind == "record" and "started" in data.meta:
+    if fit.kind == "record" and "started" in data.meta:
         header["date"] = data.meta["started"][:10]
     elif "date" in data.meta:
         header["date"] = data.meta["date"]
-    from chekan.classical import fit as classical
-
-    unsettled = None
-    coverage = None
-    if isinstance(data, Record):
-        cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
-        coverage = program_coverage(holds, data.meta)
-        if coverage is not None:
-            cres = dataclasses.replace(cres, problems=[*cres.problems, *coverage["problems"]])
-        if opts.method == "classical":  # a joint result settles its items (settled_items)
-            unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
-        if unsettled is not None:
-            flagged = dataclasses.replace(cres, problems=[*cres.problems, unsettled.problem])
-            # the per-axis fits name the certificate's own by identity: keep it the flagged one
-            flagged.by_axis = {a: flagged if f is cres else f for a, f in cres.by_axis.items()}
-            cres = flagged
-    else:
-        cres = classical.calibrate_protocol(data, a_fixed=opts.a_fixed)
+    cres, holds = fit.result, fit.holds
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
-    if unsettled is not None:
-        result["unsettled_hold_means"] = unsettled.entry()
-    if coverage is not None:
-        result["program_coverage"] = coverage
-    if isinstance(data, Record) and holds.gaps:
+    if fit.unsettled is not None:
+        result["unsettled_hold_means"] = fit.unsettled.entry()
+    if fit.coverage is not None:
+        result["program_coverage"] = fit.coverage
+    if holds is not None and holds.gaps:
         result["record_gaps"] = gaps_entry(holds)
     name = data.meta.get("program") or None
-    if isinstance(data, Record):
+    if holds is not None:
         result["tilt_program"] = tilt_program_entry(holds=holds, name=name)
     else:
         result["tilt_program"] = tilt_program_entry(table=cres.table, name=name)
@@ -242,4 +268,13 @@ def classical_of(
             "min": round(float(temp.min()), 3),
             "max": round(float(temp.max()), 3),
         }
-    return kind, cres, result
+    return result
+
+
+def classical_of(
+    data: Record | Protocol, opts: CalibrationOptions, *, input_path: str | Path | None = None
+) -> tuple[str, ClassicalResult, dict]:
+    """The classical method on ``data``: ``(kind, classical fit, result)``
+    (:func:`classical_fit`, written by :func:`classical_written`)."""
+    fit = classical_fit(data, opts)
+    return fit.kind, fit.result, classical_written(data, fit, opts, input_path=input_path)
