@@ -32,7 +32,7 @@ __all__ = [
 ]
 
 
-@dataclass
+@dataclass(frozen=True)
 class SamplingResult:
     """Retained posterior draws in z-space and what is needed to judge them.
 
