@@ -199,18 +199,23 @@ def classical_fit(data: Record | Protocol, opts: CalibrationOptions) -> Classica
     cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
     coverage = program_coverage(holds, data.meta)
     if coverage is not None:
-        cres = dataclasses.replace(cres, problems=[*cres.problems, *coverage["problems"]])
+        cres = _flagged(cres, coverage["problems"])
     unsettled = None
     if (
         opts.method == "classical"
     ):  # a joint result settles its items (chekan.classical.settling.settle)
         unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
     if unsettled is not None:
-        flagged = dataclasses.replace(cres, problems=[*cres.problems, unsettled.problem])
-        # the per-axis fits name the certificate's own by identity: keep it the flagged one
-        flagged.by_axis = {a: flagged if f is cres else f for a, f in cres.by_axis.items()}
-        cres = flagged
+        cres = _flagged(cres, [unsettled.problem])
     return ClassicalFit(kind, cres, holds, coverage, unsettled)
+
+
+def _flagged(cres, problems: list[str]):
+    """``cres`` with ``problems`` added; its per-axis fits name the certificate's own by
+    identity, so the copy stands for it there too."""
+    flagged = dataclasses.replace(cres, problems=[*cres.problems, *problems])
+    flagged.by_axis = {a: flagged if f is cres else f for a, f in cres.by_axis.items()}
+    return flagged
 
 
 def classical_written(

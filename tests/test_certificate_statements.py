@@ -244,6 +244,27 @@ def test_an_xy_classical_result_with_unsettled_holds_certifies_its_y_rounds_once
         assert any("Rounds about X (not certified)" in x for x in texts)
 
 
+def test_an_xy_record_missing_steps_still_names_the_certified_axis(tmp_path):
+    """A record about both axes that lacks part of its program: the missing steps are a
+    problem of the classical fit, and its rounds about Y stay the certificate's."""
+    from chekan.physics.program import load_program
+    from chekan.pipeline import CalibrationOptions, calibrate
+    from chekan.records.simulate import Truth, simulate_session
+
+    prog = tmp_path / "xy.toml"
+    prog.write_text(
+        'name = "xy"\nangles = ["4°10\'", "5°10\'"]\naxis = "xy"\norder = "+-"\n'
+        'sequence = "descending"\ndwell_s = 300\nsettle_s = 240\nrounds = 2\n',
+        encoding="utf-8",
+    )
+    rec, _ = simulate_session(load_program(prog), Truth(serial="779"), seed=6)
+    last = int(rec.meta["program_steps"]) - 1
+    res = calibrate(rec.rows(rec.step != last), CalibrationOptions(method="classical"))
+    assert res["program_coverage"]["missing_steps"] == [last]
+    by_axis = res["classical_by_axis"]
+    assert by_axis["y"]["used_by_certificate"] and not by_axis["x"]["used_by_certificate"]
+
+
 def test_the_console_names_parameters_as_a_person_reads_them(jump):
     from chekan.results.summary import format_summary
 
