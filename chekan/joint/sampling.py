@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from chekan.joint.layout import RecordModel
 from chekan.joint.map import MapFit
 from chekan.options import CalibrationOptions
 from chekan.runtime.engine import problem_for
@@ -103,12 +104,34 @@ def sample_posterior(fit: MapFit, options: CalibrationOptions):
 def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> dict[str, np.ndarray]:
     """Every reported quantity of the draws (chain, draw, 12) of z, β drawn given θ with
     keys from ``seed`` (:func:`chekan.joint.reported.posterior_draws`): {name: (chain,
-    draw, ...)}."""
+    draw, ...)}, the per-hold and per-bin ones for the record's own holds and bins
+    (:func:`real_part`)."""
     import jax
 
     from chekan.joint.reported import posterior_draws
 
     C, Dn = draws.shape[:2]
     keys = jax.random.split(jax.random.PRNGKey(seed), C * Dn)
-    flat = posterior_draws(fit, draws.reshape(C * Dn, -1), keys)
+    flat = real_part(fit.model, posterior_draws(fit, draws.reshape(C * Dn, -1), keys))
     return {k: np.asarray(v).reshape(C, Dn, *np.shape(v)[1:]) for k, v in flat.items()}
+
+
+#: the draws' quantities per hold and per bin (their axis after the draws' one)
+PER_HOLD = ("angle_error_arcsec", "hold_offset_pix")
+PER_BIN = ("_loglik",)
+
+
+def real_part(model: RecordModel, flat: dict) -> dict[str, np.ndarray]:
+    """The draws ``flat`` {name: (draws, ...)} of a padded model (its bucket,
+    :mod:`chekan.runtime.padding`) cut back to the record's own holds and bins: the
+    padding's holds and bins come after the real ones and carry no data (their angle
+    errors and hold offsets are draws from the prior, their log-likelihood 0), so that
+    nothing reported, and no stopping rule, sees them."""
+    H, N = model.n_real_holds, model.n_real_bins
+    assert bool(np.all(np.asarray(model.data.hold_mask)[:H])), "real holds come first"
+    out = {k: np.asarray(v) for k, v in flat.items()}
+    for k in PER_HOLD:
+        out[k] = out[k][:, :H]
+    for k in PER_BIN:
+        out[k] = out[k][:, :N]
+    return out
