@@ -254,12 +254,17 @@ class RecordModel:
     ) -> RecordModel:
         """This record laid out for a larger structure (:meth:`RecordData.pad`); S is the
         number of systematic angle-error terms, X of X-response terms per system (None: as
-        it is). The host-side labels (``hold_steps``, ``bin_t_s``) stay the real ones."""
+        it is). The host-side labels (``hold_steps``, ``bin_t_s``) stay the real ones; the
+        data always carries its ``noise_order`` (one argument tree for a bucket)."""
         s = self.structure
         S = s.n_systematic if S is None else S
         X = s.n_x_response if X is None else X
         if (H, N, M, S, X) == (s.n_holds, s.n_bins, s.n_moves, s.n_systematic, s.n_x_response):
-            return self
+            if self.data.noise_order is not None:
+                return self
+            # a record that fills its bucket: the same data tree as the bucket's others
+            order = beta_noise_order(s, s)
+            return dataclasses.replace(self, data=self.data.with_noise_order(order))
         if S < s.n_systematic:
             raise ValueError(f"cannot pad {s.n_systematic} systematic terms down to {S}")
         new = dataclasses.replace(s, n_holds=H, n_bins=N, n_moves=M, n_systematic=S, n_x_response=X)
