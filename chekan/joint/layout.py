@@ -268,8 +268,8 @@ class RecordModel:
         if S < s.n_systematic:
             raise ValueError(f"cannot pad {s.n_systematic} systematic terms down to {S}")
         new = dataclasses.replace(s, n_holds=H, n_bins=N, n_moves=M, n_systematic=S, n_x_response=X)
-        order = beta_noise_order(s, new, self.data.noise_order)
-        data = self.data.pad(H, N, M, new.n_angle_cols, X).with_noise_order(order)
+        data = self.data.pad(H, N, M, new.n_angle_cols, X)  # checks the sizes first
+        data = data.with_noise_order(beta_noise_order(s, new, self.data.noise_order))
         return dataclasses.replace(self, structure=new, data=data)
 
     @property
