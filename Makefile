@@ -16,8 +16,16 @@ $(BIN)/chekan: pyproject.toml
 # bytecode of the project's own modules, as pip writes it for installed packages: a new
 # `chekan` process then skips compiling ~50 source files (0.3 s; where PYTHONDONTWRITEBYTECODE
 # is set, Python never writes it). Quick, and only changed files are recompiled.
-venv: $(BIN)/chekan browser docs
+venv: $(BIN)/chekan browser docs $(VENV)/.warm
 	@$(BIN)/python -m compileall -q chekan inference hw bench >/dev/null
+
+# the joint model compiled for the default programs' shape buckets and kept in the
+# executable store (`chekan warmup`, a few minutes on 2 cores, once per new venv): a first
+# map or bayes run of such a program then loads instead of compiling. It says what it
+# stored where; run it again after an update of the code (it skips what is stored)
+$(VENV)/.warm: $(BIN)/chekan
+	$(BIN)/chekan warmup
+	@touch $@
 
 # the documentation site (MkDocs, Material theme, mkdocstrings for the API reference) into
 # site/ (a few seconds); --strict: a broken link or anchor, a page left out of the nav or a

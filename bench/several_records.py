@@ -57,6 +57,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.cli_bench import _entries, _env, cache_dir
 from bench.table import Row, environment, environment_line, format_table
+from chekan.demo import dual_axis_program  # the designer's xy program
 
 PLATFORM_CASES = ("typical", "misaligned", "slow")
 DUAL = "dual-axis"
@@ -95,21 +96,6 @@ class Run:
     def ess_min(self) -> tuple[str, float]:
         name = min(self.ess, key=lambda k: self.ess[k])
         return name, self.ess[name]
-
-
-def dual_axis_program(quick: bool):
-    """The 9 h program about both axes (6 rounds, ≈ 2.6 h, for ``quick``)."""
-    from chekan.physics.program import build_program
-
-    return build_program(
-        [4.5, 4 + 51 / 60, 5 + 10 / 60],
-        name="design-best-xy" + ("-short" if quick else ""),
-        axis="xy",
-        order="alternate",
-        rounds=6 if quick else 20,
-        dwell_s=188.0,
-        settle_s=120.0,
-    )
 
 
 def write_records(folder: Path, seed: int, quick: bool) -> dict[str, Path]:

@@ -25,6 +25,19 @@ def demo_program(quick: bool):
     )
 
 
+def dual_axis_program(quick: bool):
+    """The designer's 9 h program about both axes (6 rounds, ≈ 2.6 h, for ``quick``)."""
+    return build_program(
+        [4.5, 4 + 51 / 60, 5 + 10 / 60],
+        name="design-best-xy" + ("-short" if quick else ""),
+        axis="xy",
+        order="alternate",
+        rounds=6 if quick else 20,
+        dwell_s=188.0,
+        settle_s=120.0,
+    )
+
+
 def run_demo(
     out: str | Path, *, quick: bool = False, use_emulator: bool = True, seed: int = 1
 ) -> int:

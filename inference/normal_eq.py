@@ -341,13 +341,21 @@ def draw_beta_banded(key: Array, ne: NormalEquations, prior_var: Array, bands: n
 
 
 def draw_beta_blocks(
-    key: Array, b: BlockNormalEquations, prior_band: Array, prior_dense: Array, bands: np.ndarray
+    key: Array,
+    b: BlockNormalEquations,
+    prior_band: Array,
+    prior_dense: Array,
+    bands: np.ndarray,
+    order: Array | None = None,
 ) -> Array:
     """:func:`draw_beta_banded` from the blocks (β in the order that ``bands`` and the dense
-    variables, ascending, take in it)."""
+    variables, ascending, take in it). ``order``: the index of the standard normal that
+    each of those takes (None: the i-th; a padded problem's real variables keep theirs)."""
     f = banded_factor_blocks(b, prior_band, prior_dense)
     u = jnp.concatenate([f.y, f.c])
     xi = jax.random.normal(key, u.shape, dtype=u.dtype)
+    if order is not None:
+        xi = xi[order]
     return solve_banded_transposed(f, bands, u + xi)
 
 

@@ -638,7 +638,7 @@ def plot_history(hist: dict, path: str | Path) -> Path:
 
 def history_figure(hist: dict):
     """One panel per parameter p: sessions ± sd, the posterior of p(t) with its band, alarms."""
-    from chekan.plotting import new_figure
+    from chekan.report.plotting import new_figure
 
     names = list(hist["parameters"])
     fig = new_figure((9, 2.8 * max(len(names), 1)))

@@ -332,6 +332,16 @@ def _chunks(items: list[str], jobs: int, size: int | None) -> list[list[str]]:
     return [items[i : i + n] for i in range(0, len(items), n)]
 
 
+def _notice_first_compile(paths: list[str], method: str, opts: dict[str, Any]) -> None:
+    """Say first when the session will compile the joint model (a record shape whose
+    bucket is not in the executable store: :func:`chekan.warmup.first_compile`)."""
+    from chekan.runtime.engine import FIRST_RUN_NOTICE
+    from chekan.warmup import first_compile
+
+    if first_compile(paths, _options({**opts, "method": method, "progress": False})):
+        print(f"reanalyze {method}: {FIRST_RUN_NOTICE}", flush=True)
+
+
 def result_name(path: str | os.PathLike, sha: str, method: str, version: str) -> str:
     """``<stem>.<sha12>.<method>-<version>.json``: unique per archive key."""
     return f"{Path(path).stem}.{sha[:12]}.{method}-{version}.json"
@@ -419,6 +429,9 @@ def reanalyze(
             for o in chunk["outcomes"]:
                 finish(o)
             bar.update(len(chunk["outcomes"]))
+
+        if progress and todo and method in ("map", "bayes"):
+            _notice_first_compile(list(todo), method, opts)
 
         from tqdm.auto import tqdm
 

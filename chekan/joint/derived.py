@@ -127,7 +127,7 @@ def draws_fn(structure: ModelStructure, space) -> Callable:
         blocks_ne, t = block_normal_equations(v, v, structure, data)
         # block elimination of the holds' terms (as the log-density): N(M⁻¹g, M⁻¹) as before
         pv = split_prior(beta_prior_var(v, structure, data), bands)
-        beta = draw_beta_blocks(key, blocks_ne, *pv, bands)
+        beta = draw_beta_blocks(key, blocks_ne, *pv, bands, data.noise_order)
         # pointwise log-likelihood of each bin mean given this draw's (θ, β): conditional,
         # because the marginal over β does not factorise over bins
         r, nv = t.r, t.nv

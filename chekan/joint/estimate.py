@@ -73,7 +73,7 @@ def _estimate(
             f"model: {model.n_holds} holds, {model.n_bins} bins × 2 systems, "
             f"{model.n_beta} marginalised linear parameters"
         )
-    model = padded_for(model, options.method)
+    model = padded_for(model)  # its bucket's engine, shared by map and bayes
     # a new process loads the stored executables it will need next while the MAP runs
     prefetch_em(model)
     if options.progress and not compiled_before(model):

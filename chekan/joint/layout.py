@@ -111,7 +111,7 @@ def beta_blocks(H: int, D: int, L: int, S: int = 0, X: int = 0) -> dict[str, np.
 
 def _padded(axes: str, fill: float | bool) -> Any:
     """A data field padded along ``axes`` (H holds, N bins, M slew samples, Q shared
-    columns) with ``fill`` (a ``dataclasses.field``)."""
+    columns, X X-response terms) with ``fill`` (a ``dataclasses.field``)."""
     return dataclasses.field(metadata={"pad": (axes, fill)})
 
 
@@ -125,13 +125,13 @@ class RecordData:
     m_ref: jax.Array  # (2,) pix, level reference reading of each system
     dt: jax.Array  # s, sample period
     sigma_base: jax.Array  # (2,) pix, per-sample noise from first differences
-    x_prior_var: jax.Array  # (X,) pix², prior variances of the X-response terms νⱼ
+    x_prior_var: jax.Array = _padded("X", 1.0)  # (X,) pix², prior variances of the X terms νⱼ
     hold_tx: jax.Array = _padded("H", 0.0)  # (H,) rad, reported attitude of each hold
     hold_ty: jax.Array = _padded("H", 0.0)
     hold_T: jax.Array = _padded("H", 0.0)  # (H,) s, slew end to hold end
     hold_dir: jax.Array = _padded("H", 0.0)  # (H, 2) unit vector of the hold's tilt (x, y)
     mv_dir: jax.Array = _padded("H", 0.0)  # (H, 2) unit vector of the slew into each hold
-    x_basis: jax.Array = _padded("H", 0.0)  # (H, X) pix, X-response columns at the holds
+    x_basis: jax.Array = _padded("HX", 0.0)  # (H, X) pix, X-response columns at the holds
     hold_mask: jax.Array = _padded("H", False)  # (H,) real holds
     angle_basis: jax.Array = _padded("HQ", 0.0)  # (H, Q) shared angle-error terms, arcsec
     angle_prior_var: jax.Array = _padded("Q", 1.0)  # (Q,) arcsec², their prior variances
@@ -150,33 +150,51 @@ class RecordData:
     mv_lag: jax.Array = _padded("HM", 0.0)  # (H, M) s, t_last − tᵢ
     mv_mask: jax.Array = _padded("HM", False)
     mv_angle_basis: jax.Array = _padded("HMQ", 0.0)  # (H, M, Q) shared terms along slews
-    mv_x_basis: jax.Array = _padded("HM", 0.0)  # (H, M, X) pix, X-response terms along slews
+    mv_x_basis: jax.Array = _padded("HMX", 0.0)  # (H, M, X) pix, X-response terms along slews
+    # (n_β,) int, padded records only: which standard normal of a draw of β each of its
+    # entries takes (:func:`beta_noise_order`); None: the i-th
+    noise_order: jax.Array | None = None
 
-    def pad(self, H: int, N: int, M: int, Q: int | None = None) -> RecordData:
-        """The same record laid out for H holds, N bins, M slew samples and Q shared
-        angle-error columns (None: as it is).
+    def pad(self, H: int, N: int, M: int, Q: int | None = None, X: int | None = None) -> RecordData:
+        """The same record laid out for H holds, N bins, M slew samples, Q shared
+        angle-error columns and X X-response terms per system (None: as it is).
 
         Exact: padded bins have ``mask`` False (zero weight), padded holds have no bins
         (``own``/``prev`` columns zero, so their β is its prior mean 0 and adds nothing to
         the residuals) and sit after the real ones (the unsettled-carry scan runs
         forwards), padded slew samples have ``mv_mask`` False, padded angle-error
-        columns are zero (their β stays at its prior mean 0).
+        columns are zero (their β stays at its prior mean 0). Padded X-response columns
+        are zero with unit prior variance (nothing in the quadratic form, and log 1 = 0 in
+        both log-determinants) and go before the last one, the level angle Δm₀ⱼ that the
+        derived quantities read (:func:`chekan.joint.derived.physical_quantities`).
         """
         h0, n0, m0 = self.hold_tx.shape[0], self.y.shape[0], self.mv_tx.shape[1]
-        q0 = self.angle_basis.shape[1]
+        q0, x0 = self.angle_basis.shape[1], self.x_prior_var.shape[0]
         Q = q0 if Q is None else Q
-        if H < h0 or N < n0 or M < m0 or Q < q0:
-            raise ValueError(f"cannot pad ({h0}, {n0}, {m0}, {q0}) down to ({H}, {N}, {M}, {Q})")
-        extra = {"H": H - h0, "N": N - n0, "M": M - m0, "Q": Q - q0}
-        changes = {}
+        X = x0 if X is None else X
+        if H < h0 or N < n0 or M < m0 or Q < q0 or X < x0 or (X > x0 == 0):
+            raise ValueError(
+                f"cannot pad ({h0}, {n0}, {m0}, {q0}, {x0}) to ({H}, {N}, {M}, {Q}, {X})"
+            )
+        extra = {"H": H - h0, "N": N - n0, "M": M - m0, "Q": Q - q0, "X": X - x0}
+        # the X axis: zeros appended, then moved before the last (level angle) column
+        x_order = np.r_[np.arange(x0 - 1), np.arange(x0, X), x0 - 1] if x0 else np.arange(0)
+        changes: dict[str, Any] = {"noise_order": None}  # set by RecordModel.pad
         for f in dataclasses.fields(self):
             if "pad" not in f.metadata:
                 continue
             axes, fill = f.metadata["pad"]
             x = np.asarray(getattr(self, f.name))
             widths = [(0, extra[a]) for a in axes] + [(0, 0)] * (x.ndim - len(axes))
-            changes[f.name] = np.pad(x, widths, constant_values=fill)
+            x = np.pad(x, widths, constant_values=fill)
+            if "X" in axes and X > x0:
+                x = np.take(x, x_order, axis=axes.index("X"))
+            changes[f.name] = x
         return dataclasses.replace(self, **device_arrays(changes))
+
+    def with_noise_order(self, order: np.ndarray) -> RecordData:
+        """The same data whose draws of β take their normals in ``order``."""
+        return dataclasses.replace(self, noise_order=device_array(order, dtype=np.int32))
 
     def with_level(self, m_ref: Any) -> RecordData:
         """The same data with the level reference reading moved to ``m_ref`` (pix)."""
@@ -231,20 +249,87 @@ class RecordModel:
     def duration_h(self) -> float:
         return (self.t_span_s[1] - self.t_span_s[0]) / 3600.0
 
-    def pad(self, H: int, N: int, M: int, S: int | None = None) -> RecordModel:
+    def pad(
+        self, H: int, N: int, M: int, S: int | None = None, X: int | None = None
+    ) -> RecordModel:
         """This record laid out for a larger structure (:meth:`RecordData.pad`); S is the
-        number of systematic angle-error terms (None: as it is)."""
+        number of systematic angle-error terms, X of X-response terms per system (None: as
+        it is). The host-side labels (``hold_steps``, ``bin_t_s``) stay the real ones; the
+        data always carries its ``noise_order`` (one argument tree for a bucket)."""
         s = self.structure
         S = s.n_systematic if S is None else S
-        if (H, N, M, S) == (s.n_holds, s.n_bins, s.n_moves, s.n_systematic):
-            return self
+        X = s.n_x_response if X is None else X
+        if (H, N, M, S, X) == (s.n_holds, s.n_bins, s.n_moves, s.n_systematic, s.n_x_response):
+            if self.data.noise_order is not None:
+                return self
+            # a record that fills its bucket: the same data tree as the bucket's others
+            order = beta_noise_order(s, s)
+            return dataclasses.replace(self, data=self.data.with_noise_order(order))
         if S < s.n_systematic:
             raise ValueError(f"cannot pad {s.n_systematic} systematic terms down to {S}")
-        new = dataclasses.replace(s, n_holds=H, n_bins=N, n_moves=M, n_systematic=S)
-        return dataclasses.replace(
-            self, structure=new, data=self.data.pad(H, N, M, new.n_angle_cols)
-        )
+        new = dataclasses.replace(s, n_holds=H, n_bins=N, n_moves=M, n_systematic=S, n_x_response=X)
+        data = self.data.pad(H, N, M, new.n_angle_cols, X)  # checks the sizes first
+        data = data.with_noise_order(beta_noise_order(s, new, self.data.noise_order))
+        return dataclasses.replace(self, structure=new, data=data)
+
+    @property
+    def n_real_holds(self) -> int:
+        """Holds of the record itself (the first ones; the rest is padding)."""
+        return len(self.hold_steps)
+
+    @property
+    def n_real_bins(self) -> int:
+        """Bins of the record itself (the first ones; the rest is padding)."""
+        return len(self.bin_t_s)
 
     def with_level(self, m_ref: Any) -> RecordModel:
         """This record with the level reference reading moved to ``m_ref`` (pix)."""
         return dataclasses.replace(self, data=self.data.with_level(m_ref))
+
+
+def padded_beta_index(real: ModelStructure, padded: ModelStructure) -> np.ndarray:
+    """(n_β of ``real``,) the index in ``padded``'s β of each of ``real``'s β entries
+    (:meth:`RecordModel.pad`: holds and systematic terms appended, the X-response terms
+    inserted before each system's last one)."""
+    b0, b1 = real.beta_blocks, padded.beta_blocks
+    out = np.zeros(real.n_beta, dtype=int)
+    H0, H1, X0, X1 = real.n_holds, padded.n_holds, real.n_x_response, padded.n_x_response
+    for name, ix in b0.items():
+        if name == "hold_offset":  # system 1's holds, then system 2's
+            out[ix] = np.r_[b1[name][:H0], b1[name][H1 : H1 + H0]]
+        elif name == "x_response" and X0:  # per system: all but the last, …, the last
+            cols = np.r_[np.arange(X0 - 1), X1 - 1]
+            out[ix] = np.r_[b1[name][cols], b1[name][X1 + cols]]
+        else:
+            out[ix] = b1[name][: len(ix)]
+    return out
+
+
+def draw_order(structure: ModelStructure) -> np.ndarray:
+    """β's indices in the order a draw of β takes its normals: the holds' (o₁ₖ, o₂ₖ, δₖ)
+    band by band, then the other entries ascending
+    (:func:`inference.normal_eq.draw_beta_blocks`)."""
+    bands = structure.hold_bands.reshape(-1)
+    return np.r_[bands, np.setdiff1d(np.arange(structure.n_beta), bands)]
+
+
+def beta_noise_order(
+    real: ModelStructure, padded: ModelStructure, before: Any = None
+) -> np.ndarray:
+    """(n_β of ``padded``,) which standard normal each entry of a draw of β takes, so that
+    a padded record's real entries take the normals they take unpadded (padding is exact
+    for ``bayes`` too, draw by draw): a draw's normals are ``jax.random.normal(key, n_β)``
+    and the i-th does not depend on n_β (JAX's partitionable threefry), so the real
+    entries keep their positions' numbers and the padding's take those after.
+    ``before``: the order of a record padded already (None: its own)."""
+    n0 = real.n_beta
+    prev = np.arange(n0) if before is None else np.asarray(before)
+    u0 = np.empty(n0, dtype=int)
+    u0[draw_order(real)] = np.arange(n0)  # position of each real β in its draw
+    u1 = np.empty(padded.n_beta, dtype=int)
+    u1[draw_order(padded)] = np.arange(padded.n_beta)
+    order = np.full(padded.n_beta, -1)
+    order[u1[padded_beta_index(real, padded)]] = prev[u0]
+    pad = order < 0
+    order[pad] = n0 + np.arange(int(pad.sum()))
+    return order

@@ -107,8 +107,9 @@ def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
 
     C, Dn = samp.draws.shape[:2]
     post = dict(draws.quantities)  # draws: chekan.joint.reported.ReportedDraws
-    y = np.asarray(model.data.y)
-    mask = np.asarray(model.data.mask)
+    n_bins = model.n_real_bins  # the record's bins, not its bucket's padding
+    y = np.asarray(model.data.y)[:n_bins]
+    mask = np.asarray(model.data.mask)[:n_bins]
     nrep = rep.shape[0]
     groups = {
         "posterior": post,

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from chekan.joint.layout import RecordModel
 from chekan.joint.map import MapFit
 from chekan.options import CalibrationOptions
 from chekan.runtime.engine import problem_for
@@ -108,14 +109,15 @@ def sample_posterior(fit: MapFit, options: CalibrationOptions) -> SamplingResult
 def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> ReportedDraws:
     """Every reported quantity of the draws (chain, draw, 12) of z, β drawn given θ with
     keys from ``seed`` (:func:`chekan.joint.reported.posterior_draws`): {name: (chain,
-    draw, ...)}, and the pointwise log-likelihood (chain, draw, bins, 2)."""
+    draw, ...)}, and the pointwise log-likelihood (chain, draw, bins, 2), for the record's
+    own holds and bins (:func:`real_part`)."""
     import jax
 
     from chekan.joint.reported import ReportedDraws, posterior_draws
 
     C, Dn = draws.shape[:2]
     keys = jax.random.split(jax.random.PRNGKey(seed), C * Dn)
-    flat = posterior_draws(fit, draws.reshape(C * Dn, -1), keys)
+    flat = real_part(fit.model, posterior_draws(fit, draws.reshape(C * Dn, -1), keys))
 
     def per_chain(v: np.ndarray) -> np.ndarray:
         return np.asarray(v).reshape(C, Dn, *np.shape(v)[1:])
@@ -123,3 +125,23 @@ def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> ReportedDraws:
     return ReportedDraws(
         {k: per_chain(v) for k, v in flat.quantities.items()}, per_chain(flat.loglik)
     )
+
+
+#: the draws' quantities per hold (their axis after the draws' one)
+PER_HOLD = ("angle_error_arcsec", "hold_offset_pix")
+
+
+def real_part(model: RecordModel, flat: ReportedDraws) -> ReportedDraws:
+    """The draws ``flat`` {name: (draws, ...)} of a padded model (its bucket,
+    :mod:`chekan.runtime.padding`) cut back to the record's own holds and bins: the
+    padding's holds and bins come after the real ones and carry no data (their angle
+    errors and hold offsets are draws from the prior, their log-likelihood 0), so that
+    nothing reported, and no stopping rule, sees them."""
+    from chekan.joint.reported import ReportedDraws
+
+    H, N = model.n_real_holds, model.n_real_bins
+    assert bool(np.all(np.asarray(model.data.hold_mask)[:H])), "real holds come first"
+    out = {k: np.asarray(v) for k, v in flat.quantities.items()}
+    for k in PER_HOLD:
+        out[k] = out[k][:, :H]
+    return ReportedDraws(out, np.asarray(flat.loglik)[:, :N])

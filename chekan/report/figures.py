@@ -13,8 +13,8 @@ from typing import Any, cast
 import numpy as np
 
 from chekan.classical.settling import fitted_model, model_at_holds
-from chekan.plotting import new_figure
 from chekan.report.i18n import Translator, param_name
+from chekan.report.plotting import new_figure
 
 DPI = 200
 SYS_COLORS = ("#1f62b4", "#c8382c")

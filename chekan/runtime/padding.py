@@ -1,32 +1,77 @@
 """Shape buckets: a record laid out for a structure a little larger than its own, so that
-records of similar size share one compiled executable (padding carries zero weight)."""
+the programs of one bucket share one compiled engine (:mod:`chekan.runtime.engine`), for
+``map`` and ``bayes`` alike. Padding is exact (:meth:`chekan.joint.layout.RecordModel.pad`).
+
+Every padded size (holds H, bins N, slew samples per hold M, systematic angle-error terms S,
+X-response terms X) is rounded up to the next rung of :data:`LADDER`: multiples of 8 up to
+32, then five rungs per octave, 2ᵏ·{1, 9/8, 10/8, 12/8, 14/8} (at most 20 % more: warm runs
+stay as fast, measured in ``docs/commands.md``). The rungs hold the real programs' sizes
+where they fall (H, N, M, S, X): the paper's 9 h program and its 3 h version
+(36, 216, 24, 35, 0) → (36, 224, 24, 36, 0); the designer's 9 h xy program
+(160, 800, 24, 31, 21) → (160, 896, 24, 32, 24) and its 2.6 h version
+(48, 240, 24, 31, 21) → (48, 256, 24, 32, 24). 0 stays 0 (no systematic or X terms is a
+different model, not a smaller one). The drift and encoder degrees are not padded: their
+columns are reported (the drift coefficients, the drift curve), so they stay in the key.
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 if TYPE_CHECKING:
-    from chekan.joint.layout import RecordModel
+    from chekan.joint.layout import ModelStructure, RecordModel
 
-__all__ = ["padded_for", "padded_shape"]
+__all__ = ["LADDER", "Bucket", "bucket_of", "padded_for", "padded_shape", "rung"]
 
-
-def padded_shape(models: list[RecordModel]) -> tuple[int, int, int, int]:
-    """(H, N, M, S) that holds every model, rounded up (H and S to 4, N and M to 16) so
-    that chunks of similar records share one compiled solver."""
-
-    def up(x: int, m: int) -> int:
-        return -(-x // m) * m
-
-    H = max(m.structure.n_holds for m in models)
-    N = max(m.structure.n_bins for m in models)
-    M = max(m.structure.n_moves for m in models)
-    S = max(m.structure.n_systematic for m in models)
-    return up(H, 4), up(N, 16), up(M, 16), up(S, 4)
+#: the rungs below 32; above it 2ᵏ·(8, 9, 10, 12, 14)/8
+_LOW = (8, 16, 24, 32)
+_STEPS = (9, 10, 12, 14, 16)
 
 
-def padded_for(model: RecordModel, method: str) -> RecordModel:
-    """``model`` as ``method`` runs it: ``map`` pads it to its shape bucket (exact: padding
-    carries zero weight), so that records of similar size share one compiled solver;
-    ``bayes`` keeps the record's own shape (its per-hold outputs would carry the padding)."""
-    return model.pad(*padded_shape([model])) if method == "map" else model
+def _ladder(top: int = 1 << 16) -> tuple[int, ...]:
+    out, base = list(_LOW), 32
+    while base < top:
+        out.extend(base * s // 8 for s in _STEPS)
+        base *= 2
+    return tuple(out)
+
+
+LADDER = _ladder()
+
+
+def rung(n: int) -> int:
+    """The smallest rung of :data:`LADDER` ≥ ``n`` (0 for 0)."""
+    if n <= 0:
+        return 0
+    return next(r for r in LADDER if r >= n)
+
+
+class Bucket(NamedTuple):
+    """A padded shape: holds, bins, slew samples per hold, systematic and X-response terms."""
+
+    n_holds: int
+    n_bins: int
+    n_moves: int
+    n_systematic: int
+    n_x_response: int
+
+
+def bucket_of(structure: ModelStructure) -> Bucket:
+    """The bucket that ``structure`` is padded to."""
+    s = structure
+    return Bucket(
+        rung(s.n_holds), rung(s.n_bins), rung(s.n_moves), rung(s.n_systematic), rung(s.n_x_response)
+    )
+
+
+def padded_shape(models: list[RecordModel]) -> Bucket:
+    """The bucket that holds every model (their largest sizes, each rounded up to its rung)."""
+    sizes = [bucket_of(m.structure) for m in models]
+    return Bucket(*(max(col) for col in zip(*sizes, strict=True)))
+
+
+def padded_for(model: RecordModel) -> RecordModel:
+    """``model`` as ``map`` and ``bayes`` run it (one engine for both): padded to its bucket
+    (exact: the padding carries zero weight; the per-hold and per-bin outputs of ``bayes``
+    are cut back to the real holds and bins, :func:`chekan.joint.sampling.reported_draws`)."""
+    return model.pad(*bucket_of(model.structure))

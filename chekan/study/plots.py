@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from chekan.physics.parameters import unit_of
-from chekan.plotting import new_figure
+from chekan.report.plotting import new_figure
 from chekan.study.summary import BAND_PROB, LEVELS, PARAMS, summary_groups
 
 _COLORS = {"classical": "tab:orange", "map": "tab:blue", "bayes": "tab:green"}
