@@ -106,12 +106,12 @@ def test_design_model_is_the_estimators_model(short_session):
     record."""
     import dataclasses
 
+    import dense_oracle as cm
     import jax.numpy as jnp
 
     from chekan.demo import demo_program
     from chekan.holds import segment_record
     from chekan.joint import binning
-    from chekan.joint import likelihood as cm
 
     _, rec, truth = short_session
     prog = demo_program(True)

@@ -5,12 +5,12 @@ posterior predictive's equilibria for all draws in one call."""
 
 from __future__ import annotations
 
+import dense_oracle as lk
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from chekan import model as fm
-from chekan.joint import likelihood as lk
 
 
 def _systematic_model(short_session, theta: dict, pad: bool):

@@ -1,23 +1,26 @@
 """The joint calibration of a record: both quartz systems, all rounds, one likelihood.
 
-=================  ==========================================================
-module             what it does
-=================  ==========================================================
-``layout``         the static structure (what compiles) and the data pytree
-``binning``        record → holds → bin means and slews (the data)
-``likelihood``     f(θ) + A(θ)β, normal equations, β̂ (the physics of the bins)
-``problem``        parameters and priors; MAP least squares; marginal density
-``em``             between MAP passes: level re-centring, EM of hyperparameters
-``start``          the MAP's start: classical θ; a τ read off the settling transients
-``map``            MAP + EM of one record → :class:`MapFit`
-``derived``        a, b₀, drift slope: one function for map, bayes and design
-``typea``          the MAP's Type A terms: uₕ and ν_eff from the estimated hyperparameters
-``budget``         the uncertainty budget of b and U = k·u
-``sampling``       emcee on the marginal posterior
-``predictive``     posterior predictive, drift curve, NetCDF
-``estimate``       the ``map`` and ``bayes`` results
-``legacy``         the joint model of a legacy protocol (per-round characteristic)
-=================  ==========================================================
+==================  ============================================================
+module              what it does
+==================  ============================================================
+``layout``          the static structure (what compiles) and the data pytree
+``binning``         record → holds → bin means and slews (the data)
+``likelihood``      the pieces of f(θ) + A(θ)β: sensor, lag, slews, noise, β's prior
+``hold_blocks``     the bins' terms at θ and the normal equations by hold (the only assembly)
+``beta_posterior``  β | θ, h from the hold blocks: β̂ and its θ-derivative, M⁻¹, E-step
+``problem``         parameters and priors; MAP least squares; marginal density
+``em``              between MAP passes: level re-centring, EM of hyperparameters
+``em_theta``        the E-step's moments and what θ's uncertainty adds to them
+``start``           the MAP's start: classical θ; a τ read off the settling transients
+``map``             MAP + EM of one record → :class:`MapFit`
+``derived``         a, b₀, drift slope: one function for map, bayes and design
+``typea``           the MAP's Type A terms: uₕ and ν_eff from the estimated hyperparameters
+``budget``          the uncertainty budget of b and U = k·u
+``sampling``        emcee on the marginal posterior
+``predictive``      posterior predictive, drift curve, NetCDF
+``estimate``        the ``map`` and ``bayes`` results
+``legacy``          the joint model of a legacy protocol (per-round characteristic)
+==================  ============================================================
 
 What is compiled for a structure, kept, loaded and cleared lives in :mod:`chekan.runtime`
 (``engine_for``, ``problem_for`` and ``clear_caches`` are re-exported here).
