@@ -222,6 +222,67 @@ def _directions(axis: np.ndarray) -> np.ndarray:
     return np.where((np.asarray(axis) == "x")[:, None], [1.0, 0.0], [0.0, 1.0])
 
 
+def _bin_arrays(rows: list[tuple], H: int, span_s: tuple[float, float], drift_degree: int):
+    """The bins' arrays of the data pytree from :func:`_bin_rows` (own and previous hold,
+    the lag's start d0, step and count, the means and counts, the drift basis on the time
+    scaled to [−1, 1] over ``span_s``), and the bins' mid times."""
+    N = len(rows)
+    hold_of = np.array([r[0] for r in rows])
+    own = np.zeros((N, H))
+    own[np.arange(N), hold_of] = 1.0
+    prev = np.zeros((N, H))
+    has_prev = hold_of > 0
+    prev[np.flatnonzero(has_prev), hold_of[has_prev] - 1] = 1.0
+    cnt = np.stack([r[2] for r in rows]).astype(float)
+    d0 = np.array([r[3] for r in rows])
+    d0 = np.where(hold_of > 0, d0, SETTLED_D0_S)  # first hold: settled from the start
+    t_mid = np.array([r[6] for r in rows])
+    t0, t1 = span_s
+    s = 2.0 * (t_mid - t0) / max(t1 - t0, 1.0) - 1.0
+    P = np.polynomial.legendre.legvander(s, drift_degree)[:, 1:]  # no constant
+    bins = {
+        "own": own,
+        "prev": prev,
+        "bin_hold": hold_of.astype(np.int32),
+        "d0": np.asarray(d0),
+        "dstep": np.array([r[4] for r in rows]),
+        "n_t": np.array([r[5] for r in rows], dtype=float),
+        "y": np.stack([r[1] for r in rows]),
+        "cnt": cnt,
+        "mask": cnt > 0,
+        "drift_basis": np.asarray(P),
+    }
+    return bins, t_mid
+
+
+def _x_terms(record, holds, mv_tx, mv_about_x, types, slew_axis, m_level_ref, m0_u_pix):
+    """The X rounds' response terms at the holds and along the slews about X, with their
+    prior variances (:func:`chekan.joint.xresponse.x_response_terms`)."""
+    x_kinds, x_types = types_about(types, slew_axis, "x")
+    return x_response_terms(
+        holds.theta_rad,
+        holds.hold_axis,
+        float(record.g_local_mgal),
+        mv_tx,
+        mv_about_x,
+        x_kinds,
+        x_types,
+        m_level_pix=float(np.mean(m_level_ref)),
+        m0_pix=float(record.ccd_center_pix),
+        m0_u_pix=m0_u_pix,
+    )
+
+
+def _hold_T(t, holds: HoldTable, t_last) -> np.ndarray:
+    """(H,) the time from the end of the slew into hold k to the hold's last sample (the lag
+    carried on to the next hold); a hold whose start a gap hid ends settled (nothing of its
+    slew carries on)."""
+    hold_T = np.array([t[holds.stop[k] - 1] - t_last[k] if k else 0.0 for k in range(holds.n)])
+    if holds.fresh is not None:
+        hold_T = np.where(holds.fresh, SETTLED_D0_S, hold_T)
+    return hold_T
+
+
 def prepare_record(
     record,
     holds: HoldTable,
@@ -242,27 +303,10 @@ def prepare_record(
     H = holds.n
     dt_s = 1.0 / float(record.sample_rate_hz)
     mv_tx, mv_ty, mv_lag, mv_mask, t_last = _moves(record, holds, dt_s)
-    # time from the end of the slew into hold k to the hold's last sample (lag carried on)
-    hold_T = np.array([t[holds.stop[k] - 1] - t_last[k] if k else 0.0 for k in range(H)])
-    # a hold whose start a gap hid ends settled: nothing of its slew carries on
-    if holds.fresh is not None:
-        hold_T = np.where(holds.fresh, SETTLED_D0_S, hold_T)
+    hold_T = _hold_T(t, holds, t_last)
     rows = _bin_rows(t, m, holds, t_last, bin_edges_s, gap_before(t, record.sample_rate_hz))
+    bins, t_mid = _bin_arrays(rows, H, (float(t.min()), float(t.max())), drift_degree)
     N = len(rows)
-    hold_of = np.array([r[0] for r in rows])
-    own = np.zeros((N, H))
-    own[np.arange(N), hold_of] = 1.0
-    prev = np.zeros((N, H))
-    has_prev = hold_of > 0
-    prev[np.flatnonzero(has_prev), hold_of[has_prev] - 1] = 1.0
-    y = np.stack([r[1] for r in rows])
-    cnt = np.stack([r[2] for r in rows]).astype(float)
-    d0 = np.array([r[3] for r in rows])
-    d0 = np.where(hold_of > 0, d0, SETTLED_D0_S)  # first hold: settled from the start
-    t_mid = np.array([r[6] for r in rows])
-    t0, t1 = float(t.min()), float(t.max())
-    s = 2.0 * (t_mid - t0) / max(t1 - t0, 1.0) - 1.0
-    P = np.polynomial.legendre.legvander(s, drift_degree)[:, 1:]  # no constant
     L = 3 if encoder else 0
     specs = {"y": angle_spec, "x": angle_spec_x}
     slew_axis = _slew_axis(holds)
@@ -270,18 +314,15 @@ def prepare_record(
     basis, prior_var, mv_basis, S, S_x, S_c = _angle_bases(
         holds, mv_tx, mv_ty, mv_mask, slew_axis, types, L, specs
     )
-    x_kinds, x_types = types_about(types, slew_axis, "x")
-    x_basis, mv_x_basis, x_prior_var = x_response_terms(
-        holds.theta_rad,
-        holds.hold_axis,
-        float(record.g_local_mgal),
+    x_basis, mv_x_basis, x_prior_var = _x_terms(
+        record,
+        holds,
         mv_tx,
         (slew_axis == "x")[:, None] & mv_mask,
-        x_kinds,
-        x_types,
-        m_level_pix=float(np.mean(m_level_ref)),
-        m0_pix=float(record.ccd_center_pix),
-        m0_u_pix=horizontal_u_pix,
+        types,
+        slew_axis,
+        m_level_ref,
+        horizontal_u_pix,
     )
     # placed on the device in one call (one per array costs ~0.1 ms each, 26 arrays)
     arrays = {
@@ -295,22 +336,13 @@ def prepare_record(
         "x_basis": x_basis,
         "x_prior_var": x_prior_var,
         "mv_x_basis": mv_x_basis,
-        "own": np.asarray(own),
-        "prev": np.asarray(prev),
-        "bin_hold": hold_of.astype(np.int32),
-        "d0": np.asarray(d0),
-        "dstep": np.array([r[4] for r in rows]),
-        "n_t": np.array([r[5] for r in rows], dtype=float),
-        "y": np.asarray(y),
-        "cnt": np.asarray(cnt),
-        "mask": cnt > 0,
+        **bins,
         "mv_tx": np.asarray(mv_tx),
         "mv_ty": np.asarray(mv_ty),
         "mv_lag": np.asarray(mv_lag),
         "mv_mask": np.asarray(mv_mask),
         "dt": np.asarray(dt_s),
         "hold_T": np.asarray(hold_T),
-        "drift_basis": np.asarray(P),
         "angle_basis": np.asarray(basis),
         "angle_prior_var": np.asarray(prior_var),
         "mv_angle_basis": np.asarray(mv_basis),
@@ -324,7 +356,7 @@ def prepare_record(
         data,
         holds.step,
         t_mid,
-        (t0, t1),
+        (float(t.min()), float(t.max())),
         angle_spec if S > S_x + S_c else None,
         angle_spec_x if S_x else None,
         S_x,
