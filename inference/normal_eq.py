@@ -43,6 +43,8 @@ __all__ = [
     "draw_beta_banded",
     "draw_beta_blocks",
     "implicit_stationary_point",
+    "implicit_stationary_point_banded",
+    "inverse_banded",
     "marginal_loglik_banded",
     "marginal_loglik_blocks",
     "marginal_loglik_normal",
@@ -99,9 +101,15 @@ def implicit_stationary_point(x: Array, chol: Array, gradient: Callable[[Array],
     :math:`M` and its factorisation (which cost a dense :math:`M` tangent and a Cholesky
     derivative, O(p³), per tangent direction).
     """
+    chol = jax.lax.stop_gradient(chol)
+    return _stationary(x, lambda u: jsl.cho_solve((chol, True), u), gradient)
+
+
+def _stationary(x: Array, solve: Callable[[Array], Array], gradient: Callable[[Array], Array]):
+    """x + M⁻¹(F − F), F = ``gradient``(x), x held: x's value, F's derivative through M⁻¹."""
     x = jax.lax.stop_gradient(x)
     F = gradient(x)
-    return x + jsl.cho_solve((jax.lax.stop_gradient(chol), True), F - jax.lax.stop_gradient(F))
+    return x + solve(F - jax.lax.stop_gradient(F))
 
 
 def draw_beta_normal(key: Array, ne: NormalEquations, prior_var: Array) -> Array:
@@ -312,10 +320,10 @@ def solve_banded_transposed(f: BandedFactor, bands: np.ndarray, u: Array, unroll
     return jnp.zeros(p).at[bands.reshape(-1)].set(xb.reshape(-1)).at[dense_idx].set(x_d)
 
 
-def solve_banded(f: BandedFactor, bands: np.ndarray, U: Array, unroll: int = 4) -> Array:
-    """M⁻¹U for U (p, r) in the original variable order, with the factor of
-    :func:`banded_factor`: forwards over the blocks, x_i = L_ii⁻¹(u_i − L_{i,i−1}x_{i−1}),
-    x_D = L_S⁻¹(u_D − Yᵀx_B), then :func:`solve_banded_transposed` per column."""
+def _forward_banded(f: BandedFactor, bands: np.ndarray, U: Array, unroll: int) -> Array:
+    """L⁻¹U for U (p, r) in the original variable order, the result in the order [banded;
+    dense]: forwards over the blocks, x_i = L_ii⁻¹(u_i − L_{i,i−1}x_{i−1}), then
+    x_D = L_S⁻¹(u_D − Yᵀx_B)."""
     bands = np.asarray(bands)
     H, k = bands.shape
     dense_idx = _dense_index(U.shape[0], bands)
@@ -329,8 +337,34 @@ def solve_banded(f: BandedFactor, bands: np.ndarray, U: Array, unroll: int = 4) 
     _, xb = jax.lax.scan(step, first, (f.diag, f.sub, U[bands]), unroll=unroll)
     xb = xb.reshape(H * k, -1)
     xd = jsl.solve_triangular(f.L_S, U[dense_idx] - f.Y.T @ xb, lower=True)
+    return jnp.concatenate([xb, xd])
+
+
+def solve_banded(f: BandedFactor, bands: np.ndarray, U: Array, unroll: int = 4) -> Array:
+    """M⁻¹U for U (p, r) in the original variable order, with the factor of
+    :func:`banded_factor`: L⁻¹U forwards over the blocks (:func:`_forward_banded`), then
+    :func:`solve_banded_transposed` per column."""
     back = jax.vmap(lambda u: solve_banded_transposed(f, bands, u, unroll), 1, 1)
-    return back(jnp.concatenate([xb, xd]))
+    return back(_forward_banded(f, bands, U, unroll))
+
+
+def inverse_banded(f: BandedFactor, bands: np.ndarray, unroll: int = 4) -> Array:
+    """M⁻¹ (p × p, the original variable order) from the factor of :func:`banded_factor`:
+    with X = L⁻¹P (P the permutation to [banded; dense], one forward pass over the blocks),
+    M⁻¹ = Pᵀ L⁻ᵀ L⁻¹ P = XᵀX (symmetric by construction)."""
+    p = f.Y.shape[0] + f.L_S.shape[0]
+    X = _forward_banded(f, bands, jnp.eye(p), unroll)
+    return X.T @ X
+
+
+def implicit_stationary_point_banded(
+    x: Array, f: BandedFactor, bands: np.ndarray, gradient: Callable[[Array], Array], unroll=4
+) -> Array:
+    """:func:`implicit_stationary_point` with M given by its block factor ``f``
+    (:func:`banded_factor_blocks`, variables ``bands``): one block solve
+    (:func:`solve_banded`) per tangent."""
+    f = jax.lax.stop_gradient(f)
+    return _stationary(x, lambda u: solve_banded(f, bands, u[:, None], unroll)[:, 0], gradient)
 
 
 def draw_beta_banded(key: Array, ne: NormalEquations, prior_var: Array, bands: np.ndarray) -> Array:

@@ -167,8 +167,7 @@ def test_shared_columns_move_the_prediction_as_the_angles_they_shift():
     import dataclasses
 
     import jax.numpy as jnp
-
-    from chekan.joint.likelihood import predict
+    from dense_oracle import predict
 
     rec, _ = simulate_session(SLOW_PROGRAM, Truth(serial="C", tau_s=90.0), seed=5)
     _, model = joint.prepare(rec, 100.0, angle_spec=AngleSensorSpec(3.0))

@@ -2,12 +2,12 @@
 
 import json
 
+import dense_oracle as cm
 import numpy as np
 import pytest
 
 from chekan import joint
 from chekan.classical.fit import calibrate_record
-from chekan.joint import likelihood as cm
 from chekan.joint.map import between_passes
 from chekan.joint.reported import map_derived
 from chekan.pipeline import CalibrationOptions, calibrate_file

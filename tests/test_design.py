@@ -106,11 +106,11 @@ def test_design_model_is_the_estimators_model(short_session):
     record."""
     import dataclasses
 
+    import dense_oracle as cm
     import jax.numpy as jnp
 
     from chekan.demo import demo_program
     from chekan.joint import binning
-    from chekan.joint import likelihood as cm
     from chekan.records.holds import segment_record
 
     _, rec, truth = short_session

@@ -15,7 +15,7 @@ from chekan import joint
 from chekan.classical.fit import calibrate_record
 from chekan.joint import em
 from chekan.joint.angles import AngleSensorSpec
-from chekan.joint.likelihood import solve_beta
+from chekan.joint.beta_posterior import solve_beta
 from chekan.joint.map import between_passes
 from chekan.runtime.padding import padded_shape
 
@@ -77,7 +77,7 @@ def test_between_passes_moves_the_level_by_c_and_ends_at_a_fixed_point(short_ses
     m_ref_before = np.array(model.data.m_ref)
     moved, h_new, n, _ = between_passes(model, z, h)
     v = prob.map_space.to_values(z)
-    _, beta, _ = solve_beta(v, h, model.structure, model.data)
+    beta = solve_beta(v, h, model.structure, model.data).beta
     c = np.asarray(beta)[model.structure.beta_blocks["c"]]
     np.testing.assert_allclose(
         np.asarray(moved.data.m_ref), np.asarray(model.data.m_ref) + c, rtol=0, atol=1e-9

@@ -5,11 +5,11 @@ posterior predictive's equilibria for all draws in one call."""
 
 from __future__ import annotations
 
+import dense_oracle as lk
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from chekan.joint import likelihood as lk
 from chekan.physics import sensor as fm
 
 

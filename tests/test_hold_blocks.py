@@ -1,19 +1,22 @@
 """The normal equations assembled straight into the hold blocks
-(:mod:`chekan.joint.hold_blocks`) against the dense assembly: the blocks gathered from the
-dense M, the log-density, A·β and the β draws, to round-off, on a record of the paper's
-angles (padded and not) and on one with rounds about both axes (X-response terms); marked
-slow, on the paper's full 9 h program and the bench's dual-axis record (160 holds)."""
+(:mod:`chekan.joint.hold_blocks`, β | θ: :mod:`chekan.joint.beta_posterior`) against the
+dense assembly (the oracle, ``tests/dense_oracle.py``, which no production code imports):
+the blocks gathered from the dense M, the MAP's residual, its Jacobian and M⁻¹, the
+log-density, A·β and the β draws, to round-off, on a record of the paper's angles (padded
+and not) and on one with rounds about both axes (X-response terms); marked slow, on the
+paper's full 9 h program and the bench's dual-axis record (160 holds)."""
 
 from __future__ import annotations
 
+import dense_oracle as cm
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from chekan import joint
+from chekan.joint import beta_posterior as bp
 from chekan.joint import hold_blocks as hb
-from chekan.joint import likelihood as cm
 from inference.normal_eq import (
     banded_factor_blocks,
     blocks_of,
@@ -79,7 +82,7 @@ def test_hold_blocks_equal_the_dense_normal_equations(short_session, dual_axis_r
     """Every block (holds' diagonal and sub-diagonal, their rows against the dense
     variables, the dense block, both right-hand sides, rᵀWr, log|N|, n) equals the one
     gathered from the dense M to round-off; the log-density equals the dense Cholesky's,
-    A·β equals :func:`chekan.joint.likelihood.apply_A`, and a β draw equals the one made
+    A·β equals the dense oracle's ``apply_A``, and a β draw equals the one made
     from the dense M's blocks with the same key (the same factor to round-off)."""
     model = _model(short_session, dual_axis_record, record)
     st, data = model.structure, model.data
@@ -133,7 +136,7 @@ def test_hold_blocks_equal_the_dense_normal_equations(short_session, dual_axis_r
 
 def test_unsettled_carry_by_scan_equals_the_product_matrix():
     """The associative scan of the carry recurrence equals the cumulative-product form of
-    :func:`chekan.joint.likelihood._unsettled_carry`."""
+    the dense oracle's ``_unsettled_carry``."""
     rng = np.random.default_rng(2)
     H, J = 37, 5
     E, Mv = jnp.asarray(rng.standard_normal((H, J))), jnp.asarray(rng.standard_normal((H, J)))
@@ -173,10 +176,10 @@ def test_log_density_gradient_equals_the_dense_assemblys(dual_axis_record):
 def test_e_step_moments_from_the_blocks_equal_the_dense_inverse(
     short_session, dual_axis_record, record
 ):
-    """What the EM's E-step reads (:func:`chekan.joint.hold_blocks.block_moments`): β̂, the
+    """What the EM's E-step reads (:func:`chekan.joint.beta_posterior.block_moments`): β̂, the
     variances diag(M⁻¹), the whitened residuals and the bins' leverages (Ã M⁻¹ Ãᵀ)ᵢᵢ equal
     those of the dense M and its inverse; the design's rows by their support
-    (:func:`~chekan.joint.hold_blocks.bin_rows`) hold every non-zero of the dense design."""
+    (:func:`~chekan.joint.beta_posterior.bin_rows`) hold every non-zero of the dense design."""
     model = _model(short_session, dual_axis_record, record)
     st, data = model.structure, model.data
     prob = joint.problem_for(st)
@@ -187,7 +190,7 @@ def test_e_step_moments_from_the_blocks_equal_the_dense_inverse(
         v = space.to_values(z)
         ne, (_, G, s, r, _, nv, _, P) = cm.normal_equations(v, v, st, data)
         A = cm.dense_design(G, s, st, data, P)
-        return ne, cm.beta_prior_var(v, st, data), A, r, nv, hb.block_moments(v, v, st, data)
+        return ne, cm.beta_prior_var(v, st, data), A, r, nv, bp.block_moments(v, v, st, data)
 
     z0 = np.asarray(space.to_z(space.to_values(np.zeros(space.size))))
     z = z0 + 0.3 * np.random.default_rng(3).standard_normal(space.size)
@@ -209,3 +212,77 @@ def test_e_step_moments_from_the_blocks_equal_the_dense_inverse(
     for n in np.flatnonzero(mask.any(axis=1)):
         np.add.at(back[n], (slice(None), cols[n]), vals[n])
     np.testing.assert_allclose(back, At, atol=1e-12 * np.abs(At).max())
+
+
+@pytest.mark.parametrize("record", ["short", "padded", "dual"])
+def test_map_residual_and_derived_inputs_from_the_blocks_equal_the_dense(
+    short_session, dual_axis_record, record
+):
+    """The MAP's projected residual (:func:`chekan.joint.beta_posterior.solve_beta`) and its
+    Jacobian in θ, β̂, log|M| and the quadratic form gᵀM⁻¹g from the block factor, M⁻¹ and
+    the whitened design that :func:`chekan.joint.derived.map_derived_fn` hands on, against
+    the dense oracle's assembly and Cholesky, at hyperparameters whose noise depends on θ
+    (slew error > 0)."""
+    model = _model(short_session, dual_axis_record, record)
+    st, data = model.structure, model.data
+    space = joint.problem_for(st).map_space
+    h = joint.default_hyper(noise_scale=(1.3, 0.7), sigma_hold_pix=0.08, slew_error=0.02)
+
+    @jax.jit
+    def parts(z, data):
+        v = space.to_values(z)
+        sol = bp.solve_beta(v, h, st, data)
+        rw_d, beta_d, L = cm.solve_beta(v, h, st, data)
+        ne, (_, G, s, _, _, nv, _, P) = cm.normal_equations(v, h, st, data)
+        sw = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
+        A_w = cm.dense_design(G, s, st, data, P) * sw[..., None]
+        jac = jax.jacfwd(lambda zz: bp.solve_beta(space.to_values(zz), h, st, data).rw)(z)
+        jac_d = jax.jacfwd(lambda zz: cm.solve_beta(space.to_values(zz), h, st, data)[0])(z)
+        Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
+        A_b = bp.dense_rows(bp.bin_rows(sol.terms, st, data), st.n_beta) * sw[..., None]
+        return (
+            (sol.rw, rw_d),
+            (sol.beta, beta_d),
+            (jac, jac_d),
+            (bp.posterior_cov(sol.factor, st), Linv.T @ Linv),
+            (A_b, A_w),
+            (sol.factor, L, ne.g),
+        )
+
+    z0 = np.asarray(space.to_z(space.to_values(np.zeros(space.size))))
+    for z in z0 + 0.3 * np.random.default_rng(4).standard_normal((2, space.size)):
+        rw, beta, jac, minv, aw, (f, L, g) = parts(jnp.asarray(z), data)
+        for name, (got, want), tol in (
+            ("rw", rw, 1e-9),
+            ("beta", beta, 1e-9),
+            ("jacobian", jac, 1e-8),
+            ("M⁻¹", minv, 1e-9),
+            ("A_w", aw, 1e-12),
+        ):
+            assert _rel(got, want) < tol, name
+        logdet_blocks = 2.0 * float(
+            np.sum(np.log(np.diagonal(np.asarray(f.diag), axis1=1, axis2=2)))
+            + np.sum(np.log(np.diagonal(np.asarray(f.L_S))))
+        )
+        logdet_dense = 2.0 * float(np.sum(np.log(np.diagonal(np.asarray(L)))))
+        assert logdet_blocks == pytest.approx(logdet_dense, rel=1e-12)
+        quad_blocks = float(np.sum(np.asarray(f.y) ** 2) + np.sum(np.asarray(f.c) ** 2))
+        quad_dense = float(np.asarray(g) @ np.asarray(beta[1]))
+        assert quad_blocks == pytest.approx(quad_dense, rel=1e-10)
+
+
+def test_no_production_code_imports_the_dense_oracle():
+    """The dense assembly is the tests' oracle only: nothing in the package, the inference
+    library or the bench imports it, and the model forms neither a dense design nor dense
+    normal equations (nor solves them: ``posterior_beta_normal``, ``marginal_loglik_normal``)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    for folder in ("chekan", "inference", "hw", "bench"):
+        for path in (root / folder).rglob("*.py"):
+            text = path.read_text(encoding="utf-8")
+            assert "dense_oracle" not in text.replace("tests/dense_oracle.py", ""), path
+            if folder != "chekan":
+                continue
+            for name in ("normal_equations(", "dense_design(", "NormalEquations(", "_normal("):
+                assert f" {name}" not in text and f".{name}" not in text, (path, name)

@@ -60,9 +60,12 @@ def test_value_is_unchanged_and_derivatives_equal_the_direct_ones():
 
 def test_map_jacobian_of_the_joint_model_is_unchanged(short_session, short_session_theta):
     """The projected residuals' Jacobian with the implicit β̂ derivative against the one
-    through the normal equations' assembly and Cholesky (their derivative taken directly)."""
-    import chekan.joint.likelihood as lk
+    through the normal equations' assembly and Cholesky (their derivative taken directly):
+    the MAP's residual (by the hold blocks) against the dense oracle's."""
+    import dense_oracle as lk
+
     from chekan.joint.angles import AngleSensorSpec
+    from chekan.joint.beta_posterior import solve_beta
     from chekan.joint.binning import prepare
 
     _, model = prepare(short_session[1], 200, angle_spec=AngleSensorSpec(3.0))
@@ -81,7 +84,7 @@ def test_map_jacobian_of_the_joint_model_is_unchanged(short_session, short_sessi
         return (sqrt_w * (r - lk.apply_A(beta, G, s, st, data, P))).reshape(-1)
 
     def implicit(v):
-        return lk.solve_beta(v, h, st, data)[0]
+        return solve_beta(v, h, st, data).rw
 
     v = short_session_theta
     j_ref = jax.jit(jax.jacfwd(through_factorisation))(v)
@@ -96,8 +99,8 @@ def test_map_jacobian_equals_central_differences(short_session, short_session_th
     the equilibrium, through the angle sensitivity) against central differences, column
     by column. With the equilibrium's second derivatives inexact (0.3.7) the log K column
     was off by ≈ 3·10⁻⁴ of its size, and Gauss–Newton stopped off the optimum."""
-    import chekan.joint.likelihood as lk
     from chekan.joint.angles import AngleSensorSpec
+    from chekan.joint.beta_posterior import solve_beta
     from chekan.joint.binning import prepare
 
     _, model = prepare(short_session[1], 200, angle_spec=AngleSensorSpec(3.0))
@@ -108,9 +111,9 @@ def test_map_jacobian_equals_central_differences(short_session, short_session_th
         "sigma_hold_pix": jnp.asarray(0.08),
         "slew_error": jnp.asarray(0.02),
     }
-    res = jax.jit(lambda v: lk.solve_beta(v, h, st, data)[0])
+    res = jax.jit(lambda v: solve_beta(v, h, st, data).rw)
     v = short_session_theta
-    jac = jax.jit(jax.jacfwd(lambda v: lk.solve_beta(v, h, st, data)[0]))(v)
+    jac = jax.jit(jax.jacfwd(lambda v: solve_beta(v, h, st, data).rw))(v)
     for k, x in v.items():
         step = 1e-3 * max(abs(float(x)), 0.1)  # fourth-order stencil: truncation ≈ 1e-12
 

@@ -4,10 +4,10 @@ that go straight to Levenberg–Marquardt once Gauss–Newton has failed on a re
 
 from __future__ import annotations
 
+import dense_oracle as lk
 import jax.numpy as jnp
 import numpy as np
 
-from chekan.joint import likelihood as lk
 from chekan.joint import map as jmap
 
 

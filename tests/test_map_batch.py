@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from chekan import joint
-from chekan.joint import likelihood as cm
+from chekan.joint.beta_posterior import solve_beta
 from chekan.pipeline import CalibrationOptions, calibrate_file
 
 
@@ -25,8 +25,8 @@ def test_pad_model_is_exact(short_session) -> None:
     assert padded.n_beta == model.n_beta + 9  # 3 holds × (o₁, o₂, δ)
     v = {k: jnp.asarray(x) for k, x in joint.initial_values(cres, rec.g_local_mgal).items()}
     h = joint.default_hyper(noise_scale=(1.2, 0.8), slew_error=0.01)
-    rw, beta, _ = cm.solve_beta(v, h, model.structure, model.data)
-    rw_p, beta_p, _ = cm.solve_beta(v, h, padded.structure, padded.data)
+    rw, beta, _, _ = solve_beta(v, h, model.structure, model.data)
+    rw_p, beta_p, _, _ = solve_beta(v, h, padded.structure, padded.data)
     N = model.n_bins
     np.testing.assert_allclose(np.asarray(rw_p)[: 2 * N], np.asarray(rw), rtol=1e-9, atol=1e-12)
     np.testing.assert_array_equal(np.asarray(rw_p)[2 * N :], 0.0)

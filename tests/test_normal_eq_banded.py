@@ -2,13 +2,13 @@
 dense Cholesky: a random block-tridiagonal + dense matrix, and the joint model's M on a
 record of the paper's program and on one with rounds about both axes."""
 
+import dense_oracle as cm
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from chekan import joint
-from chekan.joint import likelihood as cm
 from inference.normal_eq import (
     NormalEquations,
     banded_factor,

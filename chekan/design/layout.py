@@ -215,7 +215,7 @@ class Lagged:
 
 
 def lagged_means(layout: Layout, tau_s: float, E_hold: np.ndarray, E_slew: np.ndarray) -> Lagged:
-    """Bin means of the lagged equilibrium (chekan.joint.likelihood.linear_terms in NumPy).
+    """Bin means of the lagged equilibrium (chekan.joint.hold_blocks.bin_design in NumPy).
 
     wₘ = (1 − e^{−Δt/τ}) e^{−lagₘ/τ} along the slew into hold k, w_prev = 1 − Σwₘ,
     M_v = Σ wₘ E(θₘ); lag state after the slew y₀,ₖ = w_prev (E_{k−1} + (y₀,ₖ₋₁ − E_{k−1})ρ_{k−1})

@@ -17,15 +17,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from chekan.joint.beta_posterior import bin_rows, dense_rows, posterior_cov, solve_beta
 from chekan.joint.hold_blocks import apply_blocks, block_normal_equations
 from chekan.joint.layout import ModelStructure, RecordData
-from chekan.joint.likelihood import (
-    beta_prior_var,
-    dense_design,
-    noise_var,
-    sensor_params,
-    solve_beta,
-)
+from chekan.joint.likelihood import beta_prior_var, noise_var, sensor_params
 from chekan.physics import sensor as fm
 from chekan.physics.parameters import PHYSICAL
 from inference.normal_eq import draw_beta_blocks, split_prior
@@ -99,18 +94,19 @@ def map_derived_fn(structure: ModelStructure, space) -> Callable:
             return jnp.stack([q[n] for n in PHYSICAL])
 
         def beta_hat(z):
-            return solve_beta(space.to_values(z), h, structure, data)[1]
+            return solve_beta(space.to_values(z), h, structure, data).beta
 
-        v = space.to_values(z)
-        _, beta, L, (_, G, s, _, _, nv, trans, P) = solve_beta(v, h, structure, data, True)
+        sol = solve_beta(space.to_values(z), h, structure, data)
+        beta, t = sol.beta, sol.terms
         Jz = jax.jacfwd(lambda zz: g(zz, beta_hat(zz)))(z)
         Jb = jax.jacfwd(lambda bb: g(z, bb))(beta)
-        Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(L.shape[0]), lower=True)
-        sw = jnp.where(data.mask, 1.0 / jnp.sqrt(nv), 0.0)
-        A_w = dense_design(G, s, structure, data, P) * sw[..., None]
+        sw = jnp.where(data.mask, 1.0 / jnp.sqrt(t.nv), 0.0)
+        A_w = dense_rows(bin_rows(t, structure, data), structure.n_beta) * sw[..., None]
         base = noise_var(h, data)
+        trans = jnp.where(jnp.sum(data.own, axis=1)[:, None] > 0, t.trans, 0.0)  # 0: padding
         pv = beta_prior_var(h, structure, data)
-        return g(z, beta), Jz, Jb, Linv.T @ Linv, beta, A_w, base, trans, pv
+        Minv = posterior_cov(sol.factor, structure)
+        return g(z, beta), Jz, Jb, Minv, beta, A_w, base, trans, pv
 
     return core
 

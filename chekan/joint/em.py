@@ -11,10 +11,12 @@ those of the joint Laplace posterior of (θ, β) at θ̂, not of β given θ = �
     E[ββᵀ] = β̂β̂ᵀ + M⁻¹ + B C_θ Bᵀ,    E[rᵢ²] = r̂ᵢ² + (Ã M⁻¹ Ãᵀ)ᵢᵢ + (J_r C_θ J_rᵀ)ᵢᵢ,
 
 J the Jacobian of the MAP's stacked residual [r_w, β̂/√Λ, θ's prior rows] in θ (its bin
-rows J_r), C_θ = (JᵀJ)⁻¹, all at the current hyperparameters (:func:`_theta_terms`, from
-the derivatives of f, A and the transient in θ, which do not depend on h and are formed
-once per EM stage by :func:`design_derivatives`; the rest is linear algebra). Every
-moment comes from M's hold blocks (:func:`chekan.joint.hold_blocks.block_moments`: β̂,
+rows J_r), C_θ = (JᵀJ)⁻¹, all at the current hyperparameters
+(:func:`chekan.joint.em_theta.theta_part`, from the derivatives of f, A and the transient
+in θ, which do not depend on h and are formed once per EM stage by
+:func:`~chekan.joint.em_theta.design_derivatives`, as are the bins' terms at θ,
+:func:`chekan.joint.hold_blocks.bin_design`; the rest is linear algebra). Every
+moment comes from M's hold blocks (:func:`chekan.joint.beta_posterior.block_moments`: β̂,
 diag(M⁻¹) and the leverages from the entries of M⁻¹ on M's pattern; A and ∂A/∂θ by the
 support of their rows), so an update is O(N·(6 + m)·q), never O(p³) (``docs/tuning.md``).
 Maximising over θ instead (these terms left out) is ML for the
@@ -36,31 +38,19 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from chekan.joint.hold_blocks import (
-    BinRows,
-    bin_rows,
-    block_moments,
-    block_normal_equations,
-    row_columns,
-    rows_t_times,
-    rows_times,
-)
+from chekan.joint.beta_posterior import beta_mean
+from chekan.joint.em_theta import Design, design_derivatives, moments, theta_part
+from chekan.joint.em_theta import theta_terms as theta_terms  # re-exported (tests, docs)
+from chekan.joint.hold_blocks import BinDesign, bin_design
 from chekan.joint.layout import ModelStructure, RecordData
-from chekan.joint.likelihood import (
-    beta_prior_var,
-    noise_var,
-    solve_beta,
-)
 from chekan.joint.problem import Hyper, hyper_params
 from inference.box_newton import minimise_in_box
 from inference.jacobian import jacobian_once
-from inference.normal_eq import BandedFactor, solve_banded
 
 HYPER_TOL = 1e-4  # EM stops when no log-hyperparameter moves more than this in an update
 HYPER_MAX_UPDATES = 200  # EM updates between two passes at most (Newton's steps counted)
@@ -195,14 +185,17 @@ def _em_until(limit: int) -> Callable:
     return cond
 
 
-def _em_stage(z, h: Hyper, structure: ModelStructure, data: RecordData, space) -> Callable:
-    """The EM update at θ = z with θ integrated in the E-step (:func:`theta_terms`; the
-    derivatives in θ formed once: they do not depend on h), traceable."""
+def _em_stage(z, structure: ModelStructure, data: RecordData, space) -> Callable:
+    """The EM update at θ = z with θ integrated in the E-step (:func:`theta_terms`),
+    traceable. What depends on θ alone is formed here, once, not in every update: the bins'
+    terms (equilibria, slews, lag weights: :func:`~chekan.joint.hold_blocks.bin_design`) and
+    their derivatives in θ (:class:`Design`)."""
     v = space.to_values(z)
-    design = design_derivatives(z, h, structure, data, space)
+    at = bin_design(v, structure, data)
+    design = design_derivatives(z, structure, data, space)
 
     def update(h, data_, frozen_theta=False):
-        return em_update(v, h, structure, data_, design, frozen_theta)
+        return em_update(v, h, structure, data_, design, frozen_theta, at)
 
     return update
 
@@ -214,11 +207,10 @@ def em_pass_fn(structure: ModelStructure, space) -> Callable:
     has not converged), traceable; compiled by :class:`chekan.runtime.engine.Engine`."""
 
     def fn(z, h: Hyper, data: RecordData):
-        v = space.to_values(z)
-        _, beta, _ = solve_beta(v, h, structure, data)
+        beta = beta_mean(space.to_values(z), h, structure, data).beta
         m_ref = data.m_ref + beta[structure.beta_blocks["c"]]
         data = dataclasses.replace(data, m_ref=m_ref)
-        update = _em_stage(z, h, structure, data, space)
+        update = _em_stage(z, structure, data, space)
         c = (h, jnp.asarray(0), jnp.asarray(jnp.inf))
         h, n, change = jax.lax.while_loop(
             _em_until(EM_UPDATES_BEFORE_NEWTON), _em_body(update, data), c
@@ -238,7 +230,7 @@ def em_newton_fn(structure: ModelStructure, space) -> Callable:
     traceable."""
 
     def fn(z, h: Hyper, n, change, data: RecordData):
-        update = _em_stage(z, h, structure, data, space)
+        update = _em_stage(z, structure, data, space)
         c = _newton(update, data, (h, n, change))
         h, n, change = jax.lax.while_loop(_em_until(HYPER_MAX_UPDATES), _em_body(update, data), c)
         return h, n, change, _log_hyper(update(h, data)) - _log_hyper(h)
@@ -288,71 +280,10 @@ def _newton(update: Callable, data: RecordData, carry):
     return _hyper(x), jnp.where(ok, n + steps, n), jnp.where(ok, 0.0, change)
 
 
-class Design(NamedTuple):
-    """The derivatives in θ (working units, q of them) of what the bins' prediction is
-    made of, at θ̂: they do not depend on the hyperparameters, so one forward Jacobian per
-    EM stage serves every update (:func:`design_derivatives`)."""
-
-    df: jax.Array
-    """∂f/∂z (N, 2, q): the prediction without β."""
-    dA: BinRows
-    """∂A/∂z (N, 2, 6 + m, q) by the rows' support: β's design."""
-    dt: jax.Array
-    """∂t/∂z (N, 2, q): the transient amplitude that κ scales."""
-    dprior: jax.Array
-    """∂(θ's prior rows)/∂z."""
-
-
-def design_derivatives(z, h: Hyper, structure: ModelStructure, data: RecordData, space):
-    """:class:`Design` at θ = z, traceable (``h`` only to call the model's assembly; what is
-    kept does not depend on it)."""
-
-    def pieces(zz):  # ∂f = −∂r on the real bins (r = y − f); padding bins have no weight
-        _, t = block_normal_equations(space.to_values(zz), h, structure, data)
-        return -t.r, bin_rows(t, structure, data).values, t.trans
-
-    df, dA, dt = jax.jacfwd(pieces)(z)
-    rows = BinRows(dA, row_columns(structure, data))
-    return Design(df, rows, dt, jax.jacfwd(space.prior_residuals)(z))
-
-
-def _theta_terms(d: Design, m: _Moments, h: Hyper, structure: ModelStructure, data):
-    """What θ's uncertainty adds to the E-step's moments, ``(var_β (p,), lev_θ (N, 2))``:
-    var_β = diag(B C_θ Bᵀ), lev_θ = diag(J_r C_θ J_rᵀ) (module docstring), traceable.
-
-    With r_w = √w (y − f − Aβ), w = 1/v, v the bins' noise variance (κ's part moves with θ
-    through the transient t): ∂r_w/∂θ at fixed β is J₀ = −√w (∂f + ∂A β̂) − ½ r_w ∂log v;
-    β̂'s stationarity (Ãᵀ r_w = Λ⁻¹β̂, Ã = √w A) gives B = M⁻¹ [(∂Ã)ᵀ r_w + Ãᵀ J₀] and the
-    bins' rows of the MAP's (projected) Jacobian J_r = J₀ − Ã B; its β̂ rows are B/√Λ and
-    C_θ = (JᵀJ)⁺ with θ's prior rows (a direction that nothing identifies adds nothing).
-    All O(N·(6 + m)·q) from :class:`Design` and the rows' support: no derivative of the solve."""
-    kappa2 = h["slew_error"] ** 2
-    dlogv = jnp.where(data.mask[..., None], 2 * kappa2 * m.trans[..., None] * d.dt, 0.0)
-    dlogv = dlogv / m.nv[..., None]
-    At, p = m.At, structure.n_beta
-    J0 = -m.sw[..., None] * (d.df + rows_times(d.dA, m.beta))
-    J0 = J0 - 0.5 * m.rw[..., None] * dlogv
-    g = rows_t_times(d.dA, m.sw * m.rw, p)
-    g = g - 0.5 * rows_t_times(At, m.rw[..., None] * dlogv, p)
-    g = g + rows_t_times(At, J0, p)
-    B = solve_banded(m.factor, structure.hold_bands, g, unroll=1)  # (p, q) M⁻¹g
-    Jr = J0 - rows_times(At, B)
-    Jb = B / jnp.sqrt(beta_prior_var(h, structure, data))[:, None]
-    JtJ = jnp.einsum("njq,njr->qr", Jr, Jr) + Jb.T @ Jb + d.dprior.T @ d.dprior
-    C = jnp.linalg.pinv(JtJ, hermitian=True)
-    return jnp.einsum("pq,qr,pr->p", B, C, B), jnp.einsum("njq,qr,njr->nj", Jr, C, Jr)
-
-
-def theta_terms(z, h: Hyper, structure: ModelStructure, data: RecordData, space):
-    """``(var_β (p,), lev_θ (N, 2))`` at θ = z and ``h`` (:func:`_theta_terms`), traceable."""
-    d = design_derivatives(z, h, structure, data, space)
-    return _theta_terms(d, _moments(space.to_values(z), h, structure, data), h, structure, data)
-
-
 def em_update_theta(z, h: Hyper, data: RecordData, *, space, structure: ModelStructure) -> Hyper:
     """One EM update at θ = z (working units) whose E-step integrates θ, traceable (as the
     EM between passes runs it, with :class:`Design` formed here)."""
-    d = design_derivatives(z, h, structure, data, space)
+    d = design_derivatives(z, structure, data, space)
     return em_update(space.to_values(z), h, structure, data, d)
 
 
@@ -363,6 +294,7 @@ def em_update(
     data: RecordData,
     design: Design | None = None,
     frozen_theta: bool = False,
+    at: BinDesign | None = None,
 ) -> Hyper:
     """One EM update of the hyperparameters at θ (values ``v``), real holds and bins only,
     traceable.
@@ -370,14 +302,15 @@ def em_update(
     σ_o² = mean(ô² + var o) and σ_θ² = mean(δ̂² + var δ) over the real holds, with the
     variances of β from M⁻¹; (s₁, s₂, κ) from the expected squared residuals r̂² + leverage
     (:func:`noise_m_step`). With ``design`` (:func:`design_derivatives` at this θ) the
-    E-step integrates θ: :func:`_theta_terms` added to those variances and leverages
-    (``frozen_theta``: without their derivative in h, for Newton's Jacobian); None: θ
-    known (ML)."""
-    m = _moments(v, h, structure, data)
+    E-step integrates θ: :func:`~chekan.joint.em_theta.theta_part` added to those variances
+    and leverages (``frozen_theta``: without their derivative in h, for Newton's Jacobian);
+    None: θ known (ML). ``at``: the bins' terms at θ
+    (:func:`~chekan.joint.hold_blocks.bin_design`) if already computed."""
+    m = moments(v, h, structure, data, at)
     rw, beta, base, trans, lev = m.rw, m.beta, m.base, m.trans, m.lev
     var = m.var
     if design is not None:
-        extra = _theta_terms(design, m, h, structure, data)
+        extra = theta_part(design, m, h, structure, data)
         if frozen_theta:
             extra = jax.lax.stop_gradient(extra)
         var = var + extra[0]
@@ -425,34 +358,9 @@ def noise_m_step(e2, b0, trans, mask, x0) -> tuple[jax.Array, jax.Array]:
     return jnp.exp(x[:2]), jnp.exp(x[2])
 
 
-class _Moments(NamedTuple):
-    """β's posterior given θ and what the E-step needs, at θ and h (:func:`_moments`)."""
-
-    rw: jax.Array  # (N, 2) whitened residuals
-    beta: jax.Array  # (p,) β̂
-    factor: BandedFactor  # M's factor by the hold blocks
-    var: jax.Array  # (p,) diag(M⁻¹)
-    At: BinRows  # (N, 2, 6 + m) the whitened design √w A by its rows' support
-    sw: jax.Array  # (N, 2) √w (0 for masked bins)
-    nv: jax.Array  # (N, 2) the bins' noise variance
-    base: jax.Array  # (N, 2) its part (sⱼσⱼ)²/n
-    trans: jax.Array  # (N, 2) the transient amplitude
-    lev: jax.Array  # (N, 2) (Ã M⁻¹ Ãᵀ)ᵢᵢ
-
-
-def _moments(v: dict, h: Hyper, structure: ModelStructure, data: RecordData) -> _Moments:
-    """The E-step's moments from the hold blocks (:func:`block_moments`); padding bins 0."""
-    m = block_moments(v, h, structure, data)
-    t = m.terms
-    trans = jnp.where(data.mask, t.trans, 0.0)
-    return _Moments(
-        m.rw, m.beta, m.factor, m.var, m.rows, m.sw, t.nv, noise_var(h, data), trans, m.lev
-    )
-
-
 def beta_moments(v: dict, h: Hyper, structure: ModelStructure, data: RecordData):
     """Traceable: the whitened residuals, β̂ and its conditional variances diag(M⁻¹), the
     base noise variance, the transient amplitudes and the bins' leverages at θ (values
     ``v``): what an EM update needs."""
-    m = _moments(v, h, structure, data)
+    m = moments(v, h, structure, data)
     return m.rw.reshape(-1), m.beta, m.var, m.base, m.trans, m.lev

@@ -1,11 +1,13 @@
 r"""The normal equations of the joint model assembled straight into the hold blocks.
 
-The same equations as :func:`chekan.joint.likelihood.normal_equations` (its docstring has the
-maths), in the form that the block elimination of the marginal log-density and of the β
-draws takes (:class:`inference.normal_eq.BlockNormalEquations`): for every hold k the
-3 × 3 block of its (o₁ₖ, o₂ₖ, δₖ), the block coupling it to hold k − 1, its rows against
-the dense variables (c, d, ν of each system and the shared angle terms ζ), and the dense
-block. Neither M (p × p) nor the lag-mixing matrix G (N × H) is formed.
+The only assembly of the model's normal equations in production (the MAP's residual and
+its Jacobian, the EM, the derived quantities, the log-density and the β draws); a dense
+assembly of the same equations is kept as the tests' oracle (``tests/dense_oracle.py``,
+which has the dense maths), and they agree to round-off. The blocks take the form that the
+block elimination takes (:class:`inference.normal_eq.BlockNormalEquations`): for every
+hold k the 3 × 3 block of its (o₁ₖ, o₂ₖ, δₖ), the block coupling it to hold k − 1, its rows
+against the dense variables (c, d, ν of each system and the shared angle terms ζ), and the
+dense block. Neither M (p × p) nor the lag-mixing matrix G (N × H) is formed.
 
 Row i of G has two entries: aᵢ = 1 − wᵢ at the bin's own hold kᵢ and bᵢ = wᵢ·wₚᵣₑᵥ,ₖᵢ at
 the hold before (``data.prev`` is the hold before ``data.own``, as
@@ -21,13 +23,12 @@ and Gᵀ W G is tridiagonal: its diagonal at k is Σₖ W a² + Σₖ₊₁ W b�
 is Σₖ W a b (Σₖ: over the bins of hold k). Products with the angle basis E (H × L) through
 that tridiagonal matrix are three shifted row products. The unsettled carry of the hold
 equilibria, of the holds' angle shifts and of the X-response terms
-(:func:`chekan.joint.likelihood._unsettled_carry`, a linear recurrence over the holds) is
-one associative scan over all their columns.
+(:func:`unsettled_carry`, a linear recurrence over the holds) is one associative scan over
+all their columns.
 
-The EM's E-step reads the same blocks (:func:`block_moments`): β̂ and diag(M⁻¹) from M's
-block factor and the entries of M⁻¹ on M's pattern, the design A by the support of its rows
-(:class:`BinRows`: a bin touches its hold's and the previous hold's (o₁, o₂, δ) and the
-dense variables) and the bins' leverages from both.
+What depends on θ alone (the equilibria, the slews' paths, the lag weights: :func:`bin_design`)
+is computed apart from what the hyperparameters weigh (:func:`normal_equations_at`), so
+the EM, whose updates change h only, computes it once per stage.
 
 Values: the blocks equal those gathered from the dense M to round-off (tests).
 """
@@ -43,7 +44,6 @@ import numpy as np
 import chekan.jaxconfig  # noqa: F401
 from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import (
-    beta_prior_var,
     lag_weights,
     noise_var,
     sensor_params,
@@ -53,14 +53,7 @@ from chekan.joint.likelihood import (
 from chekan.physics import sensor as fm
 from chekan.physics.units import ARCSEC_PER_RAD
 from inference.barrier import fusion_barrier
-from inference.normal_eq import (
-    BandedFactor,
-    BlockNormalEquations,
-    banded_factor_blocks,
-    selected_inverse,
-    solve_banded_transposed,
-    split_prior,
-)
+from inference.normal_eq import BlockNormalEquations
 
 
 class BinTerms(NamedTuple):
@@ -89,7 +82,12 @@ def _prev(x):
 
 
 def unsettled_carry(E, Mv, wprev, rho):
-    """Rₖ of :func:`chekan.joint.likelihood._unsettled_carry` for columns E, Mv (H, J): the
+    r"""Rₖ for columns E, Mv (H, J): the part of the lag state after slew k left over from
+    holds that had not settled (deterministic part only; the β terms keep the one-hold
+    carry, the rest is second order, ρ·σ_o). With y₀,ₖ = wₚᵣₑᵥ,ₖ yₑₙd,ₖ₋₁ + Mvₖ,
+    yₑₙd,ₖ₋₁ = Eₖ₋₁ + (y₀,ₖ₋₁ − Eₖ₋₁) ρₖ₋₁, ρ = e^{−T/τ} (T: slew end to hold end) and
+    dₖ = y₀,ₖ − Eₖ (d₀ = 0, hold 0 settled), aₖ = wₚᵣₑᵥ,ₖ ρₖ₋₁ and
+    cₖ = wₚᵣₑᵥ,ₖ Eₖ₋₁ + Mvₖ − Eₖ, the
     recurrence dₖ = aₖdₖ₋₁ + cₖ (d₀ = 0) as an associative scan of the affine maps
     x ↦ aₖx + cₖ (log₂ H elementwise passes over (H, J) instead of an H × H product matrix
     built by a cumulative product); Rₖ = aₖdₖ₋₁."""
@@ -152,34 +150,62 @@ def _shifted_rows(d, e, sE):
     return d[:, None] * sE + e[:, None] * _prev(sE) + _next(e[:, None] * sE)
 
 
-def block_normal_equations(
-    v: dict, h: dict, structure: ModelStructure, data: RecordData
-) -> tuple[BlockNormalEquations, BinTerms]:
-    """rᵀWr, the hold blocks and the dense block of AᵀWA, and AᵀWr (module docstring), with
-    the per-bin terms (:class:`BinTerms`). The variables' order is that of
-    :attr:`ModelStructure.hold_bands` (o₁ₖ, o₂ₖ, δₖ) and, for the dense block, β's order
-    without them: (q₁, q₂, e, ζ) with qⱼ = (cⱼ, dⱼ, νⱼ)."""
+class BinDesign(NamedTuple):
+    """The bins' prediction ȳ = f + Aβ at θ by its per-bin terms (:func:`bin_design`): what
+    does not depend on the hyperparameters (the equilibrium solves, the slews' paths, the
+    lag weights), computed once where h alone changes (the EM's updates)."""
+
+    hold: jax.Array  # (N,) int: the bin's hold
+    a: jax.Array  # (N,) G's entry at the bin's hold
+    b: jax.Array  # (N,) G's entry at the hold before (0 in the first hold)
+    c: jax.Array  # (N,) the weight of the lag state after the slew
+    Q: jax.Array  # (N, nq) the columns of (cⱼ, dⱼ, νⱼ)
+    s: jax.Array  # (H, 2) the holds' angle sensitivity per arcsec
+    U: jax.Array | None  # (H, L, 2) the slews' share of the angle columns, per hold
+    r: jax.Array  # (N, 2) residual y − f (0 where masked)
+    trans: jax.Array  # (N, 2) the transient left in each bin (what κ scales)
+
+
+def bin_design(v: dict, structure: ModelStructure, data: RecordData) -> BinDesign:
+    """:class:`BinDesign` at θ (values ``v``): aᵢ = 1 − wᵢ, bᵢ = wᵢ·wₚᵣₑᵥ,ₖᵢ (0 in the first
+    hold), cᵢ = wᵢ and fᵢ = aᵢEₖᵢ + bᵢEₖᵢ₋₁ + cᵢ(Mv + R)ₖᵢ (module docstring)."""
     (E, s, state, jump, wprev), U, x_state = _hold_terms(v, structure, data)
     k = data.bin_hold
     kp = jnp.maximum(k - 1, 0)
     w = lag_weights(v["tau_s"], data)
     a = 1.0 - w
     b = jnp.where(k > 0, w * wprev[k], 0.0)
-    c = w
     f = a[:, None] * E[k] + b[:, None] * E[kp] + w[:, None] * state[k]
-    trans = w[:, None] * jump[k]
-    mask = data.mask
-    nv = noise_var(h, data, trans)
-    W = jnp.where(mask, 1.0 / nv, 0.0)
-    r = jnp.where(mask, data.y - f, 0.0)
+    r = jnp.where(data.mask, data.y - f, 0.0)
     cols = [jnp.ones((k.shape[0], 1)), data.drift_basis]
     if structure.n_x_response:
         xb = data.x_basis
-        cols.append(a[:, None] * xb[k] + b[:, None] * xb[kp] + c[:, None] * x_state[k])
-    Q = jnp.concatenate(cols, axis=1)
-    nq, H, L = Q.shape[1], structure.n_holds, structure.n_angle_cols
+        cols.append(a[:, None] * xb[k] + b[:, None] * xb[kp] + w[:, None] * x_state[k])
+    slew_U = U if (structure.n_systematic or structure.n_x_response) else None
+    trans = w[:, None] * jump[k]
+    return BinDesign(k, a, b, w, jnp.concatenate(cols, axis=1), s, slew_U, r, trans)
+
+
+class _HoldSums(NamedTuple):
+    """Per hold and system, the weighted sums over the hold's bins (:func:`_hold_sums`)."""
+
+    d: jax.Array  # (H, 2) the diagonal of GᵀWⱼG
+    e: jax.Array  # (H, 2) its entry (k, k − 1)
+    bo: jax.Array  # (H, 2) GᵀWⱼr
+    QG: jax.Array  # (H, nq, 2) (QᵀWⱼG)ᵀ
+    Sca: jax.Array  # (H, 2) Σ W c a
+    Scb: jax.Array  # (H, 2) Σ W c b
+    Scc: jax.Array  # (H, 2) Σ W c²
+    Scr: jax.Array  # (H, 2) Σ W c r
+    ScQ: jax.Array  # (H, nq, 2) Σ W c Q
+
+
+def _hold_sums(t: BinDesign, W, Wr, H: int) -> _HoldSums:
+    """One segment sum over the bins of each hold of the weighted per-bin products
+    (module docstring), and GᵀWG's tridiagonal from them."""
+    a, b, c, Q = t.a, t.b, t.c, t.Q
+    nq = Q.shape[1]
     abc = jnp.stack([a, b, c], axis=1)  # (N, 3)
-    Wr = W * r
     per_bin = jnp.concatenate(
         [
             jnp.stack([a * a, b * b, a * b, c * a, c * b, c * c], axis=1)[:, :, None] * W[:, None],
@@ -190,13 +216,16 @@ def block_normal_equations(
         ],
         axis=1,
     )
-    S = jax.ops.segment_sum(per_bin, k, num_segments=H)  # (H, 9 + 3nq, 2)
+    S = jax.ops.segment_sum(per_bin, t.hold, num_segments=H)  # (H, 9 + 3nq, 2)
     Sa2, Sb2, Sab, Sca, Scb, Scc, Sar, Sbr, Scr = (S[:, i] for i in range(9))
     SaQ, SbQ, ScQ = (S[:, 9 + i * nq : 9 + (i + 1) * nq] for i in range(3))
-    d = Sa2 + _next(Sb2)  # (H, 2) diagonal of GᵀWⱼG
-    e = Sab  # (H, 2) its entry (k, k − 1)
-    bo = Sar + _next(Sbr)  # (H, 2) GᵀWⱼr
-    QG = SaQ + _next(SbQ)  # (H, nq, 2) (QᵀWⱼG)ᵀ
+    d = Sa2 + _next(Sb2)
+    return _HoldSums(d, Sab, Sar + _next(Sbr), SaQ + _next(SbQ), Sca, Scb, Scc, Scr, ScQ)
+
+
+def _band_blocks(d, e, s):
+    """The holds' 3 × 3 blocks of (o₁ₖ, o₂ₖ, δₖ): the diagonal and the block (k, k − 1), from
+    GᵀWⱼG's tridiagonal (``d``, ``e``, (H, 2)) and the angle sensitivities ``s`` (H, 2)."""
     sp = _prev(s)
     d1, d2, e1, e2 = d[:, 0], d[:, 1], e[:, 0], e[:, 1]
     s1, s2, p1, p2 = s[:, 0], s[:, 1], sp[:, 0], sp[:, 1]
@@ -217,69 +246,96 @@ def block_normal_equations(
         ],
         axis=1,
     )
+    return diag, sub
+
+
+def _angle_blocks(t: BinDesign, sums: _HoldSums, structure: ModelStructure, data: RecordData):
+    """The shared angle terms' (e, ζ) parts: the holds' rows against them (o₁, o₂, δ),
+    (c, d, ν)ⱼ's (QGsE, per system), their own block and right-hand side."""
+    s, U, Eb, QG, bo = t.s, t.U, data.angle_basis, sums.QG, sums.bo
+    s1, s2 = s[:, 0], s[:, 1]
+    bdt = s1 * bo[:, 0] + s2 * bo[:, 1]
+    GsE = [_shifted_rows(sums.d[:, j], sums.e[:, j], s[:, j, None] * Eb) for j in range(2)]
+    SdE = s1[:, None] * GsE[0] + s2[:, None] * GsE[1]
+    EE = Eb.T @ SdE
+    QGsE = [jnp.einsum("hq,hl->ql", QG[..., j] * s[:, j, None], Eb) for j in range(2)]
+    gx = Eb.T @ bdt
+    L = structure.n_angle_cols
+    ee = jnp.zeros((L, L))
+    if structure.n_systematic:  # the slews' share (tests/dense_oracle.py slew_angle_terms)
+        assert U is not None
+        GtWP = sums.Sca[:, None, :] * U + _next(sums.Scb[:, None, :] * U)  # (H, L, 2)
+        sGtWP = jnp.einsum("hj,hlj->hl", s, GtWP)
+        GsE = [GsE[j] + GtWP[..., j] for j in range(2)]
+        SdE = SdE + sGtWP
+        QWP = jnp.einsum("hqj,hlj->jql", sums.ScQ, U)
+        QGsE = [QGsE[j] + QWP[j] for j in range(2)]
+        cross = Eb.T @ sGtWP
+        ee = cross + cross.T + jnp.einsum("hj,hlj,hmj->lm", sums.Scc, U, U)
+        gx = gx + jnp.einsum("hlj,hj->l", U, sums.Scr)
+    return (GsE[0], GsE[1], SdE), QGsE, EE + ee, gx
+
+
+def normal_equations_at(
+    t: BinDesign, h: dict, structure: ModelStructure, data: RecordData
+) -> tuple[BlockNormalEquations, BinTerms]:
+    """rᵀWr, the hold blocks and the dense block of AᵀWA, and AᵀWr (module docstring) at the
+    hyperparameters ``h`` from the bins' terms at θ (:func:`bin_design`), with the per-bin
+    terms (:class:`BinTerms`). The variables' order is that of
+    :attr:`ModelStructure.hold_bands` (o₁ₖ, o₂ₖ, δₖ) and, for the dense block, β's order
+    without them: (q₁, q₂, e, ζ) with qⱼ = (cⱼ, dⱼ, νⱼ)."""
+    mask = data.mask
+    nv = noise_var(h, data, t.trans)
+    W = jnp.where(mask, 1.0 / nv, 0.0)
+    Wr = W * t.r
+    Q, s = t.Q, t.s
+    nq, H, L = Q.shape[1], structure.n_holds, structure.n_angle_cols
+    sums = _hold_sums(t, W, Wr, H)
+    diag, sub = _band_blocks(sums.d, sums.e, s)
+    QG, bo = sums.QG, sums.bo
     Zq = jnp.zeros((H, nq))
     rows = [
         [QG[..., 0], Zq],
         [Zq, QG[..., 1]],
-        [QG[..., 0] * s1[:, None], QG[..., 1] * s2[:, None]],
+        [QG[..., 0] * s[:, 0, None], QG[..., 1] * s[:, 1, None]],
     ]
     QQ = jnp.einsum("nq,nj,nr->jqr", Q, W, Q)
     bq = Q.T @ Wr  # (nq, 2)
-    bdt = s1 * bo[:, 0] + s2 * bo[:, 1]
+    bdt = s[:, 0] * bo[:, 0] + s[:, 1] * bo[:, 1]
+    Zqq = jnp.zeros((nq, nq))
     if L:
-        Eb = data.angle_basis
-        GsE = [_shifted_rows(d[:, j], e[:, j], s[:, j, None] * Eb) for j in range(2)]
-        SdE = s1[:, None] * GsE[0] + s2[:, None] * GsE[1]
-        EE = Eb.T @ SdE
-        QGsE = [jnp.einsum("hq,hl->ql", QG[..., j] * s[:, j, None], Eb) for j in range(2)]
-        gx = Eb.T @ bdt
-        ee = jnp.zeros((L, L))
-        if structure.n_systematic:  # the slews' share (chekan.joint.likelihood.slew_angle_terms)
-            GtWP = Sca[:, None, :] * U + _next(Scb[:, None, :] * U)  # (H, L, 2)
-            sGtWP = jnp.einsum("hj,hlj->hl", s, GtWP)
-            GsE = [GsE[j] + GtWP[..., j] for j in range(2)]
-            SdE = SdE + sGtWP
-            QWP = jnp.einsum("hqj,hlj->jql", ScQ, U)
-            QGsE = [QGsE[j] + QWP[j] for j in range(2)]
-            cross = Eb.T @ sGtWP
-            ee = cross + cross.T + jnp.einsum("hj,hlj,hmj->lm", Scc, U, U)
-            gx = gx + jnp.einsum("hlj,hj->l", U, Scr)
-        for row, extra in zip(rows, (GsE[0], GsE[1], SdE), strict=True):
+        extras, QGsE, EE, gx = _angle_blocks(t, sums, structure, data)
+        for row, extra in zip(rows, extras, strict=True):
             row.append(extra)
-        Zqq = jnp.zeros((nq, nq))
         dense = jnp.block(
-            [
-                [QQ[0], Zqq, QGsE[0]],
-                [Zqq, QQ[1], QGsE[1]],
-                [QGsE[0].T, QGsE[1].T, EE + ee],
-            ]
+            [[QQ[0], Zqq, QGsE[0]], [Zqq, QQ[1], QGsE[1]], [QGsE[0].T, QGsE[1].T, EE]]
         )
         g_dense = jnp.concatenate([bq[:, 0], bq[:, 1], gx])
     else:
-        dense = jnp.block([[QQ[0], jnp.zeros((nq, nq))], [jnp.zeros((nq, nq)), QQ[1]]])
+        dense = jnp.block([[QQ[0], Zqq], [Zqq, QQ[1]]])
         g_dense = jnp.concatenate([bq[:, 0], bq[:, 1]])
     cross_rows = jnp.stack([jnp.concatenate(row, axis=1) for row in rows], axis=1)
     g_band = jnp.stack([bo[:, 0], bo[:, 1], bdt], axis=1)
+    logdet_n = jnp.sum(jnp.where(mask, jnp.log(nv), 0.0))
     ne = BlockNormalEquations(
-        jnp.sum(Wr * r),
-        diag,
-        sub,
-        cross_rows,
-        dense,
-        g_band,
-        g_dense,
-        jnp.sum(jnp.where(mask, jnp.log(nv), 0.0)),
-        jnp.sum(mask),
+        jnp.sum(Wr * t.r), diag, sub, cross_rows, dense, g_band, g_dense, logdet_n, jnp.sum(mask)
     )
-    slew_U = U if (structure.n_systematic or structure.n_x_response) else None
-    return ne, BinTerms(k, a, b, c, Q, s, slew_U, r, nv, trans)
+    terms = BinTerms(t.hold, t.a, t.b, t.c, Q, s, t.U, t.r, nv, t.trans)
+    return ne, terms
+
+
+def block_normal_equations(
+    v: dict, h: dict, structure: ModelStructure, data: RecordData
+) -> tuple[BlockNormalEquations, BinTerms]:
+    """:func:`normal_equations_at` of :func:`bin_design` at θ (values ``v``) and ``h``."""
+    return normal_equations_at(bin_design(v, structure, data), h, structure, data)
 
 
 def apply_blocks(beta, t: BinTerms, structure: ModelStructure, data: RecordData):
-    """A·β as (N, 2) from the per-bin terms (:func:`chekan.joint.likelihood.apply_A`):
+    """A·β as (N, 2) from the per-bin terms:
     system j's share is Q qⱼ + aᵢuⱼ[kᵢ] + bᵢuⱼ[kᵢ − 1] + cᵢ(Uⱼζ)[kᵢ] with
-    uⱼ = oⱼ + sⱼ∘(δ + Eζ). Rows of padding bins (no data, zero weight) are not zero, as
-    they are in :func:`~chekan.joint.likelihood.apply_A`: read them through ``data.mask``."""
+    uⱼ = oⱼ + sⱼ∘(δ + Eζ). Rows of padding bins (no data, zero weight) are not zero (as they
+    are in the dense oracle's): read them through ``data.mask``."""
     blocks = structure.beta_blocks
     nq, H = structure.n_q, structure.n_holds
     shared = np.concatenate([blocks["encoder"], blocks["angle_systematic"]])
@@ -292,114 +348,3 @@ def apply_blocks(beta, t: BinTerms, structure: ModelStructure, data: RecordData)
     if t.U is not None:
         y = y + t.c[:, None] * jnp.einsum("hqj,q->hj", t.U, zeta)[t.hold]
     return y
-
-
-class BinRows(NamedTuple):
-    """β's design A by the support of its rows (:func:`bin_rows`): bin i of hold kᵢ touches
-    only the (o₁, o₂, δ) of hold kᵢ, those of hold kᵢ − 1 and the m dense variables."""
-
-    values: jax.Array  # (N, 2, 6 + m, …) the entries at ``columns``
-    columns: jax.Array  # (N, 6 + m) int: their β indices
-
-
-def _dense_columns(structure: ModelStructure) -> np.ndarray:
-    """β's indices outside the hold bands, ascending (the dense block's order)."""
-    return np.setdiff1d(np.arange(structure.n_beta), structure.hold_bands.reshape(-1))
-
-
-def row_columns(structure: ModelStructure, data: RecordData) -> jax.Array:
-    """(N, 6 + m) each bin's support in β's order: its hold's band (o₁, o₂, δ), the band
-    of the hold before (the first hold's bins repeat their own there, with weight bᵢ = 0),
-    the dense variables."""
-    dense_ix = _dense_columns(structure)
-    k = data.bin_hold
-    band_ix = jnp.asarray(structure.hold_bands)
-    dense = jnp.broadcast_to(jnp.asarray(dense_ix), (k.shape[0], dense_ix.size))
-    return jnp.concatenate([band_ix[k], band_ix[jnp.maximum(k - 1, 0)], dense], axis=1)
-
-
-def bin_rows(t: BinTerms, structure: ModelStructure, data: RecordData) -> BinRows:
-    """β's design A by its rows' support, from the per-bin terms (as :func:`apply_blocks`
-    applies it): system j's row has aᵢ·(oⱼ, sⱼₖδ) at hold kᵢ, bᵢ·(oⱼ, sⱼₖ₋₁δ) at kᵢ − 1, Q at
-    qⱼ, and aᵢsⱼₖEₖ + bᵢsⱼₖ₋₁Eₖ₋₁ + cᵢUₖⱼ at the shared angle terms (e, ζ)."""
-    k = t.hold
-    kp = jnp.maximum(k - 1, 0)
-    E = data.angle_basis
-    zero_b, zero_q = jnp.zeros_like(t.a), jnp.zeros_like(t.Q)
-    rows = []
-    for j in range(2):
-        own = [t.a if j == 0 else zero_b, t.a if j == 1 else zero_b, t.a * t.s[k, j]]
-        prev = [t.b if j == 0 else zero_b, t.b if j == 1 else zero_b, t.b * t.s[kp, j]]
-        angle = (t.a * t.s[k, j])[:, None] * E[k] + (t.b * t.s[kp, j])[:, None] * E[kp]
-        if t.U is not None and structure.n_systematic:
-            angle = angle + t.c[:, None] * t.U[k, :, j]
-        q = [t.Q, zero_q] if j == 0 else [zero_q, t.Q]
-        rows.append(jnp.concatenate([jnp.stack(own + prev, axis=1), *q, angle], axis=1))
-    return BinRows(jnp.stack(rows, axis=1), row_columns(structure, data))
-
-
-def rows_times(R: BinRows, X: jax.Array) -> jax.Array:
-    """A X (N, 2, …) for X (p, …) from the rows' support."""
-    return jnp.einsum("nje...,ne...->nj...", R.values, X[R.columns])
-
-
-def rows_t_times(R: BinRows, U: jax.Array, n_beta: int) -> jax.Array:
-    """Σᵢⱼ Aᵢⱼᵀ Uᵢⱼ (p, …) for U (N, 2, …) (with ``R.values`` (N, 2, E): Aᵀ U; with a
-    trailing axis q on ``R.values`` and U (N, 2): the derivative (∂A)ᵀ U per q)."""
-    per = jnp.einsum("nje...,nj...->ne...", R.values, U)
-    return jax.ops.segment_sum(
-        per.reshape(-1, *per.shape[2:]), R.columns.reshape(-1), num_segments=n_beta
-    )
-
-
-class BlockMoments(NamedTuple):
-    """β | θ, h and the bins' moments from the hold blocks (:func:`block_moments`)."""
-
-    factor: BandedFactor  # M's factor in the order [hold bands; dense]
-    beta: jax.Array  # (p,) β̂ = M⁻¹g
-    var: jax.Array  # (p,) diag(M⁻¹)
-    sw: jax.Array  # (N, 2) √w (0 for masked bins)
-    rows: BinRows  # the whitened design √w A by its rows' support
-    rw: jax.Array  # (N, 2) whitened residuals √w (y − f − Aβ̂)
-    lev: jax.Array  # (N, 2) leverages (Ã M⁻¹ Ãᵀ)ᵢᵢ
-    terms: BinTerms
-
-
-def block_moments(v: dict, h: dict, structure: ModelStructure, data: RecordData) -> BlockMoments:
-    """β̂, diag(M⁻¹), the whitened rows, residuals and leverages at θ (values ``v``) and h,
-    from the hold blocks and the entries of M⁻¹ on M's pattern
-    (:func:`inference.normal_eq.selected_inverse`): a bin's row touches only the (o₁, o₂, δ)
-    of its hold and of the hold before and the dense variables, so neither M nor M⁻¹
-    (p × p) is formed. Values: those of the dense solve to round-off (tests)."""
-    blocks, t = block_normal_equations(v, h, structure, data)
-    bands, dense_ix = structure.hold_bands, _dense_columns(structure)
-    pv = split_prior(beta_prior_var(h, structure, data), bands)
-    f = banded_factor_blocks(blocks, *pv, unroll=1)
-    beta = solve_banded_transposed(f, bands, jnp.concatenate([f.y, f.c]), unroll=1)
-    Z = selected_inverse(f, unroll=1)
-    var = (
-        jnp.zeros(structure.n_beta)
-        .at[bands.reshape(-1)]
-        .set(jnp.diagonal(Z.diag, axis1=1, axis2=2).reshape(-1))
-        .at[dense_ix]
-        .set(jnp.diagonal(Z.dense))
-    )
-    sw = jnp.where(data.mask, 1.0 / jnp.sqrt(t.nv), 0.0)
-    A = bin_rows(t, structure, data)
-    At = BinRows(A.values * sw[:, :, None], A.columns)
-    rw = sw * t.r - rows_times(At, beta)
-    k = t.hold
-    kp = jnp.maximum(k - 1, 0)
-    own, prev, dense = At.values[:, :, :3], At.values[:, :, 3:6], At.values[:, :, 6:]
-    cross = 2.0 * (
-        jnp.einsum("nja,nab,njb->nj", own, Z.sub[k], prev)
-        + jnp.einsum("nja,nam,njm->nj", own, Z.cross[k], dense)
-        + jnp.einsum("nja,nam,njm->nj", prev, Z.cross[kp], dense)
-    )
-    lev = (
-        jnp.einsum("nja,nab,njb->nj", own, Z.diag[k], own)
-        + jnp.einsum("nja,nab,njb->nj", prev, Z.diag[kp], prev)
-        + jnp.einsum("njm,ml,njl->nj", dense, Z.dense, dense)
-        + cross
-    )
-    return BlockMoments(f, beta, var, sw, At, rw, lev, t)

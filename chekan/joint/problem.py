@@ -36,9 +36,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from chekan.jaxconfig import device_array
+from chekan.joint.beta_posterior import solve_beta
 from chekan.joint.hold_blocks import block_normal_equations
 from chekan.joint.layout import ModelStructure, RecordData
-from chekan.joint.likelihood import beta_prior_var, solve_beta
+from chekan.joint.likelihood import beta_prior_var
 from chekan.physics.parameters import unit_of
 from inference.normal_eq import marginal_loglik_blocks, split_prior
 from inference.params import Param, ParamSpace
@@ -126,9 +127,9 @@ def build_problem(structure: ModelStructure, store=None) -> CalibrationProblem:
     records of one shape share them: batch re-analysis, validation).
 
     MAP: LM over θ only; for each θ the linear block β is solved in closed form
-    (:func:`chekan.joint.likelihood.solve_beta`), so the residual is the projected one and
-    its Gauss–Newton covariance for θ equals the θ-block of the joint (θ, β) Laplace
-    covariance. The residual function takes ``(values, (data, hyper))``.
+    (:func:`chekan.joint.beta_posterior.solve_beta`, by the hold blocks), so the residual is
+    the projected one and its Gauss–Newton covariance for θ equals the θ-block of the joint
+    (θ, β) Laplace covariance. The residual function takes ``(values, (data, hyper))``.
     """
     theta = nonlinear_params()
     theta_space = ParamSpace(theta)
@@ -137,8 +138,8 @@ def build_problem(structure: ModelStructure, store=None) -> CalibrationProblem:
     def residuals(v, args):
         """Projected whitened bin residuals and β̂'s prior rows."""
         data, h = args
-        rw, beta, _ = solve_beta(v, h, structure, data)
-        return jnp.concatenate([rw, beta / jnp.sqrt(beta_prior_var(h, structure, data))])
+        sol = solve_beta(v, h, structure, data)
+        return jnp.concatenate([sol.rw, sol.beta / jnp.sqrt(beta_prior_var(h, structure, data))])
 
     lsq = LeastSquaresProblem(theta_space, residuals, executables=store)
     return CalibrationProblem(structure, theta_space, bayes_space, lsq)
