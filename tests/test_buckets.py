@@ -137,7 +137,10 @@ def _floats(a, b, path=""):
             yield from _floats(x, y, f"{path}[{i}]")
     elif isinstance(a, float):
         d = 0.0 if a == b or (math.isnan(a) and math.isnan(b)) else abs(a - b)
-        yield d / (1e-6 * max(abs(a), abs(b)) + 1e-9), path
+        # R̂ and ESS are rank-normalised: where round-off reorders two draws their rank moves
+        # by one, a step of ~1e-5 relative for a few hundred draws; they are held to 1e-4
+        rel = 1e-4 if path.rsplit("/", 1)[-1].startswith(("r_hat", "ess")) else 1e-6
+        yield d / (rel * max(abs(a), abs(b)) + 1e-9), path
     else:
         assert a == b, path
 
