@@ -59,8 +59,9 @@ def _run(seed: int, quick: bool) -> list[Row]:
     from bench.classical_ref import numpy_classical_fit
     from chekan.classical.fit import calibrate_record
     from chekan.demo import demo_program
-    from chekan.joint import fit_map_em, initial_values, prepare, problem_for
-    from chekan.joint.map import map_pass_settings
+    from chekan.fit import fit_map_em, initial_values
+    from chekan.fit.map import map_pass_settings
+    from chekan.joint import prepare, problem_for
     from chekan.records.simulate import simulate_session
     from inference.map import fit_map
 

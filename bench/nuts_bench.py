@@ -11,9 +11,9 @@ On one simulated record (the paper's 9 h program; ``--quick``: the 3 h one of
   per point (a plain loop), and its gradient (what NUTS pays per leapfrog step);
 - ``bayes`` as the pipeline runs it, in this process, warm (the second call; the first,
   which compiles or loads the persistent cache, is in the note): the MAP with EM
-  (:func:`chekan.joint.fit_map_em`), emcee (:func:`chekan.joint.sampling.sample_posterior`,
+  (:func:`chekan.joint.fit_map_em`), emcee (:func:`chekan.fit.sampling.sample_posterior`,
   the ``--method bayes`` settings) and the derived draws
-  (:func:`chekan.joint.reported.posterior_draws`); its min bulk ESS over the 12 sampled
+  (:func:`chekan.fit.reported.posterior_draws`); its min bulk ESS over the 12 sampled
   coordinates and whether it converged (R̂ ≤ 1.01, bulk ESS ≥ 400, the sampler's own rule);
 - the reference: blackjax's window adaptation (dense mass matrix seeded with the Laplace
   covariance at the 12-dim mode, :func:`inference.mode.refine_mode`, as emcee's proposal)
@@ -64,7 +64,8 @@ def setup(seed: int, quick: bool):
     """A simulated record, its model, the problem and the MAP initial values."""
     from chekan.classical.fit import calibrate_record
     from chekan.demo import demo_program
-    from chekan.joint import initial_values, prepare, problem_for
+    from chekan.fit import initial_values
+    from chekan.joint import prepare, problem_for
     from chekan.records.simulate import simulate_session
 
     program = demo_program(quick)
@@ -96,8 +97,8 @@ def time_log_density(prob, data, n: int, walkers: int = 26) -> tuple[float, floa
 def bayes_in_process(model, init, options):
     """MAP + emcee + derived draws, as ``--method bayes`` runs them: ``(seconds, fit,
     samples)`` (the samples carry their own seconds and the derived draws)."""
-    from chekan.joint import fit_map_em
-    from chekan.joint.sampling import sample_posterior
+    from chekan.fit import fit_map_em
+    from chekan.fit.sampling import sample_posterior
 
     t = time.perf_counter()
     fit = fit_map_em(model, init)

@@ -452,8 +452,9 @@ def _nuts_agreement(path: Path, case: str, seed: int, quick: bool) -> Row:
     from bench.nuts_bench import MEAN_TOL_SD, SD_TOL, agreement, laplace_start, nuts
     from chekan.classical.fit import calibrate_record
     from chekan.classical.settling import tau_from_transients
-    from chekan.joint import fit_map_em, initial_values, prepare, problem_for
-    from chekan.joint.sampling import sample_posterior
+    from chekan.fit import fit_map_em, initial_values
+    from chekan.fit.sampling import sample_posterior
+    from chekan.joint import prepare, problem_for
     from chekan.options import CalibrationOptions
     from chekan.records import read_record
     from inference.diagnostics import ess_bulk

@@ -93,9 +93,10 @@ def joint_stage(
     data: Record | Protocol, kind: str, cres, result: dict, opts: CalibrationOptions
 ) -> dict:
     """The ``map`` or ``bayes`` result of ``data``: the joint fit
-    (:func:`chekan.joint.estimate`), written over its classical ``result`` (not changed) by
-    :func:`chekan.joint.results.joint_result`."""
-    from chekan.joint import estimate, joint_result  # heavy imports only when needed
+    (:func:`chekan.fit.record`), written over its classical ``result`` (not changed) by
+    :func:`chekan.results.joint.joint_result`."""
+    from chekan.fit import estimate
+    from chekan.results.joint import joint_result  # heavy imports only when needed
 
     source = str(result.get("record", "record"))  # the input's name, for messages
     fitted = estimate(data, kind=kind, classical=cres, source=source, options=opts)

@@ -63,7 +63,7 @@ class WarmStep(NamedTuple):
 
 def padded_model(record, options=None, name: str = "record"):
     """The model of ``record`` as ``map`` and ``bayes`` fit it
-    (:func:`chekan.joint.estimate.estimate`: binned with the options' settings, padded to
+    (:func:`chekan.fit.record.estimate`: binned with the options' settings, padded to
     its bucket)."""
     from chekan.joint.binning import prepare
     from chekan.joint.xresponse import horizontal_prior
@@ -109,10 +109,10 @@ def first_compile(paths: Sequence[str | Path], options, limit: int = 8) -> bool:
 def stored(model, method: str) -> bool:
     """Whether the store holds the last executable that ``method`` runs on ``model``'s
     bucket (``map``: the derived quantities; ``bayes``: the draws, in chunks of
-    :func:`chekan.joint.reported.posterior_draws`), and so, as warmup stores them, all."""
+    :func:`chekan.fit.reported.posterior_draws`), and so, as warmup stores them, all."""
     import inspect
 
-    from chekan.joint.reported import posterior_draws
+    from chekan.fit.reported import posterior_draws
     from chekan.runtime.engine import DRAWS, MAP_DERIVED, engine_for
 
     engine = engine_for(model.structure)

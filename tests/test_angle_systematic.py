@@ -17,8 +17,9 @@ import pytest
 from chekan import joint
 from chekan.classical.fit import calibrate_record
 from chekan.errors import ChekanError
+from chekan.fit import fit_map_em, initial_values
+from chekan.fit.reported import map_derived
 from chekan.joint.angles import AngleSensorSpec, commanded_groups, spec_for, systematic_basis
-from chekan.joint.reported import map_derived
 from chekan.physics.program import build_program
 from chekan.physics.units import ARCSEC_PER_RAD
 from chekan.records.simulate import Truth, simulate_session
@@ -35,7 +36,7 @@ def _sd_b(rec, settle_s, spec, shape=None):
     _, model = joint.prepare(rec, settle_s, angle_spec=spec)
     if shape is not None:
         model = model.pad(*shape)
-    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
+    fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
     assert fit.result.converged
     md = map_derived(fit)
     return md.values["b1"], md.values["b2"]

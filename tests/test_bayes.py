@@ -8,8 +8,9 @@ import pytest
 
 from chekan import joint
 from chekan.classical.fit import calibrate_record
-from chekan.joint.map import between_passes
-from chekan.joint.reported import map_derived
+from chekan.fit import fit_map_em, initial_values
+from chekan.fit.map import between_passes
+from chekan.fit.reported import map_derived
 from chekan.pipeline import CalibrationOptions, calibrate_file
 from chekan.runtime.padding import padded_shape
 from inference.linear import marginal_loglik
@@ -83,7 +84,7 @@ def test_normal_equations_equal_dense_marginal(short_session, encoder, systemati
 def test_map_recovers_truth(short_session):
     _, rec, truth = short_session
     cres, _, model, _ = _setup(rec, padded=True)
-    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
+    fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
     res, h, history = fit.result, fit.hyper, fit.history
     assert res.converged and all(p["converged"] for p in history)
     md = map_derived(fit)
@@ -107,7 +108,7 @@ def test_map_slow_damping_recentres_level_and_converges_em(short_program):
     m_true = np.asarray(truth.m_level_pix)
     m_classical = np.asarray(model.data.m_ref).copy()
     assert np.all(np.abs(m_classical - m_true) > 3.0), m_classical - m_true
-    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
+    fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
     res, h = fit.result, fit.hyper
     np.testing.assert_allclose(np.asarray(fit.model.data.m_ref), m_true, atol=0.3)
     h2 = between_passes(fit.model, res.z, h)[1]
@@ -134,7 +135,7 @@ def test_posterior_end_to_end(short_session, tmp_path):
     assert d["r_hat_max"] <= 1.01 and d["ess_bulk_min"] >= 400
     # the sampler's rule holds for every reported parameter, a and b₀ included (they carry
     # fresh draws of β | θ): bulk ESS ≥ its target
-    from chekan.joint.sampling import sampler_config
+    from chekan.fit.sampling import sampler_config
 
     target = sampler_config(CalibrationOptions(quick=True)).target_ess
     assert min(p["ess_bulk"] for p in res["parameters"].values()) >= target

@@ -17,7 +17,7 @@ from chekan.runtime.padding import LADDER, bucket_of, padded_for, rung
 from chekan.warmup import padded_model
 
 # the module (chekan.joint re-exports its function of the same name)
-joint_estimate = importlib.import_module("chekan.joint.estimate")
+joint_estimate = importlib.import_module("chekan.fit.record")
 
 
 def test_the_ladder_overshoots_by_at_most_a_fifth_above_32():
@@ -154,7 +154,7 @@ def test_a_record_gives_the_same_result_on_its_own_shape_and_on_its_bucket(
     result to round-off (bayes: a short sampler, the same seed; its draws match draw by
     draw: measured, every figure within 1.8e-8 of its sd, relative 5e-7 at most, an
     interval's bound of a drift slope near zero)."""
-    from chekan.joint import sampling
+    from chekan.fit import sampling
     from chekan.pipeline import CalibrationOptions, calibrate
 
     _, rec, _ = short_session

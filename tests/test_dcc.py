@@ -283,7 +283,7 @@ def test_pdf_states_what_iso_17025_7_8_asks(bayes_json, lab, tmp_path, lang):
 def test_dcc_states_that_the_classical_items_come_from_settled_hold_means(
     bayes_json, lab, tmp_path
 ):
-    """A joint result whose hold means were unsettled (chekan.classical.settling.settled_items): the
+    """A joint result whose hold means were unsettled (chekan.results.document.settled_items): the
     DCC's method description says so with Calibr.exe's raw figures, as the PDF does, and
     the result it embeds keeps them."""
     res = json.loads(bayes_json.read_text(encoding="utf-8"))

@@ -189,7 +189,7 @@ def test_a_known_horizontal_is_an_input_and_pins_a(dual_fit, tmp_path):
 def test_budget_survives_an_svd_that_does_not_converge(monkeypatch):
     """LAPACK's SVD can fail on a Jacobian whose rows differ in scale by many orders: the
     budget then comes from the eigendecomposition, with the same numbers."""
-    from chekan.joint import budget
+    from chekan.fit import budget
 
     rng = np.random.default_rng(0)
     J = rng.normal(size=(40, 6)) * np.logspace(0, 3, 6)
@@ -216,8 +216,8 @@ def test_posterior_predictive_of_a_two_axis_record_is_the_y_rounds_table(dual_fi
     table (6 columns from all rounds against the 3 of the certified Y rounds): the
     replicated sessions go through the classical method as it reports, Y rounds only."""
     from chekan.classical.fit import calibrate_record
+    from chekan.fit.predictive import posterior_predictive_delta_g
     from chekan.joint.binning import prepare
-    from chekan.joint.predictive import posterior_predictive_delta_g
 
     rec, truth, _res = dual_fit
     cres, holds = calibrate_record(rec, settle_s=120.0)

@@ -13,10 +13,11 @@ import numpy as np
 
 from chekan import joint
 from chekan.classical.fit import calibrate_record
+from chekan.fit import fit_map_em, initial_values
+from chekan.fit.map import between_passes
 from chekan.joint import em
 from chekan.joint.angles import AngleSensorSpec
 from chekan.joint.beta_posterior import solve_beta
-from chekan.joint.map import between_passes
 from chekan.runtime.padding import padded_shape
 
 
@@ -24,7 +25,7 @@ def _fit(rec, solver="gn"):
     cres, _ = calibrate_record(rec, settle_s=200)
     _, model = joint.prepare(rec, 200, angle_spec=AngleSensorSpec(3.0))
     prob = joint.problem_for(model.structure)
-    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal), solver=solver)
+    fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal), solver=solver)
     return fit, prob
 
 
@@ -126,7 +127,7 @@ def test_between_passes_reaches_the_fixed_point_where_em_creeps(tmp_path):
     # structure of test_map_restart's short session, whose compiled solver it shares
     model = model.pad(*padded_shape([model]))
     prob = joint.problem_for(model.structure)
-    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
+    fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
     z, h0 = fit.result.z, joint.default_hyper()
     moved, h, n, _ = between_passes(fit.model, z, h0)
     assert em.EM_UPDATES_BEFORE_NEWTON < n < em.HYPER_MAX_UPDATES

@@ -97,7 +97,7 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
     draw with a ≤ 0, which takes the design K), at the record's CCD centre ``m0``."""
     from types import SimpleNamespace
 
-    from chekan.joint.predictive import _equilibria, equilibria_of
+    from chekan.fit.predictive import _equilibria, equilibria_of
     from chekan.joint.problem import K_DESIGN
     from chekan.physics.units import ARCMIN_PER_RAD
     from chekan.runtime.engine import PREDICTIVE
@@ -151,7 +151,7 @@ def test_the_posterior_predictive_uses_the_records_ccd_centre():
 
     from chekan.classical.fit import fit_classical, increments_from_holds
     from chekan.demo import demo_program
-    from chekan.joint.predictive import posterior_predictive_delta_g
+    from chekan.fit.predictive import posterior_predictive_delta_g
     from chekan.physics.units import ARCMIN_PER_RAD
     from chekan.records.holds import segment_record
     from chekan.records.simulate import Truth, simulate_session

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from chekan.joint.budget import budget_entries
+from chekan.fit.budget import budget_entries
 from chekan.report.expanded import expanded_of
 from chekan.results.document import param_entry
 from inference.dof import coverage_factor

@@ -8,7 +8,7 @@ import dense_oracle as lk
 import jax.numpy as jnp
 import numpy as np
 
-from chekan.joint import map as jmap
+from chekan.fit import map as jmap
 
 
 def _carry_by_recurrence(E, Mv, wprev, rho):

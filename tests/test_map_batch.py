@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from chekan import joint
+from chekan.fit import initial_values
 from chekan.joint.beta_posterior import solve_beta
 from chekan.pipeline import CalibrationOptions, calibrate_file
 
@@ -23,7 +24,7 @@ def test_pad_model_is_exact(short_session) -> None:
     _, model = joint.prepare(rec, opts.settle_s)
     padded = model.pad(model.n_holds + 3, model.n_bins + 5, 40)
     assert padded.n_beta == model.n_beta + 9  # 3 holds × (o₁, o₂, δ)
-    v = {k: jnp.asarray(x) for k, x in joint.initial_values(cres, rec.g_local_mgal).items()}
+    v = {k: jnp.asarray(x) for k, x in initial_values(cres, rec.g_local_mgal).items()}
     h = joint.default_hyper(noise_scale=(1.2, 0.8), slew_error=0.01)
     rw, beta, _, _ = solve_beta(v, h, model.structure, model.data)
     rw_p, beta_p, _, _ = solve_beta(v, h, padded.structure, padded.data)

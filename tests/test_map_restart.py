@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from chekan.joint import map as jmap
+from chekan.fit import map as jmap
 
 
 def test_short_session_with_a_fast_lag_finds_the_truth(tmp_path):

@@ -209,7 +209,7 @@ def test_bayes_checks_the_room_for_its_posterior_before_any_work(
 
     import chekan.files.outputs as outputs
 
-    estimate = importlib.import_module("chekan.joint.estimate")  # chekan.joint.estimate: a function
+    estimate = importlib.import_module("chekan.fit.record")  # chekan.fit.record: a function
 
     def no_work(*args, **kwargs):
         raise AssertionError("the MAP ran before the room was checked")

@@ -84,7 +84,7 @@ def test_the_first_run_of_a_model_structure_says_that_it_compiles(
     import importlib
 
     # the module (chekan.joint re-exports its function of the same name)
-    joint_estimate = importlib.import_module("chekan.joint.estimate")
+    joint_estimate = importlib.import_module("chekan.fit.record")
 
     _, rec, _ = short_session
     opts = CalibrationOptions(method="map", progress=True)

@@ -68,7 +68,7 @@ def test_strict_exits_3_on_a_record_missing_part_of_its_program(one_round, tmp_p
 def _map_with_em_stopping(monkeypatch, short_session, moving) -> dict:
     """The short session's MAP with every EM pass reported stopped at its cap, ``moving``
     still moving."""
-    from chekan.joint import map as joint_map
+    from chekan.fit import map as joint_map
 
     real = joint_map.between_passes
 

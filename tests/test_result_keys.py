@@ -1,5 +1,5 @@
 """No key of a ``chekan-result/1`` dict is private: nothing in a result (at any depth) starts
-with ``_`` (the estimators hand typed fits to one writer, :mod:`chekan.joint.results`), and
+with ``_`` (the estimators hand typed fits to one writer, :mod:`chekan.results.joint`), and
 the writer does not change the classical result it starts from (issue 55)."""
 
 from __future__ import annotations

@@ -15,9 +15,7 @@ import pytest
 
 from chekan.classical.settling import (
     UNSETTLED_PIX,
-    certified_instability,
     raw_transient_pix,
-    settled_items,
     tau_from_transients,
     transient_bound_pix,
     unsettled_transient_pix,
@@ -27,6 +25,7 @@ from chekan.physics.program import build_program
 from chekan.pipeline import calibrate
 from chekan.records.holds import segment_record
 from chekan.records.simulate import Truth, simulate_session
+from chekan.results.document import certified_instability, settled_items
 
 PROGRAM = build_program(
     [2.5, 3.5, 4.5, 5 + 10 / 60], name="short-settle", axis="y", rounds=2, dwell_s=194.0,

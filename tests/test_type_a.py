@@ -2,7 +2,7 @@
 
 - θ's terms of the E-step (:func:`chekan.joint.em.theta_terms`) are what the joint Laplace
   posterior of (θ, β) adds to that of β given θ, formed here from the joint Jacobian;
-- ∂b̂/∂log h² and ∂u²/∂log h² of :mod:`chekan.joint.typea` are finite differences of MAP
+- ∂b̂/∂log h² and ∂u²/∂log h² of :mod:`chekan.fit.typea` are finite differences of MAP
   passes re-solved with one hyperparameter moved;
 - the reported sd is the Laplace sd and uₕ in quadrature, the budget's U is t₉₅.₄₅(ν_eff)·u.
 """
@@ -22,10 +22,11 @@ from dense_oracle import (
 
 from chekan import joint
 from chekan.classical.fit import calibrate_record
-from chekan.joint import em, typea
+from chekan.fit import fit_map_em, initial_values, typea
+from chekan.fit.map import _solve_pass
+from chekan.fit.reported import map_derived
+from chekan.joint import em
 from chekan.joint.angles import AngleSensorSpec
-from chekan.joint.map import _solve_pass
-from chekan.joint.reported import map_derived
 from chekan.runtime.engine import engine_for
 from inference.dof import coverage_factor
 
@@ -35,7 +36,7 @@ def fitted(short_session):
     _, rec, _ = short_session
     cres, _ = calibrate_record(rec, settle_s=200)
     _, model = joint.prepare(rec, 200, angle_spec=AngleSensorSpec(3.0))
-    fit = joint.fit_map_em(model, joint.initial_values(cres, rec.g_local_mgal))
+    fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
     return fit, joint.problem_for(fit.model.structure)
 
 
@@ -196,7 +197,7 @@ def test_reported_sd_and_budget_carry_the_type_a_terms(fitted):
     sd = md.values["b1"][1]
     assert sd**2 == pytest.approx(laplace + md.u_hyper["b1"] ** 2, rel=1e-10)
     assert 3 < md.nu_eff["b1"] < 1e4
-    from chekan.joint.budget import budget_entries, uncertainty_budget
+    from chekan.fit.budget import budget_entries, uncertainty_budget
     from chekan.results.document import param_entry
 
     raw = uncertainty_budget(fit)

@@ -6,9 +6,10 @@ equilibrium with a first-order lag τ, so a hold whose settling time is short be
 designer's 120 s holds against τ ≈ 30–90 s) still carries part of the slew's transient,
 and the items а)–в), the classical b and the verdict's reduced error carry it too. A joint
 result fits τ; from it the transient in every hold mean is known and removed
-(:func:`settled_items`), so that the certificate's items describe the instrument, not the
-program. The classical method keeps Calibr.exe's items and says how far they are moved
-(:func:`unsettled_hold_means`, with τ read off the record, :func:`tau_from_transients`);
+(:func:`chekan.results.document.settled_items`), so that the certificate's items describe the
+instrument, not the program. The classical method keeps Calibr.exe's items and says how far
+they are moved (:func:`unsettled_hold_means`, with τ read off the record,
+:func:`tau_from_transients`);
 the designer states it for a program before it runs
 (:func:`chekan.design.information.settled_transient_pix`).
 """
@@ -24,11 +25,6 @@ from typing import Any
 import numpy as np
 
 from chekan.physics.units import ARCMIN_PER_RAD, ARCSEC_PER_RAD
-from chekan.results.document import (
-    ITEM_KEYS as ITEM_KEYS,
-)  # the items that settled_items recomputes
-from chekan.results.document import certified_instability as certified_instability
-from chekan.results.document import with_settled
 
 #: A transient above this in some hold mean (pix; ≈ 0.07 mGal, 3 % of the verdict's 0.05 %
 #: of the 5 Gal range) makes the hold means unsettled: the joint result's classical items
@@ -261,34 +257,6 @@ def settle(
         b_prior=record.b_prior,
         ccd_range_pix=record.ccd_range_pix,
     )
-
-
-def settled_items(
-    result: Mapping[str, Any],
-    holds: Any,
-    record: Any,
-    *,
-    classical: Any = None,
-    a_fixed: float | None = None,
-) -> dict:
-    """The joint ``result`` (not changed) with its classical items from settled hold means.
-
-    Where the lag leaves more than :data:`UNSETTLED_PIX` in some hold mean
-    (:func:`unsettled_transient_pix`), the classical method (eqs. 21–25, as Calibr.exe) runs
-    again on the hold means less that transient; its items (:data:`ITEM_KEYS`) and the
-    classical b replace those computed from the raw hold means, which are kept under
-    ``hold_transient.calibr_exe`` with the transient's size. Elsewhere, and where the fit
-    did not converge, the items stay Calibr.exe's; in the latter case with the
-    ``classical`` fit's :func:`unsettled_hold_means` where it applies. Either way the
-    instability (item д), the verdict) is that of the result's own b₁, b₂, the certified
-    values (:func:`certified_instability`): :func:`settle` of the result's values, written by
-    :func:`chekan.results.document.with_settled`."""
-    if "unsettled_hold_means" in result:  # the flag is there already
-        classical = None
-    found = settle(
-        JointValues.of_result(result), holds, record, classical=classical, a_fixed=a_fixed
-    )
-    return with_settled(result, found)
 
 
 def _refit(holds: Any, record: Any, means: np.ndarray, *, a_fixed: float | None, preview=False):

@@ -549,7 +549,7 @@ def settled_transient_pix(program: TiltProgram, values: DesignValues | None = No
     """:func:`settled_transient` at the design τ. Above
     :data:`chekan.classical.settling.UNSETTLED_PIX`
     the program's classical items are biased unless the transient is removed
-    (:func:`chekan.classical.settling.settled_items`)."""
+    (:func:`chekan.results.document.settled_items`)."""
     values = values or DesignValues()
     return settled_transient(program, values)(float(values.truth.tau_s))
 

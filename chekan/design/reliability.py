@@ -3,7 +3,7 @@ r"""The expected reliability of a program's uncertainty: ν_eff and k before the
 A certificate states U = k·u with k = t₉₅.₄₅(ν_eff) (GUM G.4.1, G.6.4), where ν_eff says how
 well the record determines the variance components that u rests on (the noise scales s₁,
 s₂, the slew error κ, the holds' random angle error σ_θ and offset σ_o:
-:mod:`chekan.joint.typea`, :mod:`inference.dof`). A program can have a small expected sd
+:mod:`chekan.fit.typea`, :mod:`inference.dof`). A program can have a small expected sd
 and still leave those components undetermined: two angles held once each (six holds)
 give every hold its own systematic term, and nothing is left to tell a hold's random
 error from it. Its certificate then carries a large k, or none (ν_eff < 1).
@@ -22,7 +22,7 @@ component in each row's variance:
     ν_{eff} = 2\,(u^2 + E[u_h^2])^2 / gᵀ V g,
 
 P = I − H the residuals' covariance (E[rrᵀ] for whitened rows), I_prior the priors on
-log s and log κ that the EM uses (:data:`chekan.joint.typea.PRIOR_INFO`). The Type B
+log s and log κ that the EM uses (:data:`chekan.fit.typea.PRIOR_INFO`). The Type B
 terms (systematic angle errors) are rows with a fixed prior: they add to u² and nothing to
 its uncertainty, as a line with ν = ∞ in the Welch–Satterthwaite sum.
 
@@ -38,7 +38,7 @@ import numpy as np
 
 from chekan.design.information import THETA_NAMES, DesignRows, design_rows
 from chekan.design.layout import DesignValues
-from chekan.joint.typea import COMPONENTS, PRIOR_INFO
+from chekan.fit.typea import COMPONENTS, PRIOR_INFO
 from chekan.physics.program import TiltProgram
 from inference.dof import (
     component_information,
@@ -73,7 +73,7 @@ class ExpectedReliability:
 
 def _stacked(rows: DesignRows) -> tuple[np.ndarray, np.ndarray]:
     """K (2N + n_g + n_b, n_g + n_b), and each row's shares D (5, rows) of the
-    components :data:`chekan.joint.typea.COMPONENTS`."""
+    components :data:`chekan.fit.typea.COMPONENTS`."""
     N = rows.base.shape[0]
     ng, nb = rows.prec_g.size, rows.prec_b.size
     n_par = ng + nb

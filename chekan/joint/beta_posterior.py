@@ -104,7 +104,7 @@ def rows_t_times(R: BinRows, U: jax.Array, n_beta: int) -> jax.Array:
 
 def dense_rows(R: BinRows, n_beta: int) -> jax.Array:
     """A (N, 2, p) scattered from its rows' support (what a dense consumer of the design
-    reads, e.g. the Type A rows of :mod:`chekan.joint.typea`)."""
+    reads, e.g. the Type A rows of :mod:`chekan.fit.typea`)."""
     N = R.columns.shape[0]
     per = (
         jnp.zeros((N, n_beta, 2))

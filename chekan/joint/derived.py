@@ -6,7 +6,7 @@ bayes and design.
 
 :func:`map_derived_fn` adds what the delta-method sds at the MAP need; :func:`draws_fn`
 evaluates them for a posterior draw, with β drawn given θ. The engine compiles both
-(:mod:`chekan.runtime.engine`); :mod:`chekan.joint.reported` runs them on a fit.
+(:mod:`chekan.runtime.engine`); :mod:`chekan.fit.reported` runs them on a fit.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def physical_quantities(v: dict, beta, structure: ModelStructure, data: RecordDa
 
 def equilibria_of(sp: fm.SensorParams, tx, ty):
     """E and ∂E/∂θ (draws, K, 2) for parameters batched on their leading axis (the
-    posterior predictive's hold equilibria, :mod:`chekan.joint.predictive`)."""
+    posterior predictive's hold equilibria, :mod:`chekan.fit.predictive`)."""
     E = jax.vmap(fm.equilibrium_readings, in_axes=(0, None, None))(sp, tx, ty)
     S = jax.vmap(fm.reading_sensitivity_to_tilt, in_axes=(0, None, None))(sp, tx, ty)
     return E, S
@@ -86,7 +86,7 @@ def map_derived_fn(structure: ModelStructure, space) -> Callable:
     ``jacfwd`` would compile op by op in every new process, uncached). Ã (N, 2, p): the
     whitened design of β; base (N, 2): the bins' noise variance (sⱼσⱼ)²/n and transient
     (N, 2) the amplitude that κ scales, Λ (p,) β's prior variances: what
-    :mod:`chekan.joint.typea` needs."""
+    :mod:`chekan.fit.typea` needs."""
 
     def core(z, h, data, dur_h):
         def g(z, beta):

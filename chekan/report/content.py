@@ -517,7 +517,7 @@ def transient_note(
     """A warning where the hold means still carry the slews' transients (``transient``,
     :func:`chekan.classical.settling.unsettled_transient_pix`; a settling time short beside τ)
     and the result's classical items were computed from them (a result written before
-    :func:`chekan.classical.settling.settled_items` existed): they and the verdict's reduced
+    :func:`chekan.results.document.settled_items` existed): they and the verdict's reduced
     error are biased by them, the joint model is not. A result whose items were settled states it in
     :func:`settled_note` instead."""
     if "hold_transient" in result or transient is None:
@@ -532,7 +532,7 @@ def transient_note(
 
 def settled_note(result: Mapping[str, Any], t: Translator) -> list[Para]:
     """Where the joint model removed the lag's transient from the hold means before the
-    classical items (``hold_transient``, :func:`chekan.classical.settling.settled_items`): how much,
+    classical items (``hold_transient``, :func:`chekan.results.document.settled_items`): how much,
     and Calibr.exe's figures from the raw hold means, which the items no longer show."""
     ht = result.get("hold_transient")
     if not isinstance(ht, Mapping):

@@ -1,7 +1,7 @@
 """The expanded uncertainty U = k·u that a certificate states for each result value.
 
 A ``map`` result carries each value's effective degrees of freedom ν_eff (GUM G.4; the
-hyperparameters are estimated from the record: :mod:`chekan.joint.typea`), and its budget
+hyperparameters are estimated from the record: :mod:`chekan.fit.typea`), and its budget
 of b the coverage factor k = t₉₅.₄₅(ν_eff) and U (``coverage_factor``, ``expanded``).
 Results without them (``bayes``, classical, results written before 0.3.9 with the budget's
 ``expanded_k2``) state k = 2.

@@ -422,3 +422,34 @@ def check_result(data: Any, path: str | Path = "<result>") -> None:
             raise FormatError(
                 path, None, f"parameters.{name}.mean is {mean!r}: not a positive finite number"
             )
+
+
+def settled_items(
+    result: Mapping[str, Any],
+    holds: Any,
+    record: Any,
+    *,
+    classical: Any = None,
+    a_fixed: float | None = None,
+) -> dict:
+    """The joint ``result`` (not changed) with its classical items from settled hold means.
+
+    Where the lag leaves more than :data:`chekan.classical.settling.UNSETTLED_PIX` in some
+    hold mean (:func:`chekan.classical.settling.unsettled_transient_pix`), the classical
+    method (eqs. 21–25, as Calibr.exe) runs again on the hold means less that transient; its
+    items (:data:`ITEM_KEYS`) and the classical b replace those computed from the raw hold
+    means, which are kept under
+    ``hold_transient.calibr_exe`` with the transient's size. Elsewhere, and where the fit
+    did not converge, the items stay Calibr.exe's; in the latter case with the
+    ``classical`` fit's :func:`unsettled_hold_means` where it applies. Either way the
+    instability (item д), the verdict) is that of the result's own b₁, b₂, the certified
+    values (:func:`certified_instability`): :func:`settle` of the result's values, written by
+    :func:`with_settled`."""
+    from chekan.classical.settling import JointValues, settle
+
+    if "unsettled_hold_means" in result:  # the flag is there already
+        classical = None
+    found = settle(
+        JointValues.of_result(result), holds, record, classical=classical, a_fixed=a_fixed
+    )
+    return with_settled(result, found)

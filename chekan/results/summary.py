@@ -125,7 +125,7 @@ def format_summary(res: dict) -> str:
         if v is not None:
             lines.append(f"instability of {k} against the prior: {v:+.3f} %")
     ht = res.get("hold_transient")
-    if ht:  # chekan.classical.settling.settled_items
+    if ht:  # chekan.results.document.settled_items
         raw = ht.get("calibr_exe") or {}
         parts = [f"{k} = {raw[k]['mean']:.6f} mGal/pix" for k in ("b1", "b2") if k in raw]
         if raw.get("reduced_error_percent") is not None:

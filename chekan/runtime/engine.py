@@ -20,8 +20,8 @@ of one structure share them and a new process loads instead of tracing. Per-reco
 (duration, counts) are arguments of the compiled functions, never part of their keys.
 :func:`chekan.runtime.clear_caches` forgets them, with every other registered cache. The
 model modules stay pure maths: each gives the function to compile, the engine compiles it;
-what runs them on a record stands above the engine (:func:`chekan.joint.map.between_passes`,
-:mod:`chekan.joint.reported`, :mod:`chekan.joint.predictive`), so no module that the engine
+what runs them on a record stands above the engine (:func:`chekan.fit.map.between_passes`,
+:mod:`chekan.fit.reported`, :mod:`chekan.fit.predictive`), so no module that the engine
 compiles from imports it.
 """
 
@@ -141,13 +141,13 @@ def compiled_before(model: RecordModel) -> bool:
 
 def prefetch_em(model: RecordModel) -> None:
     """Start loading this structure's stored EM pass in the background (what follows the
-    first MAP pass: :func:`chekan.joint.map.between_passes`)."""
+    first MAP pass: :func:`chekan.fit.map.between_passes`)."""
     engine_for(model.structure).prefetch(EM_PASS, model.data)
 
 
 def prefetch_after_map(model: RecordModel, method: str) -> Future | None:
     """Start what ``method`` needs after the MAP, while the MAP runs: for ``map`` the stored
-    derived quantities (:func:`chekan.joint.reported.map_derived`); for ``bayes`` the
+    derived quantities (:func:`chekan.fit.reported.map_derived`); for ``bayes`` the
     sampler's imports (emcee → scipy.stats, ≈ 1 s), whose future is returned: wait on it
     before the calling thread imports more (deadlock-free)."""
     if method == "map":

@@ -73,5 +73,5 @@ def padded_shape(models: list[RecordModel]) -> Bucket:
 def padded_for(model: RecordModel) -> RecordModel:
     """``model`` as ``map`` and ``bayes`` run it (one engine for both): padded to its bucket
     (exact: the padding carries zero weight; the per-hold and per-bin outputs of ``bayes``
-    are cut back to the real holds and bins, :func:`chekan.joint.sampling.reported_draws`)."""
+    are cut back to the real holds and bins, :func:`chekan.fit.sampling.reported_draws`)."""
     return model.pad(*bucket_of(model.structure))

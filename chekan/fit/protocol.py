@@ -49,7 +49,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -58,13 +58,17 @@ import numpy as np
 import chekan.jaxconfig  # noqa: F401
 from chekan.classical.fit import increments_from_protocol
 from chekan.errors import ChekanError
+from chekan.fit.fitted import RawBudget, Summary
 from chekan.joint.angles import AngleSensorSpec, commanded_groups
-from chekan.joint.fitted import ProtocolEstimate, ProtocolPosterior
 from chekan.physics.units import ARCSEC_PER_RAD
 from chekan.runtime.compiler import Compiler
 from inference.map import fit_map
 from inference.params import Param, ParamSpace
 from inference.problem import LeastSquaresProblem
+
+if TYPE_CHECKING:
+    from inference.map import MapResult
+    from inference.sampling import SamplingResult
 
 
 def _space(R: int, a0: float) -> tuple[ParamSpace, ParamSpace]:
@@ -216,6 +220,32 @@ class ProtocolModel:
     spec: AngleSensorSpec | None
 
 
+@dataclass(frozen=True)
+class ProtocolPosterior:
+    """The ``bayes`` posterior of a protocol: the sampler's result, the named draws (the
+    per-round b and their mean b₁, b₂), their summary and convergence verdict."""
+
+    sampling: SamplingResult
+    draws: Mapping[str, np.ndarray]
+    summary: Summary
+    converged: bool
+    problems: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class ProtocolEstimate:
+    """The ``map`` or ``bayes`` fit of a legacy protocol: its model, the MAP, the raw budget
+    (at the MAP's hyperparameters; the posterior means for bayes), the posterior (bayes
+    only), the NetCDF written (or None) and the seconds taken."""
+
+    model: ProtocolModel
+    result: MapResult
+    budget: RawBudget
+    posterior: ProtocolPosterior | None
+    netcdf: Path | None
+    seconds: float
+
+
 def protocol_model(protocol, options) -> ProtocolModel:
     """:class:`ProtocolModel` of ``protocol`` (the covariance of the systematic angle error
     and its whitening where ``options`` model it)."""
@@ -254,7 +284,7 @@ def _whitened_residuals(v, d):
 
 def estimate_protocol(protocol, *, classical, options) -> ProtocolEstimate:
     """The ``map`` or ``bayes`` fit of a legacy protocol (module docstring), written by
-    :func:`chekan.joint.results.protocol_result`."""
+    :func:`chekan.results.joint.protocol_result`."""
     t0 = time.perf_counter()
     pm = protocol_model(protocol, options)
     lsq = LeastSquaresProblem(pm.theta_space, _whitened_residuals, Compiler())
@@ -350,6 +380,6 @@ def _write_netcdf(draws: Mapping[str, np.ndarray], samp, pm: ProtocolModel, path
         draws,
         sample_stats={"lp": samp.log_prob},
         observed_data={"x_pix": np.asarray(pm.table.x_pix)},
-        attrs={"model": "chekan.joint.legacy"},
+        attrs={"model": "chekan.fit.protocol"},
     )
     return save_netcdf(idata, path, sync_dir=fsync_dir)

@@ -106,7 +106,7 @@ def write_netcdf(path, draws, samp, model, rep, cols) -> Path:
     from inference.arviz_io import save_posterior_netcdf
 
     C, Dn = samp.draws.shape[:2]
-    post = dict(draws.quantities)  # draws: chekan.joint.reported.ReportedDraws
+    post = dict(draws.quantities)  # draws: chekan.fit.reported.ReportedDraws
     n_bins = model.n_real_bins  # the record's bins, not its bucket's padding
     y = np.asarray(model.data.y)[:n_bins]
     mask = np.asarray(model.data.mask)[:n_bins]

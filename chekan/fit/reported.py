@@ -1,6 +1,6 @@
 """The reported quantities of a fit, evaluated by the engine's compiled functions
 (:mod:`chekan.runtime.engine`; their maths: :mod:`chekan.joint.derived`): at the MAP with
-delta-method sds and the hyperparameters' Type A (:mod:`chekan.joint.typea`), and for every
+delta-method sds and the hyperparameters' Type A (:mod:`chekan.fit.typea`), and for every
 posterior draw, with β drawn given θ."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from chekan.fit.map import MapFit
+from chekan.fit.typea import reliabilities
 from chekan.jaxconfig import device_array
-from chekan.joint.map import MapFit
-from chekan.joint.typea import reliabilities
 from chekan.physics.parameters import PHYSICAL
 from chekan.runtime.engine import engine_for
 from inference.chunks import map_chunks
@@ -23,7 +23,7 @@ class MapDerived:
     """The reported quantities at the MAP (:func:`map_derived`): ``values`` {name: (value,
     sd)} of the physical quantities (``PHYSICAL``), ``hyper`` {name: value} the
     hyperparameters at their EM values (no sd); ``nu_eff`` and ``u_hyper`` each physical
-    quantity's effective degrees of freedom and uₕ (:mod:`chekan.joint.typea`);
+    quantity's effective degrees of freedom and uₕ (:mod:`chekan.fit.typea`);
     ``m_level_pix`` (2,) the estimated level readings;
     ``type_a_clipped``: the information on the noise variances was not positive definite
     (:func:`inference.dof.log_var_cov` took its positive part)."""
@@ -65,7 +65,7 @@ def map_derived(fit: MapFit) -> MapDerived:
 
     With θ ~ N(θ̂, C) and β | θ ~ N(β̂(θ), M⁻¹):
     var g = (∂g/∂θ + ∂g/∂β ∂β̂/∂θ) C (…)ᵀ + ∂g/∂β M⁻¹ (∂g/∂β)ᵀ + uₕ²,
-    uₕ² the variance from the hyperparameters' estimation (:mod:`chekan.joint.typea`).
+    uₕ² the variance from the hyperparameters' estimation (:mod:`chekan.fit.typea`).
     Hyperparameters are reported at their EM values (sd None).
     """
     model, res, h = fit.model, fit.result, fit.hyper

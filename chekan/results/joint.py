@@ -1,5 +1,5 @@
 """The ``map`` and ``bayes`` ``chekan-result/1`` dicts, written from the typed fits of
-:mod:`chekan.joint.fitted` and the classical result they start from (its header and
+:mod:`chekan.fit.fitted` and the classical result they start from (its header and
 classical items, :func:`chekan.results.document.classical_result`), with their messages
 (``diagnostics.problems``, notes, the warning of a posterior not converged).
 
@@ -15,18 +15,18 @@ from typing import Any, cast
 
 import numpy as np
 
-from chekan.joint import em
-from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
-from chekan.joint.budget import budget_entries, flag_prior_dominated
-from chekan.joint.fitted import (
+from chekan.fit.budget import budget_entries, flag_prior_dominated
+from chekan.fit.fitted import (
     MapEstimate,
     PosteriorEstimate,
-    ProtocolEstimate,
     capped_passes,
     map_converged,
 )
-from chekan.joint.map import MapFit
-from chekan.joint.predictive import drift_curve
+from chekan.fit.map import MapFit
+from chekan.fit.predictive import drift_curve
+from chekan.fit.protocol import ProtocolEstimate
+from chekan.joint import em
+from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
 from chekan.joint.xresponse import horizontal_prior
 from chekan.options import CalibrationOptions
 from chekan.physics.parameters import PARAMETER_UNITS, unit_of
@@ -103,7 +103,7 @@ def _specified_accuracy(model) -> float:
 
 def map_result(base: Mapping[str, Any], est: MapEstimate, options: CalibrationOptions) -> dict:
     """The ``map`` result: MAP values, delta-method sds (with the hyperparameters'
-    estimation), the budget, ν_eff and U = k·u (:mod:`chekan.joint.typea`); the classical
+    estimation), the budget, ν_eff and U = k·u (:mod:`chekan.fit.typea`); the classical
     items as Calibr.exe's (:func:`joint_result` settles them)."""
     out, diag = _common(est.fit, base, options)
     md = est.derived
@@ -218,7 +218,7 @@ def _predictive_summary(rep: np.ndarray, cols: list[str], hdi_prob: float) -> di
 def protocol_result(
     base: Mapping[str, Any], est: ProtocolEstimate, options: CalibrationOptions
 ) -> dict:
-    """The ``map`` or ``bayes`` result of a legacy protocol (:mod:`chekan.joint.legacy`):
+    """The ``map`` or ``bayes`` result of a legacy protocol (:mod:`chekan.fit.protocol`):
     the model's b₁, b₂ (means over rounds), a (and the hyperparameters for bayes), the
     per-round b beside the classical ones, the budget and the diagnostics."""
     pm, res, hp = est.model, est.result, options.hdi_prob

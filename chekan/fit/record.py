@@ -1,27 +1,28 @@
 """``--method map|bayes`` on a record or protocol: from the data to a typed fit.
 
-:func:`estimate` prepares the record, fits the MAP (:mod:`chekan.joint.map`), and, for
-``bayes``, samples the posterior; it returns a :mod:`chekan.joint.fitted` value, which
-:func:`chekan.joint.results.joint_result` writes as the ``chekan-result/1`` dict.
+:func:`estimate` prepares the record, fits the MAP (:mod:`chekan.fit.map`), and, for
+``bayes``, samples the posterior; it returns a :mod:`chekan.fit.fitted` value, which
+:func:`chekan.results.joint.joint_result` writes as the ``chekan-result/1`` dict.
 """
 
 from __future__ import annotations
 
 import functools
 import time
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
 from chekan.classical.settling import JointValues, settle, tau_from_transients
 from chekan.files.outputs import check_room
+from chekan.fit.budget import uncertainty_budget
+from chekan.fit.fitted import MapEstimate, PosteriorEstimate, map_converged
+from chekan.fit.map import MapFit, fit_map_em
+from chekan.fit.predictive import posterior_predictive_delta_g, write_netcdf
+from chekan.fit.reported import ReportedDraws, map_derived
+from chekan.fit.sampling import sample_posterior, sampler_config
+from chekan.fit.start import initial_values
 from chekan.joint.binning import prepare
-from chekan.joint.budget import uncertainty_budget
-from chekan.joint.fitted import MapEstimate, PosteriorEstimate, ProtocolEstimate, map_converged
-from chekan.joint.map import MapFit, fit_map_em
-from chekan.joint.predictive import posterior_predictive_delta_g, write_netcdf
-from chekan.joint.reported import ReportedDraws, map_derived
-from chekan.joint.sampling import sample_posterior, sampler_config
-from chekan.joint.start import initial_values
 from chekan.joint.xresponse import horizontal_prior
 from chekan.options import CalibrationOptions
 from chekan.physics.parameters import PARAMETER_UNITS
@@ -34,8 +35,11 @@ from chekan.runtime.engine import (
 from chekan.runtime.padding import padded_for
 from chekan.runtime.process import single_threaded_blas
 
+if TYPE_CHECKING:
+    from chekan.fit.protocol import ProtocolEstimate
+
 #: What :func:`estimate` returns.
-JointEstimate = MapEstimate | PosteriorEstimate | ProtocolEstimate
+JointEstimate: TypeAlias = "MapEstimate | PosteriorEstimate | ProtocolEstimate"
 
 
 def estimate(
@@ -52,7 +56,7 @@ def _estimate(
     data, *, kind: str, classical, source: str, options: CalibrationOptions
 ) -> JointEstimate:
     if kind == "protocol":
-        from chekan.joint.legacy import estimate_protocol
+        from chekan.fit.protocol import estimate_protocol
 
         return estimate_protocol(data, classical=classical, options=options)
     t_start = time.perf_counter()

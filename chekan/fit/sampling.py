@@ -6,7 +6,7 @@ independence-MH proposal is fitted by importance sampling (:func:`sampler_config
 independent ensembles for R-hat, burn-in from the integrated autocorrelation time, stopped
 on the bulk ESS and R̂ of the draws it keeps and of every quantity reported from them. The
 draws of θ and h are returned with those quantities
-(:func:`chekan.joint.reported.posterior_draws`, β drawn given θ).
+(:func:`chekan.fit.reported.posterior_draws`, β drawn given θ).
 """
 
 from __future__ import annotations
@@ -16,13 +16,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from chekan.fit.map import MapFit
 from chekan.joint.layout import RecordModel
-from chekan.joint.map import MapFit
 from chekan.options import CalibrationOptions
 from chekan.runtime.engine import problem_for
 
 if TYPE_CHECKING:
-    from chekan.joint.reported import ReportedDraws
+    from chekan.fit.reported import ReportedDraws
     from inference.sampling import SamplingResult
 
 
@@ -76,7 +76,7 @@ def sampler_config(options: CalibrationOptions, **overrides):
 def sample_posterior(fit: MapFit, options: CalibrationOptions) -> SamplingResult:
     """Draws of (θ, h) from the marginal posterior, started at the MAP, with the sampler's
     statistics, and every reported quantity of the kept draws (``SamplingResult.derived``,
-    a :class:`~chekan.joint.reported.ReportedDraws`: :func:`reported_draws`, on which the
+    a :class:`~chekan.fit.reported.ReportedDraws`: :func:`reported_draws`, on which the
     stopping rule is checked too)."""
     from inference.sampling import sample
 
@@ -108,12 +108,12 @@ def sample_posterior(fit: MapFit, options: CalibrationOptions) -> SamplingResult
 
 def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> ReportedDraws:
     """Every reported quantity of the draws (chain, draw, 12) of z, β drawn given θ with
-    keys from ``seed`` (:func:`chekan.joint.reported.posterior_draws`): {name: (chain,
+    keys from ``seed`` (:func:`chekan.fit.reported.posterior_draws`): {name: (chain,
     draw, ...)}, and the pointwise log-likelihood (chain, draw, bins, 2), for the record's
     own holds and bins (:func:`real_part`)."""
     import jax
 
-    from chekan.joint.reported import ReportedDraws, posterior_draws
+    from chekan.fit.reported import ReportedDraws, posterior_draws
 
     C, Dn = draws.shape[:2]
     keys = jax.random.split(jax.random.PRNGKey(seed), C * Dn)
@@ -137,7 +137,7 @@ def real_part(model: RecordModel, flat: ReportedDraws) -> ReportedDraws:
     padding's holds and bins come after the real ones and carry no data (their angle
     errors and hold offsets are draws from the prior, their log-likelihood 0), so that
     nothing reported, and no stopping rule, sees them."""
-    from chekan.joint.reported import ReportedDraws
+    from chekan.fit.reported import ReportedDraws
 
     H, N = model.n_real_holds, model.n_real_bins
     assert bool(np.all(np.asarray(model.data.hold_mask)[:H])), "real holds come first"

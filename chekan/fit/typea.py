@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from chekan.fit.map import MapFit
 from chekan.joint.layout import ModelStructure
-from chekan.joint.map import MapFit
 from chekan.joint.problem import hyper_params
 from inference.dof import (
     TypeAReliability,

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from chekan.errors import ChekanError
-from chekan.joint.map import MapFit
+from chekan.fit.map import MapFit
 from chekan.joint.problem import nonlinear_params
 from chekan.runtime.engine import problem_for
 
@@ -113,7 +113,7 @@ def budget_entries(
     ``nu_eff`` (None: not evaluated, k = 2), the coverage factor k = t₉₅.₄₅(ν_eff)
     (GUM G.6.4; :func:`inference.dof.coverage_factor`) and U = k·u (``expanded``).
 
-    ``budget_raw`` may hold a line ``hyperparameters`` (uₕ, :mod:`chekan.joint.typea`), which
+    ``budget_raw`` may hold a line ``hyperparameters`` (uₕ, :mod:`chekan.fit.typea`), which
     is not in the linearised total (it is added to it here)."""
     from inference.dof import coverage_factor
 

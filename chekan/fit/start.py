@@ -4,8 +4,8 @@ The first Gauss–Newton pass starts from the classical b₁, b₂, a (K = √(g
 ε, with τ₀ = 30 s. Where that pass fails or lands in the prior's tails, it is redone first
 from the record's own τ (:func:`chekan.classical.settling.tau_from_transients`, the
 ``tau_hint_s`` of
-:func:`chekan.joint.map.fit_map_em`) and only then from the fixed restarts
-(:data:`chekan.joint.map.TAU_RESTARTS_S`). The first start stays at 30 s so that every
+:func:`chekan.fit.map.fit_map_em`) and only then from the fixed restarts
+(:data:`chekan.fit.map.TAU_RESTARTS_S`). The first start stays at 30 s so that every
 record it served keeps its numbers to the last digit.
 """
 

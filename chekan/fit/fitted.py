@@ -1,5 +1,5 @@
 """What the joint estimators return: typed, frozen fits, formatted into the
-``chekan-result/1`` dict by :mod:`chekan.joint.results` alone.
+``chekan-result/1`` dict by :mod:`chekan.results.joint` alone.
 
 :class:`MapEstimate` (``--method map`` on a record), :class:`PosteriorEstimate` (``bayes``),
 :class:`ProtocolEstimate` (either, on a legacy protocol); each with the classical items'
@@ -16,16 +16,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from chekan.classical.settling import Settling
-from chekan.joint.map import MapFit
-from chekan.joint.reported import MapDerived
+from chekan.fit.map import MapFit
+from chekan.fit.reported import MapDerived
 
 if TYPE_CHECKING:
-    from chekan.joint.legacy import ProtocolModel
-    from inference.map import MapResult
     from inference.sampling import SamplingResult
 
 #: The raw uncertainty budget of b₁, b₂: {name: {source: sd}} with ``total_linearised``
-#: (:func:`chekan.joint.budget.uncertainty_budget`).
+#: (:func:`chekan.fit.budget.uncertainty_budget`).
 RawBudget = Mapping[str, Mapping[str, float]]
 #: A posterior summary: {name: {mean, sd, hdi_low, hdi_high, r_hat, ess_bulk, …}}
 #: (:func:`inference.diagnostics.summarize_draws`).
@@ -59,7 +57,7 @@ class MapEstimate:
 class PosteriorEstimate:
     """The ``bayes`` fit of a record: the MAP it started from, the raw budget, the sampler's
     result (draws, statistics and the reported draws as ``sampling.derived``,
-    :class:`~chekan.joint.reported.ReportedDraws`), their summary and convergence verdict
+    :class:`~chekan.fit.reported.ReportedDraws`), their summary and convergence verdict
     (``draws_converged``, ``problems``), the posterior predictive replicates of the
     residual table δg (draws, R, 2, angles), the NetCDF written (or None), the settling and
     the seconds taken (up to the summary)."""
@@ -73,30 +71,4 @@ class PosteriorEstimate:
     replicates: np.ndarray
     netcdf: Path | None
     settling: Settling
-    seconds: float
-
-
-@dataclass(frozen=True)
-class ProtocolPosterior:
-    """The ``bayes`` posterior of a protocol: the sampler's result, the named draws (the
-    per-round b and their mean b₁, b₂), their summary and convergence verdict."""
-
-    sampling: SamplingResult
-    draws: Mapping[str, np.ndarray]
-    summary: Summary
-    converged: bool
-    problems: tuple[str, ...]
-
-
-@dataclass(frozen=True)
-class ProtocolEstimate:
-    """The ``map`` or ``bayes`` fit of a legacy protocol: its model, the MAP, the raw budget
-    (at the MAP's hyperparameters; the posterior means for bayes), the posterior (bayes
-    only), the NetCDF written (or None) and the seconds taken."""
-
-    model: ProtocolModel
-    result: MapResult
-    budget: RawBudget
-    posterior: ProtocolPosterior | None
-    netcdf: Path | None
     seconds: float
