@@ -63,6 +63,23 @@ def test_two_short_programs_share_one_bucket():
     assert a.structure == b.structure
 
 
+def test_a_three_angle_program_runs_in_the_papers_warmed_bucket():
+    """A program whose own bucket lies within reach of a default one takes the default:
+    three angles in four rounds (32 holds, 160 bins) share the paper's executables, which
+    ``chekan warmup`` stored; a short program keeps the smallest bucket (too far)."""
+    from chekan.physics.program import build_program
+    from chekan.records.simulate import Truth, simulate_session
+    from chekan.runtime.padding import DEFAULT_BUCKETS, SMALLEST
+
+    prog = build_program([2.0, 3.5, 5.0], axis="y", rounds=4, dwell_s=240, settle_s=120)
+    m = padded_model(simulate_session(prog, Truth(serial="T-1"), seed=7)[0])
+    assert (m.n_real_holds, m.n_real_bins) == (32, 160)
+    assert tuple(bucket_of(m.structure)) == DEFAULT_BUCKETS[0] == (36, 224, 24, 36, 0)
+    short = build_program([1.0, 2.0], dwell_s=60, settle_s=20, rounds=1, name="short")
+    s = padded_model(simulate_session(short, Truth(serial="T-1"), seed=7)[0])
+    assert tuple(bucket_of(s.structure)) == (*SMALLEST[:4], 0)
+
+
 def test_x_response_padding_keeps_the_level_angle_last():
     """Padded X-response columns are zero, unit prior variance, before the last column
     (the level angle Δm₀ⱼ that the derived quantities read)."""
@@ -218,7 +235,7 @@ def test_warmup_keeps_what_each_method_compiled(monkeypatch):
     steps = warm([target], say=said.append, calibrate=calibrate, force=True)
     assert [s.method for s in steps] == ["map", "bayes"]
     assert all(s.compiled + s.loaded == 1 for s in steps)
-    assert steps[0].bucket == (8, 24, 16, 16, 0)
+    assert steps[0].bucket == (16, 96, 24, 24, 0)  # the smallest bucket
     assert said[0].startswith("[1/1] short") and "compiled" in said[-1]
     if store.folder is not None:  # kept for the next process
         assert store.stored("tiny_map", arg) and store.stored("tiny_bayes", arg)

@@ -12,6 +12,12 @@ where they fall (H, N, M, S, X): the paper's 9 h program and its 3 h version
 (48, 240, 24, 31, 21) → (48, 256, 24, 32, 24). 0 stays 0 (no systematic or X terms is a
 different model, not a smaller one). The drift and encoder degrees are not padded: their
 columns are reported (the drift coefficients, the drift curve), so they stay in the key.
+
+Two rules make more programs share: every size is at least :data:`SMALLEST`'s (short
+programs share one small bucket), and a record whose own bucket lies within
+:data:`DEFAULT_REACH` of one of the :data:`DEFAULT_BUCKETS` (the ones ``chekan warmup``
+compiles) takes that one: a 3-angle program of 32 holds and 160 bins runs in the paper's
+bucket, so its first run after the set-up loads instead of compiling.
 """
 
 from __future__ import annotations
@@ -21,7 +27,16 @@ from typing import TYPE_CHECKING, NamedTuple
 if TYPE_CHECKING:
     from chekan.joint.layout import ModelStructure, RecordModel
 
-__all__ = ["LADDER", "Bucket", "bucket_of", "padded_for", "padded_shape", "rung"]
+__all__ = [
+    "DEFAULT_BUCKETS",
+    "LADDER",
+    "SMALLEST",
+    "Bucket",
+    "bucket_of",
+    "padded_for",
+    "padded_shape",
+    "rung",
+]
 
 #: the rungs below 32; above it 2ᵏ·(8, 9, 10, 12, 14)/8
 _LOW = (8, 16, 24, 32)
@@ -56,12 +71,38 @@ class Bucket(NamedTuple):
     n_x_response: int
 
 
+#: The buckets of the default programs, which ``chekan warmup`` compiles (the paper's 9 h
+#: program and its 3 h version; the designer's 2.6 h and 9 h xy programs)
+DEFAULT_BUCKETS = (
+    Bucket(36, 224, 24, 36, 0),
+    Bucket(48, 256, 24, 32, 24),
+    Bucket(160, 896, 24, 32, 24),
+)
+#: How much larger than its own bucket (holds, bins) a default bucket may be and still take
+#: a record: a few more holds and bins cost less than a first run's compile
+DEFAULT_REACH = 1.5
+#: The smallest bucket: short programs (a few holds, tens of bins) all share it; a size of
+#: 0 stays 0 (no systematic or X terms is a different model)
+SMALLEST = Bucket(16, 96, 24, 24, 24)
+
+
 def bucket_of(structure: ModelStructure) -> Bucket:
-    """The bucket that ``structure`` is padded to."""
+    """The bucket that ``structure`` is padded to: the smallest of :data:`DEFAULT_BUCKETS`
+    that holds it, has its terms (systematic, X) or lacks them as it does and has at most
+    :data:`DEFAULT_REACH` times its own bucket's holds and bins; else its own bucket (each
+    size at its rung, and at least :data:`SMALLEST`'s)."""
     s = structure
-    return Bucket(
-        rung(s.n_holds), rung(s.n_bins), rung(s.n_moves), rung(s.n_systematic), rung(s.n_x_response)
-    )
+    sizes = (s.n_holds, s.n_bins, s.n_moves, s.n_systematic, s.n_x_response)
+    own = Bucket(*(max(rung(n), low) if n else 0 for n, low in zip(sizes, SMALLEST, strict=True)))
+    for b in DEFAULT_BUCKETS:
+        fits = all(x >= y for x, y in zip(b, own, strict=True))
+        same_terms = (b.n_systematic > 0) == (own.n_systematic > 0) and (b.n_x_response > 0) == (
+            own.n_x_response > 0
+        )
+        near = b.n_holds <= DEFAULT_REACH * own.n_holds and b.n_bins <= DEFAULT_REACH * own.n_bins
+        if fits and same_terms and near:
+            return b
+    return own
 
 
 def padded_shape(models: list[RecordModel]) -> Bucket:
