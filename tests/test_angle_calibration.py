@@ -197,8 +197,9 @@ def test_a_stated_scale_part_is_read_checked_and_replaces_the_extremes(tmp_path)
     """``scale_part_y_arcsec``: the part of U that is a scale error. The prior then gives the
     scale term u_s(θ_max)² and each angle u(θ)² − u_s(θ)², u_s(θ) = (U_s/2)·|θ|/θ_t, where
     a table alone gets both extremes at the full u²; the result and the reading state it."""
-    from chekan.joint.angles import SystematicBasis, angle_sensor_entry, spec_for
+    from chekan.joint.angles import SystematicBasis, spec_for
     from chekan.physics.units import ARCSEC_PER_RAD
+    from chekan.results.entries import angle_sensor_entry
 
     plain = read_angle_calibration(_write(tmp_path, SCALE_ROWS, name="plain.csv"))
     cal = read_angle_calibration(

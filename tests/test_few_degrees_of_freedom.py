@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from chekan.fit.budget import budget_entries
 from chekan.report.expanded import expanded_of
 from chekan.results.document import param_entry
+from chekan.results.entries import budget_entries
 from inference.dof import coverage_factor
 
 DATA = Path(__file__).resolve().parent / "data" / "report"

@@ -103,7 +103,7 @@ def test_a_record_whose_slews_open_the_angle_error_mode_is_flagged(late_map):
 
 
 def test_the_angle_error_flag_reads_the_specification():
-    from chekan.joint.em import implausible_angle_error
+    from chekan.results.entries import implausible_angle_error
 
     assert implausible_angle_error({"sigma_theta_arcsec": 5.9}, 3.0) == []
     (text,) = implausible_angle_error({"sigma_theta_arcsec": 6.5}, 3.0)

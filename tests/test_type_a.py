@@ -197,8 +197,9 @@ def test_reported_sd_and_budget_carry_the_type_a_terms(fitted):
     sd = md.values["b1"][1]
     assert sd**2 == pytest.approx(laplace + md.u_hyper["b1"] ** 2, rel=1e-10)
     assert 3 < md.nu_eff["b1"] < 1e4
-    from chekan.fit.budget import budget_entries, uncertainty_budget
+    from chekan.fit.budget import uncertainty_budget
     from chekan.results.document import param_entry
+    from chekan.results.entries import budget_entries
 
     raw = uncertainty_budget(fit)
     raw["b1"]["hyperparameters"] = md.u_hyper["b1"]

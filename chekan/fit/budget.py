@@ -12,9 +12,6 @@ share), a (the prior of K), other priors; scaled to the reported sd.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import numpy as np
 
 from chekan.errors import ChekanError
@@ -101,55 +98,3 @@ def _influence(J: np.ndarray) -> np.ndarray:
         ) from None
     keep = w > w.max() * J.shape[1] * np.finfo(float).eps
     return (V[:, keep] / w[keep]) @ V[:, keep].T @ J.T
-
-
-def budget_entries(
-    budget_raw: Mapping[str, Mapping[str, float]],
-    params: Mapping[str, Mapping[str, Any]],
-    nu_eff: Mapping[str, float] | None = None,
-) -> dict:
-    """The result's ``uncertainty_budget``: each group scaled so that they add up (in
-    quadrature) to the reported sd; the total u, the effective degrees of freedom
-    ``nu_eff`` (None: not evaluated, k = 2), the coverage factor k = t₉₅.₄₅(ν_eff)
-    (GUM G.6.4; :func:`inference.dof.coverage_factor`) and U = k·u (``expanded``).
-
-    ``budget_raw`` may hold a line ``hyperparameters`` (uₕ, :mod:`chekan.fit.typea`), which
-    is not in the linearised total (it is added to it here)."""
-    from inference.dof import coverage_factor
-
-    out = {}
-    for name in ("b1", "b2"):
-        raw = dict(budget_raw[name])
-        lin = raw.pop("total_linearised")
-        if "hyperparameters" in raw:
-            lin = float(np.hypot(lin, raw["hyperparameters"]))
-        sd = params[name]["sd"]
-        scale = sd / lin if lin > 0 and sd else 1.0
-        e: dict[str, float | None] = {k: v * scale for k, v in raw.items()}
-        e["total"] = sd
-        nu = (nu_eff or {}).get(name)
-        k = coverage_factor(nu) if nu is not None else 2.0
-        e["nu_eff"] = float(nu) if nu is not None else None
-        finite = bool(np.isfinite(k))  # ν_eff < 1: no finite k, no U (a flagged problem)
-        e["coverage_factor"] = k if finite else None
-        e["expanded"] = k * sd if sd is not None and finite else None
-        out[name] = e
-    return out
-
-
-def flag_prior_dominated(params: dict, diag: dict) -> dict:
-    """``diag`` with ``prior_dominated`` (and notes): a posterior sd above half the prior
-    sd means this program cannot separate the parameter."""
-    dominated = [
-        n for n, psd in PRIOR_SD.items() if n in params and (params[n]["sd"] or 0) > 0.5 * psd
-    ]
-    notes = list(diag.get("notes", []))
-    for n in dominated:
-        notes.append(
-            f"{n} is prior-dominated (sd {params[n]['sd']:.3g} vs prior sd {PRIOR_SD[n]:g}): "
-            "this program cannot separate it"
-        )
-    out = {**diag, "prior_dominated": dominated}
-    if notes:
-        out["notes"] = notes
-    return out

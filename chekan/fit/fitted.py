@@ -30,17 +30,6 @@ RawBudget = Mapping[str, Mapping[str, float]]
 Summary = Mapping[str, Mapping[str, Any]]
 
 
-def capped_passes(fit: MapFit) -> list[int]:
-    """The MAP passes (1-based) after which the EM of the hyperparameters stopped at its cap
-    still moving (not towards zero)."""
-    return [p["iteration"] + 1 for p in fit.history if p.get("hyper_converged") is False]
-
-
-def map_converged(fit: MapFit) -> bool:
-    """Whether the MAP converged, its hyperparameters' EM included."""
-    return bool(fit.result.converged) and not capped_passes(fit)
-
-
 @dataclass(frozen=True)
 class MapEstimate:
     """The ``map`` fit of a record: the MAP, its derived quantities with delta-method sds,
@@ -59,8 +48,8 @@ class PosteriorEstimate:
     result (draws, statistics and the reported draws as ``sampling.derived``,
     :class:`~chekan.fit.reported.ReportedDraws`), their summary and convergence verdict
     (``draws_converged``, ``problems``), the posterior predictive replicates of the
-    residual table δg (draws, R, 2, angles), the NetCDF written (or None), the settling and
-    the seconds taken (up to the summary)."""
+    residual table δg (draws, R, 2, angles), the NetCDF written (or None), the settling, the
+    seconds taken (up to the summary) and the drift curve."""
 
     fit: MapFit
     budget: RawBudget
@@ -72,3 +61,6 @@ class PosteriorEstimate:
     netcdf: Path | None
     settling: Settling
     seconds: float
+    drift: Mapping[str, Any]
+    """The drift curve of the draws, with its interval
+    (:func:`~chekan.fit.predictive.drift_curve`)."""

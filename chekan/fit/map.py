@@ -53,6 +53,17 @@ class MapFit:
     history: tuple[dict, ...]
     model: RecordModel
 
+    @property
+    def capped_passes(self) -> list[int]:
+        """The passes (1-based) after which the EM of the hyperparameters stopped at its cap
+        still moving (not towards zero)."""
+        return [p["iteration"] + 1 for p in self.history if p.get("hyper_converged") is False]
+
+    @property
+    def converged(self) -> bool:
+        """Whether the MAP converged, its hyperparameters' EM included."""
+        return bool(self.result.converged) and not self.capped_passes
+
 
 def fit_map_em(
     model: RecordModel,

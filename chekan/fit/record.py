@@ -16,9 +16,9 @@ import numpy as np
 from chekan.classical.settling import JointValues, settle, tau_from_transients
 from chekan.files.outputs import check_room
 from chekan.fit.budget import uncertainty_budget
-from chekan.fit.fitted import MapEstimate, PosteriorEstimate, map_converged
+from chekan.fit.fitted import MapEstimate, PosteriorEstimate
 from chekan.fit.map import MapFit, fit_map_em
-from chekan.fit.predictive import posterior_predictive_delta_g, write_netcdf
+from chekan.fit.predictive import drift_curve, posterior_predictive_delta_g, write_netcdf
 from chekan.fit.reported import ReportedDraws, map_derived
 from chekan.fit.sampling import sample_posterior, sampler_config
 from chekan.fit.start import initial_values
@@ -116,7 +116,7 @@ def _map_estimate(fit: MapFit, holds, record, classical, options, t_start) -> Ma
     md = map_derived(fit)
     seconds = time.perf_counter() - t_start
     means = {name: value for name, (value, _) in md.values.items()}
-    values = _values(fit, record, means, md.m_level_pix, map_converged(fit))
+    values = _values(fit, record, means, md.m_level_pix, fit.converged)
     found = settle(values, holds, record, classical=classical, a_fixed=options.a_fixed)
     return MapEstimate(fit, md, budget, found, seconds)
 
@@ -151,8 +151,9 @@ def _posterior_estimate(
     converged = bool(ok and fit.result.converged)
     values = _values(fit, record, means, mh, converged)
     found = settle(values, holds, record, classical=classical, a_fixed=options.a_fixed)
+    drift = drift_curve(draws, model, hp=options.hdi_prob)
     return PosteriorEstimate(
-        fit, budget, samp, summ, bool(ok), tuple(problems), rep, netcdf, found, seconds
+        fit, budget, samp, summ, bool(ok), tuple(problems), rep, netcdf, found, seconds, drift
     )
 
 

@@ -395,22 +395,3 @@ def systematic_basis(theta_rad: np.ndarray, spec: AngleSensorSpec) -> tuple[np.n
     one column per commanded angle (an indicator at the holds), then θₖ/θ_max."""
     basis = SystematicBasis.for_holds(theta_rad)
     return basis.at(theta_rad), basis.prior_var(spec)
-
-
-def angle_sensor_entry(spec: AngleSensorSpec | None) -> dict:
-    """The result's ``angle_sensor``: how the platform's angle errors were modelled."""
-    if spec is None:
-        return {"model": "independent"}
-    out = {
-        "model": "systematic",
-        "axis": spec.axis,
-        "reading": spec.reading,
-        "source": spec.source,
-        "u_per_angle_arcsec": math.sqrt(spec.per_angle_var),
-        "u_scale_arcsec": math.sqrt(spec.scale_var),
-    }
-    if spec.table is None:
-        out.update(bound_arcsec=spec.bound_arcsec, distribution=spec.distribution)
-    else:
-        out.update(distribution="normal", calibration=spec.calibration.entry())
-    return out

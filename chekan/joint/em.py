@@ -71,68 +71,6 @@ AT_BOUND_LOG = 1e-3  # a hyperparameter within this (in log) of an EM bound is "
 _HYPER_KEYS = ("noise_scale", "sigma_theta_arcsec", "sigma_hold_pix", "slew_error")
 
 
-def hyper_at_bounds(h: Hyper) -> list[str]:
-    """The hyperparameters that the EM left at one of its clip bounds, in words: there the
-    data did not determine them, and the uncertainty that rests on them may be wrong."""
-    s = np.asarray(h["noise_scale"], dtype=float).reshape(-1)
-    values = [
-        ("noise scale s₁", float(s[0]), np.exp(NOISE_LOWER[0]), np.exp(NOISE_UPPER[0]), ""),
-        ("noise scale s₂", float(s[1]), np.exp(NOISE_LOWER[1]), np.exp(NOISE_UPPER[1]), ""),
-        (
-            "slew error κ",
-            float(h["slew_error"]),
-            np.exp(NOISE_LOWER[2]),
-            np.exp(NOISE_UPPER[2]),
-            "",
-        ),
-        ("σ_θ", float(h["sigma_theta_arcsec"]), *SIGMA_THETA_BOUNDS_ARCSEC, "″"),
-        ("σ_o", float(h["sigma_hold_pix"]), *SIGMA_HOLD_BOUNDS_PIX, " pix"),
-    ]
-    out = []
-    for name, v, low, high, unit in values:
-        for edge, which in ((low, "lower"), (high, "upper")):
-            if abs(np.log(v) - np.log(edge)) < AT_BOUND_LOG:
-                out.append(f"hyperparameter {name} = {v:.4g}{unit} ended at its {which} bound")
-    return out
-
-
-MISFIT_SCALE = 2.0  # residuals this many times the samples' own scatter: a misfit
-# a random angle error of the holds this many times the platform's specified accuracy
-# (its bound, 3″ unless the user states a larger one): no platform within its specification
-IMPLAUSIBLE_ANGLE_FACTOR = 2.0
-
-
-def residual_misfit(h: Hyper) -> list[str]:
-    """The systems whose residuals the model does not describe, in words: the bin means
-    scatter about the fit sⱼ times more than the record's own sample-to-sample noise says
-    (sⱼ > ``MISFIT_SCALE``): an effect the model leaves out (a jump, a drift the polynomial
-    cannot follow), and the sd that rests on the fit may be too small."""
-    s = np.asarray(h["noise_scale"], dtype=float).reshape(-1)
-    return [
-        f"residuals of system {j + 1} are {v:.3g}× the scatter of its own samples: the model "
-        "does not describe this record (an unmodelled effect); its uncertainty may be too small"
-        for j, v in enumerate(s[:2])
-        if v > MISFIT_SCALE
-    ]
-
-
-def implausible_angle_error(h: Hyper, bound_arcsec: float) -> list[str]:
-    """The holds' random angle error, in words, where the EM put it beyond what a platform
-    within its specification can have (σ_θ > ``IMPLAUSIBLE_ANGLE_FACTOR`` × the bound):
-    there the fit explains a misfit of the slews by the holds' angles, which frees b to
-    follow the transients (σ_θ 15–30″ came with b off by up to 9 sd on simulated records
-    whose slew paths the model misreads: README, "Angles up to a second late")."""
-    v = float(h["sigma_theta_arcsec"])
-    if v <= IMPLAUSIBLE_ANGLE_FACTOR * bound_arcsec:
-        return []
-    return [
-        f"the holds' random angle error σ_θ = {v:.3g}″ is {v / bound_arcsec:.2g}× the "
-        f"platform's {bound_arcsec:g}″ specification: the model does not describe this "
-        "record's slews (the recorded angles may lag the readings); b may be biased and its "
-        "uncertainty too small"
-    ]
-
-
 HYPER_NAMES = ("noise scale s₁", "noise scale s₂", "σ_θ", "σ_o", "slew error κ")  # _log_hyper's
 
 
@@ -149,18 +87,6 @@ def to_zero(moving: tuple[tuple[str, float], ...]) -> bool:
     show none of that variance; its clip bound stops it there). Anything else still moving
     (rising, or a scale of the noise) is an EM that has not converged."""
     return bool(moving) and all(v < 0.0 and not n.startswith("noise") for n, v in moving)
-
-
-def capped_passes(passes: list[int]) -> list[str]:
-    """The problem of EM passes that stopped at ``HYPER_MAX_UPDATES`` still moving: the
-    hyperparameters (and so the weights of the MAP after them) are not at their fixed point."""
-    if not passes:
-        return []
-    return [
-        f"the EM of the hyperparameters stopped at its cap of {HYPER_MAX_UPDATES} updates without"
-        f" converging (after MAP pass {', '.join(map(str, passes))}): the noise and angle-error"
-        " variances, and so b's weights and uncertainty, are not at their estimate"
-    ]
 
 
 def _em_body(update: Callable, data: RecordData):

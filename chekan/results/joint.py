@@ -11,26 +11,28 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Mapping
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
-from chekan.fit.budget import budget_entries, flag_prior_dominated
-from chekan.fit.fitted import (
-    MapEstimate,
-    PosteriorEstimate,
-    capped_passes,
-    map_converged,
-)
+from chekan.fit.fitted import MapEstimate, PosteriorEstimate
 from chekan.fit.map import MapFit
-from chekan.fit.predictive import drift_curve
 from chekan.fit.protocol import ProtocolEstimate
-from chekan.joint import em
-from chekan.joint.angles import DEFAULT_BOUND_ARCSEC, angle_sensor_entry
 from chekan.joint.xresponse import horizontal_prior
 from chekan.options import CalibrationOptions
 from chekan.physics.parameters import PARAMETER_UNITS, unit_of
 from chekan.results.document import param_entry, posterior_entry, with_settled
+from chekan.results.entries import (
+    angle_sensor_entry,
+    budget_entries,
+    capped_problem,
+    flag_prior_dominated,
+    hyper_at_bounds,
+    implausible_angle_error,
+    residual_misfit,
+    specified_accuracy,
+    to_zero_problem,
+)
 
 
 def joint_result(
@@ -68,37 +70,24 @@ def _common(fit: MapFit, base: Mapping[str, Any], options: CalibrationOptions):
             "source": horizontal_prior(options.horizontal_u_pix)[1],
         }
     out["classical"] = {k: base["parameters"][k] for k in ("b1", "b2") if k in base["parameters"]}
-    capped = capped_passes(fit)
     to_zero = sorted({n for p in fit.history for n in p.get("hyper_to_zero", [])})
+    bound = specified_accuracy(model.angle_spec, model.angle_spec_x)
     diag = {
-        "converged": map_converged(fit),
+        "converged": fit.converged,
         "map_steps": int(res.num_steps),
         "map_passes": list(fit.history),
         "jacobian_cond": float(res.jacobian_cond),
         "not_identified": list(res.degenerate),
         "data": "bin means inside holds (lag modelled), β marginalised",
         "problems": ([] if res.converged else [f"MAP did not converge: {res.message}"])
-        + em.capped_passes(capped)
+        + capped_problem(fit.capped_passes)
         + list(base.get("program_coverage", {}).get("problems", []))
-        + em.hyper_at_bounds(fit.hyper)
-        + em.residual_misfit(fit.hyper)
-        + em.implausible_angle_error(fit.hyper, _specified_accuracy(model)),
+        + hyper_at_bounds(fit.hyper)
+        + residual_misfit(fit.hyper)
+        + implausible_angle_error(fit.hyper, bound)
+        + to_zero_problem(to_zero),
     }
-    if to_zero:  # EM converging to a boundary, slowly: as at a clip bound (hyper_at_bounds)
-        diag["problems"] = [
-            *cast(list[str], diag["problems"]),
-            f"the EM of the hyperparameters stopped at its cap with {', '.join(to_zero)} still"
-            " falling towards zero, its lower bound: the data did not determine it, and the"
-            " uncertainty that rests on it may be wrong",
-        ]
     return out, diag
-
-
-def _specified_accuracy(model) -> float:
-    """The platform's angle accuracy (arcsec) that its random error may not exceed by much:
-    the specification's 3″, or a larger bound the user states for one of its sensors."""
-    specs = (model.angle_spec, model.angle_spec_x)
-    return max([DEFAULT_BOUND_ARCSEC, *(s.bound_arcsec for s in specs if s is not None)])
 
 
 def map_result(base: Mapping[str, Any], est: MapEstimate, options: CalibrationOptions) -> dict:
@@ -186,7 +175,7 @@ def posterior_result(
     out["diagnostics"] = diag
     cols = out.get("residuals_mgal", {}).get("columns", [])
     out["posterior_predictive_mgal"] = _predictive_summary(est.replicates, cols, options.hdi_prob)
-    out["drift_curve"] = drift_curve(draws, model, hp=options.hdi_prob)
+    out["drift_curve"] = est.drift
     angle = draws["angle_error_arcsec"].reshape(C * Dn, -1)
     out["angle_error_arcsec"] = {
         "step": [int(s) for s in model.hold_steps],
