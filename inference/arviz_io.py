@@ -29,6 +29,7 @@ __all__ = [
     "load_netcdf",
     "mcse_mean_array",
     "posterior_arrays",
+    "psis_log_weights",
     "rhat_array",
     "save_netcdf",
     "summary",
@@ -76,6 +77,41 @@ def hdi_array(x: np.ndarray, hdi_prob: float) -> tuple[float, float]:
     """Highest-density interval of all draws of ``x`` (any shape, pooled)."""
     lo, hi = _az().hdi(np.asarray(x, dtype=float).reshape(-1), hdi_prob=hdi_prob)
     return float(lo), float(hi)
+
+
+def psis_log_weights(log_ratios: np.ndarray) -> tuple[np.ndarray, float]:
+    r"""Pareto-smoothed importance log weights, normalised (logsumexp 0), and k̂.
+
+    ``log_ratios`` (n,): :math:`\log p(x_i) - \log q(x_i)` up to a constant; −inf where
+    :math:`p(x_i) = 0` (outside the support). ``az.psislw(·, reff=1)`` (independent draws;
+    Vehtari et al. 2024) smooths the finite ratios only: the points outside the support get
+    weight 0 (log weight −inf) and do not count towards the tail's size, so the result is
+    PSIS from q restricted to the support. Equal finite ratios (q ∝ p there) give equal
+    weights and k̂ = −inf (no tail); a tail of at most 4 points (about 20 finite ratios or
+    fewer), k̂ = inf; a generalised-Pareto fit that fails (non-finite smoothed weights),
+    the raw normalised weights and k̂ = inf.
+    """
+    lr = np.asarray(log_ratios, dtype=float)
+    if lr.ndim != 1:
+        raise ValueError(f"psis_log_weights needs a 1-D array of log ratios, got {lr.shape}")
+    if np.isnan(lr).any() or np.isposinf(lr).any():
+        raise ValueError("log ratios must not be NaN or +inf")
+    finite = np.isfinite(lr)
+    if not finite.any():
+        raise ValueError("no log ratio is finite: every point lies outside the support")
+    x = lr[finite]
+    out = np.full(lr.shape, -np.inf)
+    if np.all(x == x[0]):
+        out[finite] = -np.log(x.size)
+        return out, -np.inf
+    smoothed, k = _az().psislw(x, reff=1.0, normalize=True)
+    smoothed, khat = np.asarray(smoothed, dtype=float), float(k)
+    if not np.all(np.isfinite(smoothed)):
+        smoothed = x - np.max(x)
+        smoothed -= np.log(np.sum(np.exp(smoothed)))
+        khat = np.inf
+    out[finite] = smoothed
+    return out, khat
 
 
 # --------------------------------------------------------------------------- InferenceData
