@@ -26,6 +26,10 @@ class CalibrationOptions:
     progress: bool = True
     encoder_error: bool = False  # bayes/map: smooth systematic angle error per commanded angle
     quick: bool = False  # bayes: cap the sampler at 3000 steps (tests, demos)
+    # bayes: "auto" draws the posterior by importance sampling from the fitted proposal where
+    # that is reliable (PSIS k̂ < 0.7, ESS ≥ 1000 for every reported quantity), else runs
+    # emcee; "emcee": emcee always (the reference)
+    sampler: Literal["auto", "emcee"] = "auto"
     # map/bayes: the platform's angle-sensor error. "systematic": a part per commanded angle
     # and a scale error shared by all rounds (prior from the specification, Type B) plus a
     # random part per hold; "independent": every hold's error independent (before 0.2).

@@ -326,6 +326,8 @@ class ImportanceVerdict:
     message: str
     ess: Mapping[str, float] = field(default_factory=dict)
     skipped: tuple[str, ...] = ()
+    n_points: int = 0
+    """The draws weighed."""
 
 
 #: The name under which :func:`judge` reports Kish's ESS when no quantity is given.
@@ -364,7 +366,7 @@ def judge(
     khat = draws.khat
 
     def verdict(ok: bool, why: str, name: str | None) -> ImportanceVerdict:
-        return ImportanceVerdict(ok, khat, k_lim, min_ess, name, why, ess, tuple(skipped))
+        return ImportanceVerdict(ok, khat, k_lim, min_ess, name, why, ess, tuple(skipped), n)
 
     if not khat < k_lim:
         return verdict(

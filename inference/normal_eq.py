@@ -278,6 +278,14 @@ def marginal_loglik_blocks(
 ) -> Array:
     """:func:`marginal_loglik_banded` from the blocks (:func:`banded_factor_blocks`)."""
     f = banded_factor_blocks(b, prior_band, prior_dense, unroll)
+    return marginal_loglik_factor(b, prior_band, prior_dense, f)
+
+
+def marginal_loglik_factor(
+    b: BlockNormalEquations, prior_band: Array, prior_dense: Array, f: BandedFactor
+) -> Array:
+    """:func:`marginal_loglik_blocks` with the factor ``f`` of those blocks already formed
+    (by :func:`banded_factor_blocks`; shared with :func:`draw_beta_factor`)."""
     log_prior_det = jnp.sum(jnp.log(prior_band)) + jnp.sum(jnp.log(prior_dense))
     return _loglik_of_factor(b.rNr, b.logdet_noise, b.n, log_prior_det, f)
 
@@ -386,6 +394,14 @@ def draw_beta_blocks(
     variables, ascending, take in it). ``order``: the index of the standard normal that
     each of those takes (None: the i-th; a padded problem's real variables keep theirs)."""
     f = banded_factor_blocks(b, prior_band, prior_dense)
+    return draw_beta_factor(key, f, bands, order)
+
+
+def draw_beta_factor(
+    key: Array, f: BandedFactor, bands: np.ndarray, order: Array | None = None
+) -> Array:
+    """:func:`draw_beta_blocks` with the factor ``f`` already formed (shared with
+    :func:`marginal_loglik_factor`: a point weighed and its β drawn in one evaluation)."""
     u = jnp.concatenate([f.y, f.c])
     xi = jax.random.normal(key, u.shape, dtype=u.dtype)
     if order is not None:

@@ -59,6 +59,16 @@ class SamplingResult:
     n_walkers: int = 0
     derived: Mapping[str, np.ndarray] | None = None
     """``derived(draws)`` of :func:`sample` for the retained draws (None without it)."""
+    method: str = "emcee"
+    """Which sampler made the draws: ``"emcee"``, or ``"importance"`` (the fast path,
+    :mod:`inference.importance_path`: then ``tau`` is NaN, ``n_steps`` 0, and each chain is
+    one independent batch resampled to equal weights)."""
+    importance: Any = None
+    """The importance sampling's verdict (:class:`inference.importance.ImportanceVerdict`)
+    where it was tried (taken, or refused before emcee ran), else None."""
+    weighted_ess: Mapping[str, tuple[float, float]] | None = None
+    """The importance path's (bulk, tail) ESS of each scalar quantity of ``derived``: the
+    ESS to report (the resampled draws repeat points, and their own ESS would overstate)."""
 
     @property
     def n_chains(self) -> int:

@@ -66,6 +66,16 @@ class SamplerConfig:
     thinning and ``max_draws`` applied) ≥ ``target_ess`` and their rank R̂ across the
     independent ensembles ≤ ``rhat_max`` (:mod:`inference.mcmc_stats`)."""
     rhat_max: float = 1.01
+    sampler: Literal["emcee", "auto"] = "emcee"
+    """``"auto"`` with ``moves="adaptive-independence"``: importance sampling from the
+    fitted proposal where it is reliable (PSIS k̂ < ``khat_max`` and ESS ≥ ``target_ess``
+    for every coordinate and reported quantity, :mod:`inference.importance_path`), else
+    emcee; ``"emcee"``: emcee always."""
+    importance_points: int = 2048
+    """The importance path's first draws (in ``n_chains`` batches); doubled while k̂ passes
+    and an ESS falls short, up to ``importance_max_points``."""
+    importance_max_points: int = 8192
+    khat_max: float = 0.7
     seed: int = 0
     progress: bool = True
     threads: int | None = None
@@ -102,5 +112,9 @@ class SamplerConfig:
         )
         if self.moves not in kinds:
             raise ValueError(f"moves must be one of {', '.join(kinds)}; got {self.moves!r}")
+        if self.sampler not in ("emcee", "auto"):
+            raise ValueError(f"sampler must be 'emcee' or 'auto', got {self.sampler!r}")
+        if self.importance_points < 2 * self.n_chains or self.importance_max_points < 1:
+            raise ValueError("importance_points must be ≥ 2·n_chains")
         if self.threads is not None and self.threads < 1:
             raise ValueError(f"threads must be ≥ 1 or None, got {self.threads}")

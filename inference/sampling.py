@@ -23,6 +23,7 @@ from . import _jax  # noqa: F401  (float64 before any array exists)
 
 # isort: split
 
+import dataclasses
 import os
 import sys
 import time
@@ -38,10 +39,11 @@ from jax import Array
 from numpy.typing import ArrayLike
 
 from .autocorr import burn_thin, integrated_time, mean_tau
+from .importance_path import importance_result
 from .mode import refine_mode
 from .moves import IndependenceMove, SnookerMove, moves_for
 from .problem import Executables
-from .proposal import fit_proposal
+from .proposal import MixtureProposal, fit_proposal
 from .retained import (
     SamplingResult,
     derived_failure,
@@ -55,6 +57,7 @@ from .walkers import eval_any, initial_walkers, proposal_walkers, regularised_co
 
 BatchMode = Literal["vmap", "map"]
 Derived = Callable[[np.ndarray], Mapping[str, np.ndarray]]
+Weigh = Callable[[np.ndarray, int], tuple[np.ndarray, Mapping[str, np.ndarray]]]
 
 __all__ = [
     "IndependenceMove",
@@ -109,6 +112,7 @@ def sample(
     batch_mode: BatchMode = "vmap",
     prior_sd: ArrayLike | None = None,
     derived: Derived | None = None,
+    weigh: Weigh | None = None,
 ) -> SamplingResult:
     """Sample ``log_density(z, data) -> scalar`` with ``config.n_chains`` emcee ensembles.
 
@@ -132,6 +136,10 @@ def sample(
     has bulk ESS ≥ ``target_ess`` and R̂ ≤ ``rhat_max``, so the rule holds for what is
     reported, not only for z. It is evaluated where z's rule passes (and once at the end if
     the run stops otherwise); its last value is ``SamplingResult.derived``.
+    ``config.sampler="auto"``: importance sampling from the fitted proposal where it is
+    reliable, else emcee (:mod:`inference.importance_path`); ``weigh(points (n, d), block)
+    → (log_density (n,), derived (1, n, ...))``: both from one evaluation per point, for
+    that path (else it calls the log-density and ``derived`` apart).
     """
     config = SamplerConfig() if config is None else config
     config.check()
@@ -150,54 +158,85 @@ def sample(
     rng = np.random.default_rng(config.seed)
     psd = None if prior_sd is None else np.asarray(prior_sd, dtype=float).reshape(ndim)
     cov0 = regularised_cov(init_cov, ndim)
-    samplers, states = _ensembles(lnp, z_init, cov0, nw, config, rng, psd)
+    lnp_batched = partial(eval_any, lnp, batch=nw // 2)  # at the compiled half-batch size
+    start, cov, fitted = _proposal(lnp_batched, z_init, cov0, config, rng, psd)
+    verdict = None
+    if config.sampler == "auto" and fitted is not None:  # the fast path, where it is reliable
+        fast, verdict = importance_result(lnp_batched, fitted, config, derived, t0, weigh)
+        if fast is not None:
+            if blob_fn is not None:
+                blobs = eval_blobs(blob_fn, fast.draws, data, nw // 2, executables=executables)
+                fast = dataclasses.replace(fast, blobs=blobs)
+            return fast
+        if config.progress:
+            print(f"{verdict.message}: running emcee")
+    samplers, states = _ensembles(lnp, lnp_batched, start, cov, fitted, nw, config, rng)
     n_steps, tau, ess, converged, extra, why = _run(samplers, states, config, nw, derived)
     blobs_of = None if blob_fn is None else partial(eval_blobs, blob_fn, executables=executables)
     if derived is None:
         derived_of = None
     else:  # the last check's value where it evaluated them, else of the retained draws
         derived_of = derived if extra is None else (lambda _draws: extra)
-    return sampling_result(
+    out = sampling_result(
         samplers, n_steps, tau, ess, converged, config, nw, blobs_of, data, t0, why, derived_of
     )
+    return out if verdict is None else dataclasses.replace(out, importance=verdict)
+
+
+def _proposal(
+    lnp_batched: Callable,
+    z_init: np.ndarray,
+    cov: np.ndarray,
+    config: SamplerConfig,
+    rng,
+    prior_sd: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, MixtureProposal | None]:
+    """Where the independence moves start and what they propose: the refined mode and its
+    Laplace covariance (``"de-independence"``, ``"adaptive-independence"``), and for the
+    latter the proposal fitted by importance sampling (else None)."""
+    if config.moves not in ("de-independence", "adaptive-independence"):
+        return z_init, cov, None
+    start, cov, _info = refine_mode(lnp_batched, z_init, cov)
+    if config.moves != "adaptive-independence":
+        return start, cov, None
+    fitted, _x, _lp, _info = fit_proposal(
+        lnp_batched,
+        start,
+        cov * config.proposal_scale**2,
+        rng,
+        n_points=config.proposal_points,
+        components=config.proposal_components,
+        df=config.proposal_df,
+        alpha=config.proposal_alpha,
+        tail_scale=config.proposal_tail_scale,
+        tail_df=config.proposal_tail_df,
+        prior_sd=prior_sd,
+        shoulder_weight=config.proposal_shoulder_weight,
+        shoulder_ratio=config.proposal_shoulder_ratio,
+    )
+    return start, cov, fitted
 
 
 def _ensembles(
     lnp: Callable,
-    z_init: np.ndarray,
+    lnp_batched: Callable,
+    start: np.ndarray,
     cov: np.ndarray,
+    fitted: MixtureProposal | None,
     nw: int,
     config: SamplerConfig,
     rng,
-    prior_sd: np.ndarray | None = None,
 ) -> tuple[list[emcee.EnsembleSampler], list[emcee.State]]:
-    """``config.n_chains`` emcee ensembles and their start (for the independence move, from
-    the refined mode and its covariance)."""
-    ndim = z_init.size
-    start, lnp_sampler = z_init, lnp
+    """``config.n_chains`` emcee ensembles and their start (for the independence moves,
+    from the refined mode and its covariance, or as draws of the fitted proposal)."""
+    ndim = start.size
+    lnp_sampler = (
+        lnp if config.moves not in ("de-independence", "adaptive-independence") else lnp_batched
+    )
     proposal: Any = None
-    fitted = None
-    if config.moves in ("de-independence", "adaptive-independence"):
-        # the proposal evaluates all walkers at once: keep to the compiled half-batch size
-        lnp_sampler = partial(eval_any, lnp, batch=nw // 2)
-        start, cov, _info = refine_mode(lnp_sampler, z_init, cov)
+    if config.moves == "de-independence":
         proposal = (start, cov * config.proposal_scale**2)
-    if config.moves == "adaptive-independence":
-        fitted, _x, _lp, _info = fit_proposal(
-            lnp_sampler,
-            start,
-            cov * config.proposal_scale**2,
-            rng,
-            n_points=config.proposal_points,
-            components=config.proposal_components,
-            df=config.proposal_df,
-            alpha=config.proposal_alpha,
-            tail_scale=config.proposal_tail_scale,
-            tail_df=config.proposal_tail_df,
-            prior_sd=prior_sd,
-            shoulder_weight=config.proposal_shoulder_weight,
-            shoulder_ratio=config.proposal_shoulder_ratio,
-        )
+    if fitted is not None:
         proposal = fitted
     samplers, states = [], []
     for _ in range(config.n_chains):

@@ -121,10 +121,12 @@ def test_nuts_bench_smallest_settings_prints_its_rows():
     assert np.isfinite(rows[3].values["max_abs_dmean_over_sd"])
 
 
-def _check_several_records_rows(rows, methods=("map", "bayes")):
+def _check_several_records_rows(rows, methods=None):
     """The several-records table: a bare start, four records per method, the median and the
     worst beside the bare start, ESS/s per parameter, reanalyze throughput; finite values."""
-    from bench.several_records import CASES
+    from bench.several_records import CASES, EMCEE
+
+    methods = ("map", "bayes", EMCEE) if methods is None else methods
 
     labels = [r.label for r in rows]
     assert labels[0].startswith("simulate the 4 records")
@@ -148,13 +150,17 @@ def _check_several_records_rows(rows, methods=("map", "bayes")):
         assert v["median_seconds"] == float(np.median([r.values["seconds"] for r in per]))
         assert np.isfinite(v["worst_ratio_to_bare"]) and np.isfinite(v["median_ratio_to_bare"])
         assert ("— met" in summ.note) == v["target_met"]
-        if m == "bayes":
+        if m in ("bayes", EMCEE):
             for r in per:
-                assert np.isfinite(r.values["tau_max"]) and r.values["n_steps"] > 0
+                if r.values["sampler"] == "emcee":
+                    assert np.isfinite(r.values["tau_max"]) and r.values["n_steps"] > 0
+                else:
+                    assert r.values["sampler"] == "importance" and r.values["pareto_k"] < 0.7
                 ess = r.values["ess_bulk"]
                 assert "b1" in ess and all(np.isfinite(x) and x > 0 for x in ess.values())
                 assert r.values["ess_per_s"]["b1"] == ess["b1"] / r.values["seconds"]
-            (rate,) = [r for r in rows if r.label.startswith("bulk ESS per second")]
+            per_m = f"bulk ESS per second per parameter, {m} ("
+            (rate,) = [r for r in rows if r.label.startswith(per_m)]
             worst = rate.values["worst_ess_per_s"]
             assert all(np.isfinite(x) for x in worst.values())
             assert worst["b1"] == min(r.values["ess_per_s"]["b1"] for r in per)
@@ -171,10 +177,13 @@ def test_several_records_table_from_stubbed_runs(monkeypatch):
     secs = {"typical": 10.0, "misaligned": 14.0, "slow": 30.0, "dual-axis": 12.0}
 
     def fake_calibrate(case, rec, method, tmp, env):
-        k = 1.0 if method == "bayes" else 0.1
+        k = {"bayes": 1.0, sr.EMCEE: 1.5}.get(method, 0.1)
         run = sr.Run(case, method, secs[case] * k, 0.5 + 0.1 * len(case), 5.0, True)
-        if method == "bayes":
-            run.tau_max, run.n_steps = 6.0, 200
+        if method == sr.EMCEE:
+            run.sampler, run.tau_max, run.n_steps = "emcee", 6.0, 200
+        elif method == "bayes":
+            run.sampler, run.pareto_k = "importance", 0.3
+        if method != "map":
             run.ess = {n: 1000.0 + 10 * i for i, n in enumerate(PARAMETER_UNITS)}
         return run
 

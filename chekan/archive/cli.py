@@ -201,7 +201,7 @@ def _cmd_reanalyze(args: argparse.Namespace) -> int:
         executor=args.executor,
         scheduler=args.scheduler,
         results_dir=args.results_dir,
-        options={"quick": True} if args.quick else None,
+        options=_reanalyze_options(args),
         progress=not args.no_progress,
     )
     if not args.no_progress or rep.failed:  # -q: nothing on success
@@ -212,6 +212,16 @@ def _cmd_reanalyze(args: argparse.Namespace) -> int:
             "recursively; hidden entries skipped)"
         )
     return 1 if rep.failed else 0
+
+
+def _reanalyze_options(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The calibration options that ``reanalyze``'s flags set (None: the defaults)."""
+    opts: dict[str, Any] = {}
+    if args.quick:
+        opts["quick"] = True
+    if args.sampler != "auto":
+        opts["sampler"] = args.sampler
+    return opts or None
 
 
 def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
@@ -234,6 +244,12 @@ def add_reanalyze_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="dask: scheduler address (default: a LocalCluster)")
     p.add_argument("--results-dir", help="where result JSONs go (default <archive dir>/results)")
     p.add_argument("--quick", action="store_true", help="bayes: smaller ESS target")
+    p.add_argument(
+        "--sampler",
+        choices=("auto", "emcee"),
+        default="auto",
+        help="bayes: auto (default) importance sampling where reliable, else emcee; emcee always",
+    )
     p.add_argument(
         "-q",
         "--quiet",

@@ -101,6 +101,7 @@ def _cmd_calibrate(args) -> int:
         angle_calibration=args.angle_calibration,
         horizontal_u_pix=args.horizontal_u_pix,
         quick=args.quick,
+        sampler=args.sampler,
     )
     json_path = Path(args.json) if args.json else None
     if args.method == "bayes":
@@ -313,6 +314,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=argtypes.seed, default=0, help="sampler seed")
     p.add_argument(
         "--quick", action="store_true", help="bayes: cap the sampler at 3000 steps (10 000 without)"
+    )
+    p.add_argument(
+        "--sampler",
+        choices=("auto", "emcee"),
+        default="auto",
+        help="bayes: auto (default) draws the posterior by importance sampling from the fitted "
+        "proposal where it is reliable (Pareto k < 0.7, ESS >= 1000 for every reported "
+        "quantity), else runs emcee; emcee: emcee always (the reference)",
     )
     p.add_argument(
         "--strict",

@@ -127,6 +127,7 @@ def _posterior_estimate(
     """The posterior: draws, their summary and convergence, the posterior predictive of the
     residual table, the NetCDF, and the settled classical items."""
     from inference.diagnostics import convergence_report, summarize_draws
+    from inference.importance_path import with_weighted_ess
 
     budget = uncertainty_budget(fit)
     model = fit.model
@@ -134,7 +135,7 @@ def _posterior_estimate(
     draws = samp.derived
     assert isinstance(draws, ReportedDraws)
     scalar = {k: v for k, v in draws.items() if v.ndim == 2}
-    summ = summarize_draws(scalar, hdi_prob=options.hdi_prob)
+    summ = with_weighted_ess(summarize_draws(scalar, hdi_prob=options.hdi_prob), samp.weighted_ess)
     ok, problems = convergence_report(summ, rhat_max=1.01, ess_min=400)
     seconds = time.perf_counter() - t_start
     # posterior predictive of the paper's residual table

@@ -5,7 +5,7 @@ posterior draw, with β drawn given θ."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +44,8 @@ class ReportedDraws(Mapping[str, np.ndarray]):
 
     quantities: Mapping[str, np.ndarray]
     loglik: np.ndarray
+    log_density: np.ndarray | None = None
+    """log p(θ, h | y) of each draw (chain, draw), from the evaluation that drew β."""
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.quantities[name]
@@ -54,10 +56,33 @@ class ReportedDraws(Mapping[str, np.ndarray]):
     def __len__(self) -> int:
         return len(self.quantities)
 
+    def take(self, index: np.ndarray) -> ReportedDraws:
+        """The draws of one chain (1, n, ...) at ``index`` (chain, draw): the resampled
+        draws of the importance path (:mod:`inference.importance_path`)."""
+        lp = None if self.log_density is None else np.asarray(self.log_density)[0][index]
+        return ReportedDraws(
+            {k: np.asarray(v)[0][index] for k, v in self.quantities.items()},
+            np.asarray(self.loglik)[0][index],
+            lp,
+        )
+
+    @staticmethod
+    def joined(parts: Sequence[ReportedDraws]) -> ReportedDraws:
+        """The draws of ``parts`` (each (1, n, ...)) one after the other, as one chain."""
+        names = parts[0].quantities
+        lps = [p.log_density for p in parts if p.log_density is not None]
+        return ReportedDraws(
+            {k: np.concatenate([p.quantities[k] for p in parts], axis=1) for k in names},
+            np.concatenate([p.loglik for p in parts], axis=1),
+            np.concatenate(lps, axis=1) if len(lps) == len(parts) else None,
+        )
+
 
 #: the key under which :func:`chekan.joint.derived.draws_fn` returns the pointwise
 #: log-likelihood beside the reported quantities (split off by :func:`posterior_draws`)
 LOGLIK_KEY = "_loglik"
+#: and the log-density of each draw's point (:attr:`ReportedDraws.log_density`)
+LOGP_KEY = "_logp"
 
 
 def map_derived(fit: MapFit) -> MapDerived:
@@ -109,5 +134,5 @@ def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 256) -> Repo
     fn = engine_for(model.structure).draws
     dur_h = model.duration_h  # traced, as in map_derived
     flat = map_chunks(lambda z, k: fn(z, k, model.data, dur_h), [zs, keys], chunk)
-    quantities = {k: np.asarray(v) for k, v in flat.items() if k != LOGLIK_KEY}
-    return ReportedDraws(quantities, np.asarray(flat[LOGLIK_KEY]))
+    quantities = {k: np.asarray(v) for k, v in flat.items() if k not in (LOGLIK_KEY, LOGP_KEY)}
+    return ReportedDraws(quantities, np.asarray(flat[LOGLIK_KEY]), np.asarray(flat[LOGP_KEY]))

@@ -68,6 +68,7 @@ def sampler_config(options: CalibrationOptions, **overrides):
         "max_draws": 750,
         "seed": options.seed,
         "progress": options.progress,
+        "sampler": options.sampler,
     }
     kw.update(overrides)
     return SamplerConfig(**kw)
@@ -92,7 +93,8 @@ def sample_posterior(fit: MapFit, options: CalibrationOptions) -> SamplingResult
     if np.all(np.isfinite(ct)):
         cov[:ntheta, :ntheta] = ct
     if options.progress:
-        print("sampling the posterior (emcee, 4 independent ensembles)…")
+        how = "emcee" if options.sampler == "emcee" else "importance sampling, else emcee"
+        print(f"sampling the posterior ({how})…")
     return sample(
         prob.log_density,
         fit.model.data,
@@ -103,6 +105,7 @@ def sample_posterior(fit: MapFit, options: CalibrationOptions) -> SamplingResult
         batch_mode="map",  # a compiled loop over the walkers: faster than vmap here (CPU)
         prior_sd=space.prior_sd_z,
         derived=functools.partial(reported_draws, fit, options.seed),
+        weigh=functools.partial(weighed_draws, fit, options.seed),
     )
 
 
@@ -122,9 +125,33 @@ def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> ReportedDraws:
     def per_chain(v: np.ndarray) -> np.ndarray:
         return np.asarray(v).reshape(C, Dn, *np.shape(v)[1:])
 
+    lp = None if flat.log_density is None else per_chain(flat.log_density)
     return ReportedDraws(
-        {k: per_chain(v) for k, v in flat.quantities.items()}, per_chain(flat.loglik)
+        {k: per_chain(v) for k, v in flat.quantities.items()}, per_chain(flat.loglik), lp
     )
+
+
+def weighed_draws(
+    fit: MapFit, seed: int, points: np.ndarray, block: int
+) -> tuple[np.ndarray, ReportedDraws]:
+    """The log-density of ``points`` (n, 12) and every reported quantity there (1, n, ...),
+    β drawn given θ, from one evaluation per point (:func:`chekan.joint.derived.draws_fn`):
+    the importance path's weights and draws (:mod:`inference.importance_path`). The keys
+    of block ``block`` (0, 1, …: the first draws, then each extension) are their own."""
+    import jax
+
+    from chekan.fit.reported import ReportedDraws, posterior_draws
+
+    base = jax.random.fold_in(jax.random.PRNGKey(seed), 1 + block)
+    keys = jax.random.split(base, points.shape[0])
+    flat = real_part(fit.model, posterior_draws(fit, points, keys))
+    assert flat.log_density is not None
+    one = ReportedDraws(
+        {k: np.asarray(v)[None] for k, v in flat.quantities.items()},
+        np.asarray(flat.loglik)[None],
+        np.asarray(flat.log_density)[None],
+    )
+    return np.asarray(flat.log_density, dtype=float), one
 
 
 #: the draws' quantities per hold (their axis after the draws' one)
@@ -144,4 +171,4 @@ def real_part(model: RecordModel, flat: ReportedDraws) -> ReportedDraws:
     out = {k: np.asarray(v) for k, v in flat.quantities.items()}
     for k in PER_HOLD:
         out[k] = out[k][:, :H]
-    return ReportedDraws(out, np.asarray(flat.loglik)[:, :N])
+    return ReportedDraws(out, np.asarray(flat.loglik)[:, :N], flat.log_density)

@@ -23,7 +23,12 @@ from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.likelihood import beta_prior_var, noise_var, sensor_params
 from chekan.physics import sensor as fm
 from chekan.physics.parameters import PHYSICAL
-from inference.normal_eq import draw_beta_blocks, split_prior
+from inference.normal_eq import (
+    banded_factor_blocks,
+    draw_beta_factor,
+    marginal_loglik_factor,
+    split_prior,
+)
 
 
 def at_level(sp: fm.SensorParams):
@@ -113,8 +118,11 @@ def map_derived_fn(structure: ModelStructure, space) -> Callable:
 
 def draws_fn(structure: ModelStructure, space) -> Callable:
     """``(z_bayes, key, data, duration h) →`` named draws of everything reported (β drawn
-    given θ), traceable; the record's duration is an argument, so records of one structure
-    share the compiled function (:class:`chekan.runtime.engine.Engine`)."""
+    given θ) and the point's log-density (``_logp``: the value of
+    :meth:`chekan.joint.problem.CalibrationProblem.log_density`, from the same factor of M
+    that draws β, so that a point is weighed and its quantities drawn in one evaluation),
+    traceable; the record's duration is an argument, so records of one structure share the
+    compiled function (:class:`chekan.runtime.engine.Engine`)."""
     blocks = structure.beta_blocks
     bands = structure.hold_bands
 
@@ -123,7 +131,9 @@ def draws_fn(structure: ModelStructure, space) -> Callable:
         blocks_ne, t = block_normal_equations(v, v, structure, data)
         # block elimination of the holds' terms (as the log-density): N(M⁻¹g, M⁻¹) as before
         pv = split_prior(beta_prior_var(v, structure, data), bands)
-        beta = draw_beta_blocks(key, blocks_ne, *pv, bands, data.noise_order)
+        factor = banded_factor_blocks(blocks_ne, *pv)  # one factor: β's draw and the weight
+        beta = draw_beta_factor(key, factor, bands, data.noise_order)
+        lp = space.log_prior(z) + marginal_loglik_factor(blocks_ne, *pv, factor)
         # pointwise log-likelihood of each bin mean given this draw's (θ, β): conditional,
         # because the marginal over β does not factorise over bins
         r, nv = t.r, t.nv
@@ -147,6 +157,7 @@ def draws_fn(structure: ModelStructure, space) -> Callable:
             "angle_error_arcsec": delta,
             "hold_offset_pix": beta[blocks["hold_offset"]].reshape(2, -1).T,
             "_loglik": loglik,
+            "_logp": jnp.where(jnp.isfinite(lp), lp, -jnp.inf),  # log p(θ, h | y), β marginal
         }
 
     def many(zs, keys, data, dur_h):

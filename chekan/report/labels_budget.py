@@ -126,6 +126,19 @@ BUDGET_LABELS: dict[str, dict[str, str]] = {
         "en": "Largest R-hat (should be < 1.01)",
         "ru": "Наибольший R-hat (должен быть < 1.01)",
     },
+    "sampler": {"en": "Posterior drawn by", "ru": "Апостериорная выборка"},
+    "sampler_importance": {
+        "en": "importance sampling from the fitted proposal (Pareto k = {k}, smallest ESS {ess})",
+        "ru": "выборка по значимости из подобранного распределения (k Парето = {k}, "
+        "наименьший ESS {ess})",
+    },
+    "sampler_emcee": {"en": "emcee (ensemble MCMC)", "ru": "emcee (ансамблевый MCMC)"},
+    "sampler_refused": {
+        "en": "emcee (ensemble MCMC): importance sampling was not reliable (Pareto k = {k}, "
+        "smallest ESS {ess})",
+        "ru": "emcee (ансамблевый MCMC): выборка по значимости ненадёжна (k Парето = {k}, "
+        "наименьший ESS {ess})",
+    },
     "ess_min": {
         "en": "Smallest bulk ESS (should be ≥ 400)",
         "ru": "Наименьший ESS (должен быть ≥ 400)",

@@ -225,6 +225,17 @@ def _known_sources() -> set[str]:
     return {k for k in LABELS if k.startswith("src_")}
 
 
+def _sampler(d: Mapping[str, Any], t: Translator) -> str:
+    """Which sampler drew the posterior, with the importance sampling's figures where it was
+    tried."""
+    imp = d.get("importance") or {}
+    k = fixed(imp["pareto_k"], 2) if is_num(imp.get("pareto_k")) else "—"
+    ess = fixed(imp["ess_min"], 0) if is_num(imp.get("ess_min")) else "—"
+    if d["sampler"] == "importance":
+        return t("sampler_importance", k=k, ess=ess)
+    return t("sampler_refused", k=k, ess=ess) if imp else t("sampler_emcee")
+
+
 def diagnostics_table(
     rep: Report, result: Mapping[str, Any], t: Translator, lang: str = "en"
 ) -> None:
@@ -240,6 +251,8 @@ def diagnostics_table(
         rows.append((t("rhat_max"), fixed(d["r_hat_max"], 3), False))
     if is_num(d.get("ess_bulk_min")):
         rows.append((t("ess_min"), fixed(d["ess_bulk_min"], 0), False))
+    if d.get("sampler"):
+        rows.append((t("sampler"), _sampler(d, t), False))
     if is_num(d.get("n_draws")):
         rows.append((t("n_draws"), fixed(d["n_draws"], 0), False))
     if is_num(d.get("seconds")):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from chekan.joint.em import (
     SIGMA_THETA_BOUNDS_ARCSEC,
 )
 from chekan.joint.problem import Hyper
+
+if TYPE_CHECKING:
+    from inference.sampling import SamplingResult
 from inference.dof import coverage_factor
 
 
@@ -186,3 +189,31 @@ def specified_accuracy(spec_y: AngleSensorSpec | None, spec_x: AngleSensorSpec |
     the specification's 3″, or a larger bound the user states for one of its sensors."""
     specs = (spec_y, spec_x)
     return max([DEFAULT_BOUND_ARCSEC, *(s.bound_arcsec for s in specs if s is not None)])
+
+
+def sampler_entries(samp: SamplingResult) -> dict[str, Any]:
+    """What the diagnostics say of the sampler that ran: emcee's ensembles (walkers, steps,
+    burn-in, thinning, τ, acceptance), and the importance sampling wherever it was tried
+    (``importance``: taken or not, Pareto k̂, the smallest ESS, the draws weighed and the
+    verdict in words; where it was refused, emcee's figures follow)."""
+    out: dict[str, Any] = {}
+    if samp.method == "emcee":
+        out.update(
+            n_walkers=int(samp.n_walkers),
+            n_steps=int(samp.n_steps),
+            burn=int(samp.burn),
+            thin=int(samp.thin),
+            tau_max=float(np.max(samp.tau)),
+            acceptance=[float(a) for a in samp.acceptance],
+        )
+    v = samp.importance
+    if v is not None:
+        out["importance"] = {
+            "taken": bool(samp.method == "importance"),
+            "pareto_k": float(v.khat),
+            "ess_min": float(v.min_ess),
+            "limited_by": v.limiting,
+            "n_points": int(v.n_points),
+            "message": v.message,
+        }
+    return out

@@ -30,6 +30,7 @@ from chekan.results.entries import (
     hyper_at_bounds,
     implausible_angle_error,
     residual_misfit,
+    sampler_entries,
     specified_accuracy,
     to_zero_problem,
 )
@@ -158,15 +159,11 @@ def posterior_result(
         ess_bulk_min=float(min(params[n]["ess_bulk"] for n in params)),
         n_draws=int(C * Dn),
         n_chains=int(C),
-        n_walkers=int(samp.n_walkers),
-        n_steps=int(samp.n_steps),
-        burn=int(samp.burn),
-        thin=int(samp.thin),
-        tau_max=float(np.max(samp.tau)),
-        acceptance=[float(a) for a in samp.acceptance],
+        sampler=samp.method,
         sampler_message=samp.message,
         seconds=est.seconds,
     )
+    diag.update(sampler_entries(samp))
     if not diag["converged"]:
         msg = "; ".join(diag["problems"]) or "not converged"
         warnings.warn(f"posterior NOT converged: {msg}", RuntimeWarning, stacklevel=2)

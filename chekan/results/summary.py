@@ -151,6 +151,8 @@ def format_summary(res: dict) -> str:
                 if isinstance(v, int | float) and k != "converged"
             )
         )
+        if d.get("sampler"):
+            lines.append(f"posterior drawn by: {sampler_words(d)}")
         from chekan.report.i18n import with_param_names  # ε₁ for eps1_arcmin, as printed above
 
         for msg in d.get("problems", []):
@@ -158,6 +160,21 @@ def format_summary(res: dict) -> str:
         for msg in d.get("notes", []):
             lines.append(f"note: {with_param_names(str(msg), 'en')}")
     return "\n".join(lines)
+
+
+def sampler_words(diag: dict) -> str:
+    """Which sampler drew the posterior, with its figures (the console's and the
+    certificate's line)."""
+    imp = diag.get("importance") or {}
+    k, ess = imp.get("pareto_k"), imp.get("ess_min")
+    figures = (
+        f"Pareto k = {_f(k, '.2f')}, smallest ESS {_f(ess, '.0f')} of {imp.get('n_points')} draws"
+    )
+    if diag.get("sampler") == "importance":
+        return f"importance sampling from the fitted proposal ({figures})"
+    if imp:
+        return f"emcee ({imp.get('message') or 'importance sampling refused: ' + figures})"
+    return "emcee"
 
 
 def _axis_parameters(entry: dict) -> list[str]:

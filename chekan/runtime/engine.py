@@ -148,7 +148,8 @@ def prefetch_em(model: RecordModel) -> None:
 def prefetch_after_map(model: RecordModel, method: str) -> Future | None:
     """Start what ``method`` needs after the MAP, while the MAP runs: for ``map`` the stored
     derived quantities (:func:`chekan.fit.reported.map_derived`); for ``bayes`` the
-    sampler's imports (emcee → scipy.stats, ≈ 1 s), whose future is returned: wait on it
+    sampler's imports (emcee → scipy.stats, ≈ 1 s; arviz for the Pareto-smoothed weights,
+    ≈ 2 s), whose future is returned: wait on it
     before the calling thread imports more (deadlock-free)."""
     if method == "map":
         engine_for(model.structure).prefetch(MAP_DERIVED, model.data, model.duration_h)
@@ -156,7 +157,7 @@ def prefetch_after_map(model: RecordModel, method: str) -> Future | None:
     from chekan.runtime.background import imports_in_background, initialise_lapack
 
     initialise_lapack()  # its import of scipy.linalg first: the MAP's thread imports no more
-    return imports_in_background(["emcee", "inference.sampling"], "imports")
+    return imports_in_background(["emcee", "inference.sampling", "arviz"], "imports")
 
 
 __all__ = [
