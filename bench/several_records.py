@@ -166,7 +166,7 @@ def _calibrate_once(rec: Path, method: str, out: Path, env: dict[str, str]):
 def timed_calibrate(case: str, rec: Path, method: str, tmp: Path, env: dict[str, str]) -> Run:
     """A bare JAX start, then ``chekan calibrate`` as a new process (again, once, when the
     first run added entries to the persistent cache)."""
-    out = tmp / f"{case}.{method}.json"
+    out = tmp / f"{case}.{method.replace(' --sampler ', '-')}.json"  # no spaces
     bare_cpu: list[float] = []
     bare = bare_start(env, bare_cpu)
     wall, cpu, added, res = _calibrate_once(rec, method, out, env)
@@ -195,6 +195,7 @@ def timed_calibrate(case: str, rec: Path, method: str, tmp: Path, env: dict[str,
 def _reanalyze_once(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> dict[str, Any]:
     store = tmp / "archive"
     shutil.rmtree(store, ignore_errors=True)
+    store.mkdir()  # reanalyze writes into a folder that exists (it makes none it is not given)
     cmd = [sys.executable, "-m", "chekan.cli", "reanalyze", str(folder), "--method", "bayes"]
     cmd += ["--jobs", str(jobs), "-q", "--db", str(store / "archive.sqlite")]
     cache = cache_dir(env)

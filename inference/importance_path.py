@@ -9,15 +9,17 @@ From the proposal q fitted to the posterior (:func:`inference.proposal.fit_propo
            \mathrm{ESS}_f \ge \text{target\_ess}\ \text{for every coordinate of } z
            \text{ and every scalar quantity } f \text{ the caller reports},
 
-first on z alone (the caller's quantities cost more: they are computed only where z
-passes), the draws doubled up to ``importance_max_points`` while k̂ passes and an ESS falls
-short. The kept draws are each batch resampled to equal weights (systematic resampling),
+first on z alone (where the caller gives no ``weigh``, its quantities are computed only
+once z passes), with more draws, as many as the least ESS says it needs, while k̂ passes
+and an ESS falls short, up to ``importance_max_points``. The kept draws are each batch
+resampled to equal weights (systematic resampling),
 one batch a "chain": their R̂ compares independent batches; their ESS is the importance
 sampling's (:func:`inference.importance.quantity_ess`), not that of the resampled draws.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -74,9 +76,10 @@ def importance_result(
             and verdict.khat < verdict.k_limit
             and verdict.min_ess < config.target_ess
         )
-        if not short or draws.points.shape[0] >= config.importance_max_points:
+        n = draws.points.shape[0]
+        if not short or n >= config.importance_max_points:
             break
-        draws = extend(draws, lnp, proposal, draws.points.shape[0], rng)
+        draws = extend(draws, lnp, proposal, _more(n, verdict.min_ess, config), rng)
     if not verdict.accepted:
         return None, verdict
     if blocks:
@@ -113,6 +116,14 @@ def importance_result(
         weighted_ess=None if extra is None else weighted_ess(per_point, draws.log_weights),
     )
     return result, verdict
+
+
+def _more(n: int, ess: float, config: SamplerConfig) -> int:
+    """How many draws to add to ``n`` whose least ESS is ``ess``: the ESS grows about in
+    proportion to the draws, so n(target/ESS − 1), 15 % more for its scatter, at least one
+    per batch and no more than ``importance_max_points`` allows."""
+    need = n * (config.target_ess / max(ess, 1.0) - 1.0) * 1.15
+    return int(min(max(math.ceil(need), config.n_chains), config.importance_max_points - n))
 
 
 def _joined(blocks: list[Any]) -> Any:

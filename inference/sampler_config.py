@@ -72,8 +72,8 @@ class SamplerConfig:
     for every coordinate and reported quantity, :mod:`inference.importance_path`), else
     emcee; ``"emcee"``: emcee always."""
     importance_points: int = 2048
-    """The importance path's first draws (in ``n_chains`` batches); doubled while k̂ passes
-    and an ESS falls short, up to ``importance_max_points``."""
+    """The importance path's first draws (in ``n_chains`` batches); more while k̂ passes
+    and an ESS falls short (as many as it needs), up to ``importance_max_points``."""
     importance_max_points: int = 8192
     khat_max: float = 0.7
     seed: int = 0
