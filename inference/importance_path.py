@@ -95,7 +95,8 @@ def importance_result(
             return None, verdict
     index = resample(draws, draws.points.shape[0] // config.n_chains, rng)
     kept = _taken(extra, index)
-    ess = np.array([quantity_ess(x, draws.log_weights) for x in draws.points.T])
+    coordinates = _coordinates(draws)  # their ESS is the verdict's (judged above)
+    ess = np.array([verdict.ess[name] for name in coordinates])
     result = SamplingResult(
         draws=draws.points[index],
         log_prob=draws.log_density[index],
