@@ -2,7 +2,8 @@
 entries (each group scaled to the reported sd, ν_eff, k and U), the angle sensor's entry,
 the prior-dominated parameters, and the problems that the hyperparameters' EM leaves
 (a hyperparameter at its clip bound, a misfit, an implausible angle error, a pass at its
-cap). Nothing here estimates; :mod:`chekan.results.joint` writes them into the result."""
+cap), and which sampler drew the posterior. Nothing here estimates;
+:mod:`chekan.results.joint` writes them into the result."""
 
 from __future__ import annotations
 
@@ -23,10 +24,10 @@ from chekan.joint.em import (
     SIGMA_THETA_BOUNDS_ARCSEC,
 )
 from chekan.joint.problem import Hyper
+from inference.dof import coverage_factor
 
 if TYPE_CHECKING:
     from inference.sampling import SamplingResult
-from inference.dof import coverage_factor
 
 
 def hyper_at_bounds(h: Hyper) -> list[str]:
