@@ -61,8 +61,11 @@ class MapFit:
 
     @property
     def converged(self) -> bool:
-        """Whether the MAP converged, its hyperparameters' EM included."""
-        return bool(self.result.converged) and not self.capped_passes
+        """Whether the MAP converged, its hyperparameters' EM included: no pass may end with
+        the EM at its cap, whether still moving or creeping down to a variance of zero
+        (then the variance is not at its estimate either)."""
+        capped = self.capped_passes or any(p.get("hyper_to_zero") for p in self.history)
+        return bool(self.result.converged) and not capped
 
 
 def fit_map_em(

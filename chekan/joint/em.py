@@ -27,9 +27,10 @@ give 0.98–1.00; with these terms σ_θ² 0.97, σ_o² 1.00 and z² 1.07
 (``docs/figures/validation_type_a.md``).
 
 After ``EM_UPDATES_BEFORE_NEWTON`` updates without convergence the fixed point h = EM(h) is
-solved for by optimistix's Newton in log h (EM creeps where a variance sits at its bound).
-Both MAP solvers use it (``map_solver`` only chooses the passes' solver). Measurements:
-``docs/tuning.md``.
+solved for by optimistix's Newton in log h (EM creeps where a variance sits at its bound);
+where Newton fails (a fixed point on a clip bound) EM goes on accelerated by SQUAREM
+(:func:`inference.squarem.squarem`) up to ``HYPER_MAX_UPDATES``. Both MAP solvers use it
+(``map_solver`` only chooses the passes' solver). Measurements: ``docs/tuning.md``.
 
 Every function returns new state; nothing it is handed is changed.
 """
@@ -51,6 +52,7 @@ from chekan.joint.layout import ModelStructure, RecordData
 from chekan.joint.problem import Hyper, hyper_params
 from inference.box_newton import minimise_in_box
 from inference.jacobian import jacobian_once
+from inference.squarem import squarem
 
 HYPER_TOL = 1e-4  # EM stops when no log-hyperparameter moves more than this in an update
 HYPER_MAX_UPDATES = 200  # EM updates between two passes at most (Newton's steps counted)
@@ -67,6 +69,17 @@ K_LOC, K_SD = _PRIOR["slew_error"].loc, _PRIOR["slew_error"].scale
 # where the EM clips σ_θ (arcsec) and σ_o (pix): inside the range a record can inform
 SIGMA_THETA_BOUNDS_ARCSEC = (0.05, 30.0)
 SIGMA_HOLD_BOUNDS_PIX = (1e-3, 5.0)
+#: the box of :func:`_log_hyper` (log s₁, log s₂, log σ_θ, log σ_o, log κ) that EM maps into
+LOG_LOWER = np.r_[
+    NOISE_LOWER[:2],
+    np.log([SIGMA_THETA_BOUNDS_ARCSEC[0], SIGMA_HOLD_BOUNDS_PIX[0]]),
+    NOISE_LOWER[2],
+]
+LOG_UPPER = np.r_[
+    NOISE_UPPER[:2],
+    np.log([SIGMA_THETA_BOUNDS_ARCSEC[1], SIGMA_HOLD_BOUNDS_PIX[1]]),
+    NOISE_UPPER[2],
+]
 AT_BOUND_LOG = 1e-3  # a hyperparameter within this (in log) of an EM bound is "at the bound"
 _HYPER_KEYS = ("noise_scale", "sigma_theta_arcsec", "sigma_hold_pix", "slew_error")
 
@@ -149,17 +162,27 @@ def em_pass_fn(structure: ModelStructure, space) -> Callable:
 def em_newton_fn(structure: ModelStructure, space) -> Callable:
     """``(z, h, updates, change, data) → (h, updates, change, step)``: where
     :func:`em_pass_fn` stopped unconverged (``data`` with the level already moved), the fixed
-    point by Newton (:func:`_newton`), then EM on to convergence or ``HYPER_MAX_UPDATES``
-    updates (where Newton failed; ``change`` ≥ ``HYPER_TOL`` then); ``step``: the next
-    update's move of each log-hyperparameter (:data:`HYPER_NAMES`), which tells an EM
-    creeping to a variance of zero from one that has not converged (:func:`still_moving`),
-    traceable."""
+    point by Newton (:func:`_newton`); where Newton fails (a fixed point on a clip bound, which
+    EM only creeps towards), EM accelerated by SQUAREM (:func:`inference.squarem.squarem`)
+    to convergence or ``HYPER_MAX_UPDATES`` updates (``change`` ≥ ``HYPER_TOL`` then);
+    ``step``: the next update's move of each log-hyperparameter (:data:`HYPER_NAMES`), which
+    names what still moves (:func:`still_moving`), traceable."""
 
     def fn(z, h: Hyper, n, change, data: RecordData):
         update = _em_stage(z, structure, data, space)
-        c = _newton(update, data, (h, n, change))
-        h, n, change = jax.lax.while_loop(_em_until(HYPER_MAX_UPDATES), _em_body(update, data), c)
-        return h, n, change, _log_hyper(update(h, data)) - _log_hyper(h)
+        h, n, change = _newton(update, data, (h, n, change))
+        sol = squarem(
+            lambda x: _log_hyper(update(_hyper(x), data)),
+            _log_hyper(h),
+            jnp.asarray(LOG_LOWER),
+            jnp.asarray(LOG_UPPER),
+            tol=HYPER_TOL,
+            max_updates=HYPER_MAX_UPDATES,
+            num_updates=n,
+            change=change,
+        )
+        h = _hyper(sol.x)
+        return h, sol.num_updates, sol.change, _log_hyper(update(h, data)) - _log_hyper(h)
 
     return fn
 
