@@ -106,18 +106,28 @@ def _cache_files(folder: Path) -> dict[str, int]:
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """With ``CHEKAN_TEST_PROFILE``: one tab-separated line per test (node id, seconds,
-    files and MB added to the cache folder)."""
+    files and MB added to the cache folder, executables compiled, and the model structures
+    they were compiled for, ``;``-separated: ``tests/profile_summary.py`` counts them)."""
     if not PROFILE:
         yield
         return
     from chekan.jaxconfig import cache_dir
+    from chekan.runtime.process import executable_store
 
     cache = cache_dir() or Path(os.devnull)
     before = _cache_files(cache)
+    compiles = executable_store().compiles
+    done = len(compiles)
     t0 = time.perf_counter()
     yield
     seconds = time.perf_counter() - t0
     added = {p: n for p, n in _cache_files(cache).items() if p not in before}
+    now = executable_store().compiles  # a new store where the test cleared the caches
+    new = now[done:] if now is compiles else [*compiles[done:], *now]
+    scopes = sorted({label for label, _ in new if label})
     with open(PROFILE, "a", encoding="utf-8") as f:
         mb = sum(added.values()) / 1e6
-        f.write(f"{item.nodeid}\t{seconds:.1f}\t{len(added)}\t{mb:.1f}\n")
+        f.write(
+            f"{item.nodeid}\t{seconds:.1f}\t{len(added)}\t{mb:.1f}\t"
+            f"{len(new)}\t{';'.join(scopes)}\n"
+        )

@@ -237,6 +237,11 @@ class ExecutableStore:
     """
     locks: KeyLocks = field(default_factory=KeyLocks, repr=False)
     """One lock per key (shared with its scoped stores): no executable compiles twice."""
+    label: str = ""
+    """What this store is scoped by (:meth:`scoped`; empty: not scoped)."""
+    compiles: list[tuple[str, str]] = field(default_factory=list, repr=False)
+    """``(label, name)`` of every executable compiled in this process, oldest first, shared
+    with its scoped stores: which structures a run compiled (the test profile counts them)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_machine", _machine())
@@ -258,6 +263,8 @@ class ExecutableStore:
             self.max_bytes,
             self.map_budget,
             self.locks,
+            label,
+            self.compiles,
         )
 
     def jit(self, name: str, fn: Callable) -> Callable:
@@ -468,6 +475,7 @@ class ExecutableStore:
         with XLA.alone(), _compilation_cache_off():
             compiled = lowered.compile()
         self.events.append((name, "compiled"))
+        self.compiles.append((self.label, name))
         if path is not None and by_module is not None:
             self._save(by_module, name, compiled, out_tree)
             if by_module.is_file():
