@@ -125,9 +125,8 @@ def sample(
     of what it compiles (a compiler of its own per density, or an executable store whose
     fingerprint covers the code of ``log_density``). ``batch_mode``: how the walkers
     are evaluated together, ``"vmap"`` (vectorised) or ``"map"`` (``jax.lax.map``, a
-    compiled loop: on CPU the faster for models whose evaluation holds a factorisation —
-    for the Chekan model of a 9 h record, 26 walkers, one BLAS thread: a whole warm
-    ``bayes`` takes 27 s with ``"map"`` against 37 s with ``"vmap"``). ``prior_sd``: the
+    compiled loop: on CPU the faster for models whose evaluation holds a factorisation).
+    ``prior_sd``: the
     prior's sd of each coordinate of z (inf where flat), for the proposal's shoulders
     (``config.proposal_shoulder_weight``). ``derived``: host-side quantities of the retained
     draws, ``derived(draws (chain, draw, ndim)) → {name: (chain, draw, ...)}`` (what the

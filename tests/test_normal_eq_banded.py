@@ -16,10 +16,10 @@ from inference.normal_eq import (
     marginal_loglik_banded,
     marginal_loglik_normal,
     posterior_beta_normal,
-    selected_inverse,
     solve_banded,
     solve_banded_transposed,
 )
+from inference.selected_inverse import selected_inverse
 
 
 def _random_problem(H=7, k=3, m=5, seed=0):

@@ -8,7 +8,7 @@ factored by block elimination of the holds' (o₁, o₂, δ)
 touches only the (o₁, o₂, δ) of its hold and of the hold before and the dense variables
 (:class:`BinRows`), so every product with A (or with its derivative in θ) is
 O(N·(6 + m)), and the leverages come from the entries of M⁻¹ on M's pattern
-(:func:`inference.normal_eq.selected_inverse`).
+(:func:`inference.selected_inverse.selected_inverse`).
 
 Values: those of the dense solve (the tests' oracle, ``tests/dense_oracle.py``) to round-off.
 """
@@ -36,10 +36,10 @@ from inference.normal_eq import (
     banded_factor_blocks,
     implicit_stationary_point_banded,
     inverse_banded,
-    selected_inverse,
     solve_banded_transposed,
     split_prior,
 )
+from inference.selected_inverse import selected_inverse
 
 UNROLL = 1  # the block scans' unrolling (the E-step's; docs/tuning.md)
 
@@ -191,7 +191,7 @@ def block_moments(
 ) -> BlockMoments:
     """β̂, diag(M⁻¹), the whitened rows, residuals and leverages at θ (values ``v``) and h,
     from the hold blocks and the entries of M⁻¹ on M's pattern
-    (:func:`inference.normal_eq.selected_inverse`): a bin's row touches only the (o₁, o₂, δ)
+    (:func:`inference.selected_inverse.selected_inverse`): a bin's row touches only the (o₁, o₂, δ)
     of its hold and of the hold before and the dense variables, so neither M nor M⁻¹
     (p × p) is formed. ``design``: :func:`~chekan.joint.hold_blocks.bin_design` at ``v`` if
     already computed. Values: those of the dense solve to round-off (tests)."""
