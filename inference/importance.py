@@ -328,6 +328,8 @@ class ImportanceVerdict:
     skipped: tuple[str, ...] = ()
     n_points: int = 0
     """The draws weighed."""
+    refits: int = 0
+    """How many times the proposal was refitted to weighted draws before these."""
 
 
 #: The name under which :func:`judge` reports Kish's ESS when no quantity is given.

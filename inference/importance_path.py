@@ -11,7 +11,10 @@ From the proposal q fitted to the posterior (:func:`inference.proposal.fit_propo
 
 first on z alone (where the caller gives no ``weigh``, its quantities are computed only
 once z passes), with more draws, as many as the least ESS says it needs, while k̂ passes
-and an ESS falls short, up to ``importance_max_points``. The kept draws are each batch
+and an ESS falls short, up to ``importance_max_points``. Where k̂ refuses, the proposal's
+Gaussian components are fitted anew to the weighted draws (population Monte Carlo,
+:func:`inference.proposal.refit`; up to ``importance_refits`` times) and the draws are
+made afresh from it: those of the earlier proposal are not kept. The kept draws are each batch
 resampled to equal weights (systematic resampling),
 one batch a "chain": their R̂ compares independent batches; their ESS is the importance
 sampling's (:func:`inference.importance.quantity_ess`), not that of the resampled draws.
@@ -19,6 +22,7 @@ sampling's (:func:`inference.importance.quantity_ess`), not that of the resample
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -35,7 +39,7 @@ from .importance import (
     quantity_ess,
     resample,
 )
-from .proposal import MixtureProposal
+from .proposal import MixtureProposal, refit
 from .retained import SamplingResult
 from .sampler_config import SamplerConfig
 
@@ -69,8 +73,21 @@ def importance_result(
         return lp
 
     draws = draw_importance(lnp, proposal, config.importance_points, config.n_chains, rng)
+    refits = 0
     while True:
         verdict = judge(draws, _coordinates(draws), config.khat_max, config.target_ess)
+        verdict = dataclasses.replace(verdict, refits=refits)
+        if not verdict.accepted and verdict.khat >= verdict.k_limit:
+            if refits >= config.importance_refits:
+                break
+            weights = np.exp(draws.log_weights)
+            proposal = refit(
+                proposal, draws.points, weights, rng, components=config.proposal_components
+            )
+            blocks.clear()  # what was drawn from the proposal before is not used
+            draws = draw_importance(lnp, proposal, config.importance_points, config.n_chains, rng)
+            refits += 1
+            continue
         short = (
             not verdict.accepted
             and verdict.khat < verdict.k_limit
@@ -91,6 +108,7 @@ def importance_result(
         verdict = judge(
             draws, {**_coordinates(draws), **per_point}, config.khat_max, config.target_ess
         )
+        verdict = dataclasses.replace(verdict, refits=refits)
         if not verdict.accepted:
             return None, verdict
     index = resample(draws, draws.points.shape[0] // config.n_chains, rng)

@@ -34,13 +34,14 @@ with its i-th variance raised to the prior's, takes a share of ``shoulder_weight
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["MixtureProposal", "fit_proposal"]
+__all__ = ["MixtureProposal", "fit_proposal", "refit"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -219,8 +220,7 @@ def fit_proposal(
     keep = w > 0
     if np.count_nonzero(keep) < 10 * components:  # too few points carry weight: keep q₀
         return q0, x, lp, info
-    pis, mus, covs = _weighted_em(x[keep], w[keep], components, rng, em_iters, shrink)
-    chols = np.stack([np.linalg.cholesky(c * inflate**2) for c in covs])
+    pis, mus, chols = _components(x[keep], w[keep], components, rng, em_iters, shrink, inflate)
     tdf = q0.df if tail_df is None else float(tail_df)
     tail_cov = np.asarray(cov, float) * tail_scale**2
     weak = _weak(np.asarray(cov, float), prior_sd, shoulder_ratio) if shoulder_weight > 0 else []
@@ -233,6 +233,37 @@ def fit_proposal(
         q0.mean0, q0.chol0 * tail_scale, tdf, alpha, pis, mus, chols, s_w, s_chols
     )
     return prop, x, lp, info
+
+
+def refit(
+    proposal: MixtureProposal,
+    x: np.ndarray,
+    w: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    components: int = 3,
+    inflate: float = 1.1,
+    shrink: float = 0.01,
+    em_iters: int = 100,
+) -> MixtureProposal:
+    """``proposal`` with its Gaussian components fitted anew (weighted EM, as
+    :func:`fit_proposal`) to the points ``x`` (n, d) weighted by ``w`` (n,) towards the
+    posterior, its defensive and shoulder components kept: population Monte Carlo's step,
+    for draws whose weights found mass where the proposal was thin. Unchanged where fewer
+    than 10 points per component carry weight."""
+    w = np.asarray(w, float)
+    keep = np.isfinite(w) & (w > 0)
+    if np.count_nonzero(keep) < 10 * components:
+        return proposal
+    wk = w[keep] / np.sum(w[keep])
+    pis, mus, chols = _components(x[keep], wk, components, rng, em_iters, shrink, inflate)
+    return dataclasses.replace(proposal, weights=pis, means=mus, chols=chols)
+
+
+def _components(x, w, k: int, rng, iters: int, shrink: float, inflate: float):
+    """(πₖ, μₖ, Lₖ) of the mixture fitted to the weighted points, covariances × inflate²."""
+    pis, mus, covs = _weighted_em(x, w, k, rng, iters, shrink)
+    return pis, mus, np.stack([np.linalg.cholesky(c * inflate**2) for c in covs])
 
 
 def _weak(cov: np.ndarray, prior_sd: np.ndarray | None, ratio: float) -> list[int]:

@@ -76,6 +76,10 @@ class SamplerConfig:
     and an ESS falls short (as many as it needs), up to ``importance_max_points``."""
     importance_max_points: int = 8192
     khat_max: float = 0.7
+    importance_refits: int = 1
+    """Where k̂ refuses the importance draws, how many times the proposal's Gaussian
+    components may be fitted anew to the weighted draws (population Monte Carlo) and the
+    draws made afresh from it before emcee runs (:func:`inference.proposal.refit`)."""
     seed: int = 0
     progress: bool = True
     threads: int | None = None
@@ -116,5 +120,7 @@ class SamplerConfig:
             raise ValueError(f"sampler must be 'emcee' or 'auto', got {self.sampler!r}")
         if self.importance_points < 2 * self.n_chains or self.importance_max_points < 1:
             raise ValueError("importance_points must be ≥ 2·n_chains")
+        if self.importance_refits < 0:
+            raise ValueError(f"importance_refits must be ≥ 0, got {self.importance_refits}")
         if self.threads is not None and self.threads < 1:
             raise ValueError(f"threads must be ≥ 1 or None, got {self.threads}")

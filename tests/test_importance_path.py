@@ -28,6 +28,17 @@ def _funnel(z, data):
     return -0.5 * (v / 3.0) ** 2 - 0.5 * jnp.sum(x**2) * jnp.exp(-v) - 0.5 * x.size * v
 
 
+def _shoulder(z, data):
+    """0.8 N(0, I) + 0.2 of a shoulder at z₀ ~ N(−3, 1.5²), z₁ | z₀ ~ N(0.8(z₀ + 3) + 1,
+    0.5²): the proposal fitted at the mode covers it thinly. Mean (−0.6, 0.2)."""
+    import jax.numpy as jnp
+
+    core = -0.5 * jnp.sum(z**2)
+    u, v = (z[0] + 3.0) / 1.5, (z[1] - 0.8 * (z[0] + 3.0) - 1.0) / 0.5
+    side = jnp.log(0.25 / 0.75) - 0.5 * (u**2 + v**2)
+    return jnp.logaddexp(core, side)
+
+
 def _config(**kw) -> SamplerConfig:
     base = dict(
         n_chains=4,
@@ -94,6 +105,32 @@ def test_sampler_emcee_is_emcee_alone_and_unchanged_by_the_fast_path() -> None:
     assert np.array_equal(after.draws, alone.draws)
 
 
+def test_a_proposal_refitted_to_the_weighted_draws_covers_a_shoulder() -> None:
+    """Population Monte Carlo: where k̂ refuses the first draws, the mixture fitted anew to
+    them, and draws made afresh from it, stand for the posterior; without refits emcee
+    runs."""
+    z0 = np.zeros(2)
+    kw = dict(proposal_components=3, max_steps=50, seed=3)
+    with pytest.warns(RuntimeWarning):  # emcee, cut short here
+        plain = sample(
+            _shoulder,
+            None,
+            z0,
+            np.eye(2),
+            _config(importance_refits=0, **kw),
+            executables=Compiler(),
+        )
+    assert plain.method == "emcee" and plain.importance.khat >= 0.7
+    res = sample(
+        _shoulder, None, z0, np.eye(2), _config(importance_refits=2, **kw), executables=Compiler()
+    )
+    assert res.method == "importance" and 1 <= res.importance.refits <= 2
+    assert res.importance.khat < 0.7 and res.importance.min_ess >= 1000
+    flat = res.draws.reshape(-1, 2)
+    sd = np.sqrt([2.69, 0.8 + 0.2 * (0.25 + 1.44 + 1.0) - 0.04])
+    assert np.all(np.abs(flat.mean(axis=0) - [-0.6, 0.2]) < 4 * sd / np.sqrt(res.ess))
+
+
 def test_weighted_ess_of_equal_weights_is_the_number_of_points() -> None:
     rng = np.random.default_rng(0)
     f = rng.standard_normal(4000)
@@ -129,6 +166,9 @@ def test_console_and_certificate_say_which_sampler_ran() -> None:
     assert "importance sampling" in sampler_words(taken) and "k = 0.41" in sampler_words(taken)
     assert sampler_words(refused).startswith("emcee (importance sampling refused: k̂ = 0.93")
     assert sampler_words({"sampler": "emcee"}) == "emcee"
+    refit = {**taken, "importance": {**taken["importance"], "proposal_refits": 1}}
+    assert "proposal refitted to weighted draws 1×" in sampler_words(refit)
+    assert "refitted" not in sampler_words(taken)
     for lang in ("en", "ru"):
         t = tr(lang)
         assert "0.41" in _sampler(taken, t) and "1523" in _sampler(taken, t).replace(" ", "")

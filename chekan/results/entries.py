@@ -215,6 +215,7 @@ def sampler_entries(samp: SamplingResult) -> dict[str, Any]:
             "ess_min": float(v.min_ess),
             "limited_by": v.limiting,
             "n_points": int(v.n_points),
+            "proposal_refits": int(v.refits),
             "message": v.message,
         }
     return out

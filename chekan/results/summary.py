@@ -170,6 +170,9 @@ def sampler_words(diag: dict) -> str:
     figures = (
         f"Pareto k = {_f(k, '.2f')}, smallest ESS {_f(ess, '.0f')} of {imp.get('n_points')} draws"
     )
+    refits = int(imp.get("proposal_refits") or 0)
+    if refits:
+        figures += f", the proposal refitted to weighted draws {refits}×"
     if diag.get("sampler") == "importance":
         return f"importance sampling from the fitted proposal ({figures})"
     if imp:
