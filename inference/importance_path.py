@@ -72,31 +72,7 @@ def importance_result(
         blocks.append(extra)
         return lp
 
-    draws = draw_importance(lnp, proposal, config.importance_points, config.n_chains, rng)
-    refits = 0
-    while True:
-        verdict = judge(draws, _coordinates(draws), config.khat_max, config.target_ess)
-        verdict = dataclasses.replace(verdict, refits=refits)
-        if not verdict.accepted and verdict.khat >= verdict.k_limit:
-            if refits >= config.importance_refits:
-                break
-            weights = np.exp(draws.log_weights)
-            proposal = refit(
-                proposal, draws.points, weights, rng, components=config.proposal_components
-            )
-            blocks.clear()  # what was drawn from the proposal before is not used
-            draws = draw_importance(lnp, proposal, config.importance_points, config.n_chains, rng)
-            refits += 1
-            continue
-        short = (
-            not verdict.accepted
-            and verdict.khat < verdict.k_limit
-            and verdict.min_ess < config.target_ess
-        )
-        n = draws.points.shape[0]
-        if not short or n >= config.importance_max_points:
-            break
-        draws = extend(draws, lnp, proposal, _more(n, verdict.min_ess, config), rng)
+    draws, verdict = _judged_draws(lnp, proposal, config, rng, blocks)
     if not verdict.accepted:
         return None, verdict
     if blocks:
@@ -105,6 +81,7 @@ def importance_result(
         extra = None if derived is None else derived(draws.points[None])
     if extra is not None:
         per_point = {k: np.asarray(v)[0] for k, v in extra.items()}
+        refits = verdict.refits
         verdict = judge(
             draws, {**_coordinates(draws), **per_point}, config.khat_max, config.target_ess
         )
@@ -135,6 +112,43 @@ def importance_result(
         weighted_ess=None if extra is None else weighted_ess(per_point, draws.log_weights),
     )
     return result, verdict
+
+
+def _judged_draws(
+    lnp: Callable[[np.ndarray], np.ndarray],
+    proposal: MixtureProposal,
+    config: SamplerConfig,
+    rng: np.random.Generator,
+    blocks: list[Any],
+) -> tuple[ImportanceDraws, ImportanceVerdict]:
+    """The draws and their verdict on z (module docstring): drawn, refitted where k̂
+    refuses (``blocks``, what ``lnp`` keeps of each evaluation, emptied with the draws),
+    extended where an ESS falls short."""
+    draws = draw_importance(lnp, proposal, config.importance_points, config.n_chains, rng)
+    refits = 0
+    while True:
+        verdict = judge(draws, _coordinates(draws), config.khat_max, config.target_ess)
+        verdict = dataclasses.replace(verdict, refits=refits)
+        if not verdict.accepted and verdict.khat >= verdict.k_limit:
+            if refits >= config.importance_refits:
+                return draws, verdict
+            weights = np.exp(draws.log_weights)
+            proposal = refit(
+                proposal, draws.points, weights, rng, components=config.proposal_components
+            )
+            blocks.clear()  # what was drawn from the proposal before is not used
+            draws = draw_importance(lnp, proposal, config.importance_points, config.n_chains, rng)
+            refits += 1
+            continue
+        short = (
+            not verdict.accepted
+            and verdict.khat < verdict.k_limit
+            and verdict.min_ess < config.target_ess
+        )
+        n = draws.points.shape[0]
+        if not short or n >= config.importance_max_points:
+            return draws, verdict
+        draws = extend(draws, lnp, proposal, _more(n, verdict.min_ess, config), rng)
 
 
 def _more(n: int, ess: float, config: SamplerConfig) -> int:
