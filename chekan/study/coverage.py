@@ -11,8 +11,8 @@ b₁, b₂ and a:
 - ``classical``: Calibr.exe's least squares (:mod:`chekan.classical.fit`), sd from its fit;
 - ``map``: the joint model, MAP + Laplace (the posterior's likelihood), delta-method sds;
 - ``bayes``: the posterior (:func:`chekan.pipeline.calibrate` with ``method="bayes"``,
-  ``quick=True``) of a record written to a temporary file: ~1 min per session, for small
-  studies.
+  ``quick=True``) of a record written to a temporary file: 3–50 s per session (2 workers;
+  the paper's 9 h program the least, the designer's 9 h xy program the most).
 
 Intervals: the central interval mean ± z·sd at each level (50/90/95 %) for every method,
 including ``bayes`` (its posterior mean and sd); for ``bayes`` the coverage of the stored
@@ -485,7 +485,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         nargs="+",
         choices=METHODS,
         default=list(DEFAULT_METHODS),
-        help="estimators to compare (bayes: ~1 min per session)",
+        help="estimators to compare (bayes: 3–50 s per session)",
     )
     ap.add_argument("--quick", action="store_true", help="3 h program instead of the paper's 9 h")
     ap.add_argument(
