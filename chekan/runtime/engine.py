@@ -7,7 +7,7 @@ stored name                 what it computes                            maths in
 ==========================  ==========================================  ==========================
 ``map_<solver>_…``          the MAP solve over θ (β projected out)      :mod:`chekan.joint.problem`
 ``em_between_passes``       level re-centring and EM between passes     :mod:`chekan.joint.em`
-``em_newton``               EM's fixed point by Newton (EM creeping)    :mod:`chekan.joint.em`
+``em_newton``               EM's fixed point by Newton, else SQUAREM    :mod:`chekan.joint.em`
 ``map_derived``             derived quantities and their Jacobians      :mod:`chekan.joint.derived`
 ``draws``                   every reported quantity per posterior draw  :mod:`chekan.joint.derived`
 ``predictive_equilibria``   equilibria of the posterior predictive      :mod:`chekan.joint.derived`
@@ -66,7 +66,7 @@ class Engine:
 
     @functools.cached_property
     def em_newton(self) -> Callable:
-        """``(z, h, updates, change, data) → (h, updates)``:
+        """``(z, h, updates, change, data) → (h, updates, change, step)``:
         :func:`chekan.joint.em.em_newton_fn`."""
         from chekan.joint.em import em_newton_fn
 
