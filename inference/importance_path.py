@@ -122,8 +122,8 @@ def _judged_draws(
     blocks: list[Any],
 ) -> tuple[ImportanceDraws, ImportanceVerdict]:
     """The draws and their verdict on z (module docstring): drawn, refitted where k̂
-    refuses (``blocks``, what ``lnp`` keeps of each evaluation, emptied with the draws),
-    extended where an ESS falls short."""
+    refuses and the refit changes the proposal (``blocks``, what ``lnp`` keeps of each
+    evaluation, emptied with the draws), extended where an ESS falls short."""
     draws = draw_importance(lnp, proposal, config.importance_points, config.n_chains, rng)
     refits = 0
     while True:
@@ -133,9 +133,10 @@ def _judged_draws(
             if refits >= config.importance_refits:
                 return draws, verdict
             weights = np.exp(draws.log_weights)
-            proposal = refit(
-                proposal, draws.points, weights, rng, components=config.proposal_components
-            )
+            new = refit(proposal, draws.points, weights, rng, components=config.proposal_components)
+            if new is proposal:  # nothing to refit: fresh draws of the same q would not help
+                return draws, verdict
+            proposal = new
             blocks.clear()  # what was drawn from the proposal before is not used
             draws = draw_importance(lnp, proposal, config.importance_points, config.n_chains, rng)
             refits += 1

@@ -249,11 +249,13 @@ def refit(
     """``proposal`` with its Gaussian components fitted anew (weighted EM, as
     :func:`fit_proposal`) to the points ``x`` (n, d) weighted by ``w`` (n,) towards the
     posterior, its defensive and shoulder components kept: population Monte Carlo's step,
-    for draws whose weights found mass where the proposal was thin. Unchanged where fewer
-    than 10 points per component carry weight."""
+    for draws whose weights found mass where the proposal was thin. Unchanged (the same
+    object) where fewer than 10 points per component carry weight, or where the proposal
+    gives its Gaussian components no weight (:meth:`MixtureProposal.t_only`)."""
     w = np.asarray(w, float)
     keep = np.isfinite(w) & (w > 0)
-    if np.count_nonzero(keep) < 10 * components:
+    rest = 1.0 - proposal.alpha - float(np.sum(proposal.shoulder_weights))
+    if rest <= 0.0 or np.count_nonzero(keep) < 10 * components:
         return proposal
     wk = w[keep] / np.sum(w[keep])
     pis, mus, chols = _components(x[keep], wk, components, rng, em_iters, shrink, inflate)

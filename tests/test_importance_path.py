@@ -131,6 +131,23 @@ def test_a_proposal_refitted_to_the_weighted_draws_covers_a_shoulder() -> None:
     assert np.all(np.abs(flat.mean(axis=0) - [-0.6, 0.2]) < 4 * sd / np.sqrt(res.ess))
 
 
+def test_a_refit_that_cannot_change_the_proposal_is_not_made() -> None:
+    """A t proposal alone gives its Gaussian components no weight, and too few weighted
+    points fit none: refit returns the proposal itself, and the path draws nothing more."""
+    from inference.proposal import MixtureProposal, refit
+
+    rng = np.random.default_rng(0)
+    q0 = MixtureProposal.t_only(np.zeros(2), np.eye(2), 5.0)
+    x = rng.standard_normal((500, 2))
+    assert refit(q0, x, np.ones(500), rng) is q0
+    mixed = MixtureProposal(
+        q0.mean0, q0.chol0, 5.0, 0.2, np.ones(1), np.zeros((1, 2)), np.eye(2)[None]
+    )
+    assert refit(mixed, x[:20], np.ones(20), rng, components=3) is mixed
+    moved = refit(mixed, x + 3.0, np.ones(500), rng, components=1)
+    assert moved is not mixed and np.allclose(moved.means[0], (x + 3.0).mean(axis=0))
+
+
 def test_weighted_ess_of_equal_weights_is_the_number_of_points() -> None:
     rng = np.random.default_rng(0)
     f = rng.standard_normal(4000)
