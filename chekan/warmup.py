@@ -113,15 +113,41 @@ def stored(model, method: str) -> bool:
     import inspect
 
     from chekan.fit.reported import posterior_draws
-    from chekan.runtime.engine import DRAWS, MAP_DERIVED, engine_for
+    from chekan.runtime.engine import DRAWS, EM_NEWTON, MAP_DERIVED, engine_for
 
     engine = engine_for(model.structure)
     if method == "map":
-        return engine.stored(MAP_DERIVED, model.data, model.duration_h)
+        return engine.stored(MAP_DERIVED, model.data, model.duration_h) and engine.store.stored(
+            EM_NEWTON, *em_newton_args(model)
+        )
     chunk = inspect.signature(posterior_draws).parameters["chunk"].default
     zs = np.zeros((chunk, engine.problem.bayes_space.size))
     keys = np.zeros((chunk, 2), dtype=np.uint32)
     return engine.store.stored(DRAWS, zs, keys, model.data, model.duration_h)
+
+
+def em_newton_args(model) -> tuple:
+    """The arguments of the EM's Newton step (:attr:`chekan.runtime.engine.Engine.em_newton`)
+    for ``model``: z at the centre of the MAP space, the hyperparameters, updates and change
+    as one EM pass from the prior's hyperparameters leaves them."""
+    from chekan.jaxconfig import device_array
+    from chekan.joint.problem import default_hyper
+    from chekan.runtime.engine import engine_for
+
+    engine = engine_for(model.structure)
+    z = device_array(np.zeros(engine.problem.map_space.size))
+    _, h, n, change = engine.em_pass(z, default_hyper(), model.data)
+    return z, h, n, change, model.data
+
+
+def store_em_newton(model) -> None:
+    """Run the EM's Newton step once on ``model``, so that the store keeps it: a calibration
+    runs it only where plain EM updates have not converged (:func:`chekan.fit.map.between_passes`),
+    which the warmup's session need not show, and a user's first record that needs it would
+    then compile it (≈ 40 s on 2 cores)."""
+    from chekan.runtime.engine import engine_for
+
+    engine_for(model.structure).em_newton(*em_newton_args(model))
 
 
 def warm(
@@ -130,12 +156,15 @@ def warm(
     *,
     say: Callable[[str], None] = print,
     calibrate: Callable[..., dict] | None = None,
+    newton: Callable[[Any], None] | None = None,
     force: bool = False,
 ) -> list[WarmStep]:
     """Calibrate a simulated session of each target with each method (default options,
-    the sampler capped as ``--quick``) so that the store keeps what they compiled, unless
-    it holds them already (:func:`stored`; ``force``: calibrate anyway); ``say`` tells the
-    progress. ``calibrate``: :func:`chekan.pipeline.calibrate` (a test's stand-in)."""
+    the sampler capped as ``--quick``) so that the store keeps what they compiled, and after
+    ``map`` run the EM's Newton step on it (:func:`store_em_newton`), unless the store holds
+    them already (:func:`stored`; ``force``: calibrate anyway); ``say`` tells the progress.
+    ``calibrate``: :func:`chekan.pipeline.calibrate`, ``newton``: :func:`store_em_newton`
+    (a test's stand-ins)."""
     from chekan.options import CalibrationOptions
     from chekan.pipeline import calibrate as calibrate_record
     from chekan.records.simulate import Truth, simulate_session
@@ -159,6 +188,8 @@ def warm(
             seen, t0 = len(events), time.perf_counter()
             opts = CalibrationOptions(method=method, progress=False, quick=True)
             run(record, opts)
+            if method == "map":
+                (newton or store_em_newton)(model)
             new = [state for _, state in events[seen:]]
             step = WarmStep(
                 target.name,

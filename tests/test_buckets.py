@@ -80,6 +80,43 @@ def test_a_three_angle_program_runs_in_the_papers_warmed_bucket():
     assert tuple(bucket_of(s.structure)) == (*SMALLEST[:4], 0)
 
 
+@pytest.mark.parametrize(
+    "angles,axis,rounds,own,default",
+    [
+        ([2.5, 25 / 6, 31 / 6], "y", 3, (24, 120), 0),  # own bucket (24, 128): ½ and 4/7
+        ([4.5, 4 + 51 / 60, 31 / 6], "xy", 4, (32, 160), 1),  # (32, 160): ⅔ and 5/8
+        ([2.5, 25 / 6, 31 / 6], "x", 3, (24, 120), 1),  # about X alone: the xy bucket
+    ],
+)
+def test_a_record_takes_a_default_bucket_up_to_twice_its_own(angles, axis, rounds, own, default):
+    """``DEFAULT_REACH`` = 2: a default bucket with at most twice the holds and bins of a
+    record's own bucket, and its kinds of terms, takes the record (its warm run costs at most
+    about twice its own, a first run's compile a minute or more)."""
+    from chekan.physics.program import build_program
+    from chekan.records.simulate import Truth, simulate_session
+    from chekan.runtime.padding import DEFAULT_BUCKETS, DEFAULT_REACH
+
+    prog = build_program(angles, axis=axis, rounds=rounds, dwell_s=300, settle_s=120)
+    m = padded_model(simulate_session(prog, Truth(serial="T-1"), seed=7)[0])
+    assert (m.n_real_holds, m.n_real_bins) == own
+    assert DEFAULT_REACH == 2.0
+    assert tuple(bucket_of(m.structure)) == DEFAULT_BUCKETS[default]
+
+
+def test_the_warmup_stores_the_em_newton_step(short_session):
+    """``store_em_newton`` runs the EM's Newton step on a model's bucket, so that the store
+    holds it (the calibration runs it only where plain EM updates have not converged)."""
+    from chekan.joint.problem import default_hyper
+    from chekan.runtime.engine import EM_NEWTON, engine_for
+    from chekan.warmup import em_newton_args, store_em_newton
+
+    model = padded_model(short_session[1])
+    store_em_newton(model)
+    h, n, change = em_newton_args(model)[1:4]
+    assert int(n) > 0 and float(change) >= 0 and set(h) == set(default_hyper())
+    assert engine_for(model.structure).store.stored(EM_NEWTON, *em_newton_args(model))
+
+
 def test_x_response_padding_keeps_the_level_angle_last():
     """Padded X-response columns are zero, unit prior variance, before the last column
     (the level angle Δm₀ⱼ that the derived quantities read)."""
@@ -215,8 +252,9 @@ def test_the_default_targets_are_the_buckets_the_padding_names():
 
 
 def test_warmup_keeps_what_each_method_compiled(monkeypatch):
-    """``warm`` calibrates a session of each target with each method and counts what the
-    store compiled or loaded (a stand-in calibration: a tiny executable per method)."""
+    """``warm`` calibrates a session of each target with each method, runs the EM's Newton
+    step after ``map`` (a calibration whose EM converges never runs it) and counts what the
+    store compiled or loaded (stand-ins: a tiny executable per method and one for Newton)."""
     from chekan.physics.program import build_program
     from chekan.runtime.process import executable_store
     from chekan.warmup import WarmTarget, warm
@@ -232,13 +270,20 @@ def test_warmup_keeps_what_each_method_compiled(monkeypatch):
     prog = build_program([1.0, 2.0], dwell_s=60, settle_s=20, rounds=1, name="short")
     said: list[str] = []
     target = WarmTarget("short", lambda: prog)
-    steps = warm([target], say=said.append, calibrate=calibrate, force=True)
+    newton = []
+
+    def store_newton(model):
+        newton.append(model.structure)
+        store.jit("tiny_newton", lambda x: 3.0 * x)(arg)
+
+    steps = warm([target], say=said.append, calibrate=calibrate, newton=store_newton, force=True)
     assert [s.method for s in steps] == ["map", "bayes"]
-    assert all(s.compiled + s.loaded == 1 for s in steps)
+    assert [s.compiled + s.loaded for s in steps] == [2, 1]  # map and Newton; bayes
+    assert [tuple(bucket_of(s)) for s in newton] == [steps[0].bucket]  # once, on the bucket
     assert steps[0].bucket == (16, 96, 24, 24, 0)  # the smallest bucket
     assert said[0].startswith("[1/1] short") and "compiled" in said[-1]
     if store.folder is not None:  # kept for the next process
-        assert store.stored("tiny_map", arg) and store.stored("tiny_bayes", arg)
+        assert all(store.stored(f"tiny_{n}", arg) for n in ("map", "newton", "bayes"))
 
 
 def test_the_warmup_command_says_where_it_stored(monkeypatch, capsys):

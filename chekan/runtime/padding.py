@@ -79,8 +79,9 @@ DEFAULT_BUCKETS = (
     Bucket(160, 896, 24, 32, 24),
 )
 #: How much larger than its own bucket (holds, bins) a default bucket may be and still take
-#: a record: a few more holds and bins cost less than a first run's compile
-DEFAULT_REACH = 1.5
+#: a record: a warm run costs at most about twice its own (tenths of a second), a first
+#: run's compile a minute or more (measured in ``docs/commands.md``)
+DEFAULT_REACH = 2.0
 #: The smallest bucket: short programs (a few holds, tens of bins) all share it; a size of
 #: 0 stays 0 (no systematic or X terms is a different model)
 SMALLEST = Bucket(16, 96, 24, 24, 24)
