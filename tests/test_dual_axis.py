@@ -217,11 +217,11 @@ def test_posterior_predictive_of_a_two_axis_record_is_the_y_rounds_table(dual_fi
     replicated sessions go through the classical method as it reports, Y rounds only."""
     from chekan.classical.fit import calibrate_record
     from chekan.fit.predictive import posterior_predictive_delta_g
-    from chekan.joint.binning import prepare
+    from chekan.warmup import padded_model
 
     rec, truth, _res = dual_fit
     cres, holds = calibrate_record(rec, settle_s=120.0)
-    _, model = prepare(rec, 120.0)
+    model = padded_model(rec)  # as bayes fits it
     t = truth.derived()
     one = {
         "b1": t["b1"],

@@ -123,6 +123,11 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
     E2, S2 = _equilibria(g, m0, flat, take, holds, compiled)
     np.testing.assert_array_equal(E2, E)
     np.testing.assert_array_equal(S2, S)
+    # padded to a bucket's shape (more draws, more holds) and cut back: the same numbers
+    E3, S3 = _equilibria(g, m0, flat, take, holds, compiled, (8, 9))
+    assert E3.shape == E.shape == (3, 5, 2)
+    np.testing.assert_allclose(E3, E, rtol=1e-13)
+    np.testing.assert_allclose(S3, S, rtol=1e-13)
     for n, i in enumerate(take):
         a = flat["a"][i]
         sp = fm.make_params(
@@ -147,7 +152,6 @@ def test_predictive_equilibria_equal_per_draw_evaluation(m0):
 def test_the_posterior_predictive_uses_the_records_ccd_centre():
     """Replicas of noise-free draws give the classical δg of the model evaluated at the
     record's ``ccd_center_pix`` (900 here), which the fit uses; it took 1024 before 0.3.9."""
-    from types import SimpleNamespace
 
     from chekan.classical.fit import fit_classical, increments_from_holds
     from chekan.demo import demo_program
@@ -155,8 +159,11 @@ def test_the_posterior_predictive_uses_the_records_ccd_centre():
     from chekan.physics.units import ARCMIN_PER_RAD
     from chekan.records.holds import segment_record
     from chekan.records.simulate import Truth, simulate_session
+    from chekan.warmup import padded_model
 
-    rec, truth = simulate_session(demo_program(quick=True), Truth(serial="M0"), seed=3)
+    rec, truth = simulate_session(
+        demo_program(quick=True), Truth(serial="M0", m0_pix=900.0), seed=3
+    )
     holds = segment_record(rec, settle_s=200.0)
     g = rec.g_local_mgal
     t = truth
@@ -173,12 +180,8 @@ def test_the_posterior_predictive_uses_the_records_ccd_centre():
         **{k: np.zeros(1) for k in ("sigma1_pix", "sigma2_pix")},
     }
     draws = {k: v[None] for k, v in one.items()}  # (chain, draw, ...)
-    model = SimpleNamespace(
-        t_span_s=(float(rec.t_s[0]), float(rec.t_s[-1])),
-        drift_degree=3,
-        data=SimpleNamespace(m0=np.asarray(900.0)),
-        structure=None,
-    )
+    model = padded_model(rec)  # as bayes fits it
+    assert float(model.data.m0) == 900.0 and model.drift_degree == 3
     rep = posterior_predictive_delta_g(holds, g, draws, model, np.random.default_rng(0))
     sp = fm.make_params(
         g_mgal=g,

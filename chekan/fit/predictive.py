@@ -35,7 +35,9 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     g = float(g_local)
     compiled = engine_for(model.structure).predictive
     m0 = float(np.asarray(model.data.m0))  # the record's CCD centre, as the fit uses it
-    E_all, S_all = _equilibria(g, m0, flat, take, holds, compiled)  # (draws, K, 2) each
+    # one executable per bucket: the draws padded to n_max, the holds to the bucket's
+    shape = (n_max, max(model.structure.n_holds, len(holds.tilt_y_rad)))
+    E_all, S_all = _equilibria(g, m0, flat, take, holds, compiled, shape)  # (draws, K, 2)
     ys = []
     for n_draw, i in enumerate(take):
         E, S = E_all[n_draw], S_all[n_draw]
@@ -53,12 +55,25 @@ def posterior_predictive_delta_g(holds, g_local, draws: dict, model, rng, a_fixe
     return np.stack([f.delta_g_mgal for f in fits])
 
 
-def _equilibria(g: float, m0: float, flat: dict, take, holds, compiled: Callable | None = None):
+def _equilibria(
+    g: float,
+    m0: float,
+    flat: dict,
+    take,
+    holds,
+    compiled: Callable | None = None,
+    shape: tuple[int, int] | None = None,
+):
     """E and ∂E/∂θ at the hold attitudes for the draws ``take`` (CCD centre ``m0`` pix), in one
     vectorised call (a loop over draws dispatched two jitted calls and built parameters per
     draw).
     ``compiled``: :func:`equilibria_of` as the engine keeps it (a new process then loads it
-    instead of tracing the vmapped model, ≈ 1.2 s); else jitted here."""
+    instead of tracing the vmapped model, ≈ 1.2 s); else jitted here. ``shape`` (draws,
+    holds): the call padded to it (the last draw repeated, level holds added) and cut back,
+    so that records of one bucket share one executable."""
+    n_take, n_holds = len(take), len(holds.tilt_y_rad)
+    if shape is not None:
+        take = np.concatenate([take, np.full(shape[0] - n_take, take[-1])])
     a = flat["a"][take]
     K = np.where(a > 0, fm.K_from_a(np.where(a > 0, a, 1.0), g), K_DESIGN)
     n = len(take)
@@ -74,9 +89,11 @@ def _equilibria(g: float, m0: float, flat: dict, take, holds, compiled: Callable
     }
     sp = fm.SensorParams(**{k: jnp.asarray(v, dtype=jnp.float64) for k, v in fields.items()})
     tx, ty = np.asarray(holds.tilt_x_rad, float), np.asarray(holds.tilt_y_rad, float)
+    if shape is not None:
+        tx, ty = (np.pad(t, (0, shape[1] - n_holds)) for t in (tx, ty))
     fn = _equilibria_jit if compiled is None else compiled
     E, S = fn(sp, tx, ty)
-    return np.asarray(E), np.asarray(S)
+    return np.asarray(E)[:n_take, :n_holds], np.asarray(S)[:n_take, :n_holds]
 
 
 _equilibria_jit = jit(equilibria_of)
