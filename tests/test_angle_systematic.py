@@ -23,6 +23,7 @@ from chekan.joint.angles import AngleSensorSpec, commanded_groups, spec_for, sys
 from chekan.physics.program import build_program
 from chekan.physics.units import ARCSEC_PER_RAD
 from chekan.records.simulate import Truth, simulate_session
+from chekan.runtime.padding import padded_for
 
 #: A zero bound: the systematic columns are there (the same compiled model as with a bound,
 #: one JAX compilation per program instead of two) with a prior of 1e-12 arcsec².
@@ -30,12 +31,12 @@ NO_SYSTEMATIC = AngleSensorSpec(0.0)
 
 
 def _sd_b(rec, settle_s, spec, shape=None):
-    """(b₁, b₂) of the MAP; ``shape`` (H, N, M, S): the model padded to it (padding adds
-    nothing to the fit, and records of one structure share its compiled solver)."""
+    """(b₁, b₂) of the MAP; ``shape`` (H, N, M, S): the model padded to it, else to its
+    bucket as ``map`` pads it (padding adds nothing to the fit, and records of one structure
+    share its compiled solver: the paper's bucket is compiled by ``chekan warmup``)."""
     cres, _ = calibrate_record(rec, settle_s=settle_s)
     _, model = joint.prepare(rec, settle_s, angle_spec=spec)
-    if shape is not None:
-        model = model.pad(*shape)
+    model = padded_for(model) if shape is None else model.pad(*shape)
     fit = fit_map_em(model, initial_values(cres, rec.g_local_mgal))
     assert fit.result.converged
     md = map_derived(fit)

@@ -290,7 +290,7 @@ def test_a_record_tilted_about_x_alone(tmp_path, capsys):
     prog = tmp_path / "x.toml"
     prog.write_text(
         'name = "x"\nangles = ["2°30\'", "4°10\'", "5°10\'"]\naxis = "x"\n'
-        "dwell_s = 300\nsettle_s = 100\nrounds = 1\n",
+        "dwell_s = 300\nsettle_s = 100\nrounds = 3\n",  # 24 holds: the 2.6 h xy program's bucket
         encoding="utf-8",
     )
     rec = tmp_path / "rx.csv"

@@ -29,8 +29,8 @@ order = "+-"
 sequence = "ascending"
 dwell_s = 240
 settle_s = 150
-rounds = 2
-"""
+rounds = 3
+"""  # 24 holds: the paper's bucket, which chekan warmup compiles
 # system 1's readings step by this much at 2600 s, inside a hold (at 1.5 pix the EM of the
 # hyperparameters no longer converges: the result is then flagged not converged as well)
 JUMP_PIX = 0.9
