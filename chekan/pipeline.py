@@ -7,22 +7,16 @@ by ``chekan calibrate``, re-analysis, validation, the live page and the demo, so
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
-from chekan.classical.fit import ClassicalResult
-from chekan.classical.settling import Unsettled, unsettled_hold_means
+from chekan.classical.fit import ClassicalFit, classical_fit
 from chekan.errors import ChekanError
 from chekan.options import METHODS, CalibrationOptions
 from chekan.records import Record
 from chekan.records.framing import count_rows
-from chekan.records.holds import HoldTable, gaps_entry, program_coverage
-from chekan.records.inputs import input_kind, read_input
+from chekan.records.inputs import ReadyInput, input_kind, read_input, ready_input
 from chekan.records.protocol import Protocol
-from chekan.results.document import base_result, classical_result, tilt_program_entry
+from chekan.results.document import classical_written
 
 #: ``result["record"]`` of a calibration of data that came from no file.
 IN_MEMORY = "<memory>"
@@ -67,13 +61,18 @@ def calibrate(
 ) -> dict:
     """Calibrate an in-memory record or protocol with the chosen method; the result dict.
 
+    The way of every input: :func:`~chekan.records.inputs.ready_input` (angle calibration,
+    holds), :func:`~chekan.classical.fit.classical_fit`, written by
+    :func:`~chekan.results.document.classical_written`; for ``map`` and ``bayes`` then the
+    joint fit (:func:`chekan.fit.estimate`) written over it
+    (:func:`chekan.results.joint.joint_result`).
+
     ``input_path``: the file the data was read from, unchanged (the result names it and its
     SHA-256); ``None``: the data is the input itself (``record`` is :data:`IN_MEMORY`, no
     hash), as for a simulated session or a record still being written.
     """
     opts = _checked(options)
-    data = with_angle_calibration(data, opts, input_path)
-    kind, cres, result = classical_of(data, opts, input_path=input_path)
+    ready, fit, result = classical_of(data, opts, input_path)
     if opts.method == "classical":
         return result
     # once the input has been read (a bad file fails at once, not after the loads), before
@@ -84,7 +83,7 @@ def calibrate(
     store = executable_store()
     label = preload_label(result, opts)
     store.preload(label)
-    out = joint_stage(data, kind, cres, result, opts)
+    out = joint_stage(ready.data, fit.kind, fit.result, result, opts)
     store.remember(label)
     return out
 
@@ -93,7 +92,7 @@ def joint_stage(
     data: Record | Protocol, kind: str, cres, result: dict, opts: CalibrationOptions
 ) -> dict:
     """The ``map`` or ``bayes`` result of ``data``: the joint fit
-    (:func:`chekan.fit.record`), written over its classical ``result`` (not changed) by
+    (:func:`chekan.fit.estimate`), written over its classical ``result`` (not changed) by
     :func:`chekan.results.joint.joint_result`."""
     from chekan.fit import estimate
     from chekan.results.joint import joint_result  # heavy imports only when needed
@@ -137,150 +136,32 @@ def _checked(options: CalibrationOptions | None) -> CalibrationOptions:
     return opts
 
 
-def kind_of(data: Record | Protocol) -> str:
-    """``"record"`` or ``"protocol"``; anything else is an error."""
-    if isinstance(data, Record):
-        return "record"
-    if isinstance(data, Protocol):
-        return "protocol"
-    raise ChekanError(f"cannot calibrate a {type(data).__name__}: give a Record or a Protocol")
+def input_ready(
+    data: Record | Protocol, opts: CalibrationOptions, input_path: str | Path | None = None
+) -> ReadyInput:
+    """:func:`~chekan.records.inputs.ready_input` of ``data`` with the options' angle calibration
+    and settling time."""
+    return ready_input(
+        data,
+        angle_calibration=opts.angle_calibration,
+        settle_s=opts.settle_s,
+        input_path=input_path,
+    )
 
 
 def classical_stage(path: str | Path, opts: CalibrationOptions):
-    """Read ``path`` and run the classical method: ``(data, kind, classical fit, result)``."""
-    opts = _checked(opts)
-    data = with_angle_calibration(read_input(path), opts, path)
-    return (data, *classical_of(data, opts, input_path=path))
-
-
-def with_angle_calibration(
-    data: Record | Protocol, opts: CalibrationOptions, input_path: str | Path | None = None
-) -> Record | Protocol:
-    """``data`` with the platform's angle calibration applied (:mod:`chekan.records.anglecal`: the
-    option's table, else the one the record's header names), or unchanged without one."""
-    from chekan.records.anglecal import calibration_for, corrected
-
-    if kind_of(data) == "protocol":
-        if opts.angle_calibration is not None:
-            raise ChekanError(
-                f"{input_path or 'protocol'}: an angle calibration corrects a record's measured"
-                " angles; a legacy protocol holds only its commanded angles"
-            )
-        return data
-    assert isinstance(data, Record)
-    if data.angle_calibration is not None:
-        return data  # already applied
-    cal = calibration_for(data, opts.angle_calibration, input_path)
-    return data if cal is None else corrected(data, cal)
-
-
-@dataclass(frozen=True)
-class ClassicalFit:
-    """The classical method on one input (:func:`classical_fit`): the input's kind, the fit
-    (its problems include the program's coverage and, for ``--method classical``, the
-    unsettled hold means), and of a record its holds, what of the program it lacks
-    (:func:`chekan.records.holds.program_coverage`, or None) and its unsettled hold means
-    (or None)."""
-
-    kind: str
-    result: ClassicalResult
-    holds: HoldTable | None = None
-    coverage: dict | None = None
-    unsettled: Unsettled | None = None
-
-
-def classical_fit(data: Record | Protocol, opts: CalibrationOptions) -> ClassicalFit:
-    """The classical method on ``data`` (eqs. 16–25, :mod:`chekan.classical.fit`). Every method
-    starts here (the classical fit seeds the MAP and is reported beside it)."""
-    from chekan.classical import fit as classical
-
-    kind = kind_of(data)
-    if not isinstance(data, Record):
-        return ClassicalFit(kind, classical.calibrate_protocol(data, a_fixed=opts.a_fixed))
-    cres, holds = classical.calibrate_record(data, settle_s=opts.settle_s, a_fixed=opts.a_fixed)
-    coverage = program_coverage(holds, data.meta)
-    if coverage is not None:
-        cres = _flagged(cres, coverage["problems"])
-    unsettled = None
-    if (
-        opts.method == "classical"
-    ):  # a joint result settles its items (chekan.classical.settling.settle)
-        unsettled = unsettled_hold_means(holds, data, cres, a_fixed=opts.a_fixed)
-    if unsettled is not None:
-        cres = _flagged(cres, [unsettled.problem])
-    return ClassicalFit(kind, cres, holds, coverage, unsettled)
-
-
-def _flagged(cres, problems: list[str]):
-    """``cres`` with ``problems`` added; its per-axis fits name the certificate's own by
-    identity, so the copy stands for it there too."""
-    flagged = dataclasses.replace(cres, problems=[*cres.problems, *problems])
-    flagged.by_axis = {a: flagged if f is cres else f for a, f in cres.by_axis.items()}
-    return flagged
-
-
-def classical_written(
-    data: Record | Protocol,
-    fit: ClassicalFit,
-    opts: CalibrationOptions,
-    *,
-    input_path: str | Path | None = None,
-) -> dict:
-    """The ``chekan-result/1`` dict of a classical fit of ``data``: the header
-    (:func:`chekan.results.document.base_result`), the classical items
-    (:func:`chekan.results.document.classical_result`), and what the input adds (the unsettled hold
-    means, the program's coverage, the record's gaps, the tilt program, the angle
-    calibration, the sensor's temperature)."""
-    if isinstance(data, Record):
-        g, m0 = data.g_local_mgal, data.ccd_center_pix
-        b_prior, ccd_range = data.b_prior, data.ccd_range_pix
-    else:
-        g = data.g_local_or_fitted()
-        m0 = float(data.meta.get("ccd_center_pix", 1024.0))
-        b_prior, ccd_range = None, None
-    header = base_result(
-        method=opts.method,
-        serial=data.serial,
-        input_path=input_path,
-        input_kind=fit.kind,
-        g_local_mgal=g,
-        meta=data.meta,
-        hdi_prob=opts.hdi_prob,
-        ccd_center_pix=m0,
-    )
-    if fit.kind == "record" and "started" in data.meta:
-        header["date"] = data.meta["started"][:10]
-    elif "date" in data.meta:
-        header["date"] = data.meta["date"]
-    cres, holds = fit.result, fit.holds
-    result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
-    if fit.unsettled is not None:
-        result["unsettled_hold_means"] = fit.unsettled.entry()
-    if fit.coverage is not None:
-        result["program_coverage"] = fit.coverage
-    if holds is not None and holds.gaps:
-        result["record_gaps"] = gaps_entry(holds)
-    name = data.meta.get("program") or None
-    if holds is not None:
-        result["tilt_program"] = tilt_program_entry(holds=holds, name=name)
-    else:
-        result["tilt_program"] = tilt_program_entry(table=cres.table, name=name)
-    if isinstance(data, Record) and data.angle_calibration is not None:
-        result["angle_calibration"] = data.angle_calibration.entry()
-    if isinstance(data, Record) and data.temp_c is not None and np.isfinite(data.temp_c).any():
-        temp = data.temp_c[np.isfinite(data.temp_c)]
-        result["sensor_temperature_c"] = {
-            "mean": round(float(temp.mean()), 3),
-            "min": round(float(temp.min()), 3),
-            "max": round(float(temp.max()), 3),
-        }
-    return result
+    """Read ``path`` and run the classical method: ``(data, kind, classical fit, result)``,
+    ``data`` as the joint methods take it (:func:`joint_stage`)."""
+    ready, fit, result = classical_of(read_input(path), _checked(opts), path)
+    return ready.data, fit.kind, fit.result, result
 
 
 def classical_of(
-    data: Record | Protocol, opts: CalibrationOptions, *, input_path: str | Path | None = None
-) -> tuple[str, ClassicalResult, dict]:
-    """The classical method on ``data``: ``(kind, classical fit, result)``
-    (:func:`classical_fit`, written by :func:`classical_written`)."""
-    fit = classical_fit(data, opts)
-    return fit.kind, fit.result, classical_written(data, fit, opts, input_path=input_path)
+    data: Record | Protocol, opts: CalibrationOptions, input_path: str | Path | None = None
+) -> tuple[ReadyInput, ClassicalFit, dict]:
+    """The classical method on ``data``: the input made ready (:func:`input_ready`), its
+    classical fit (the unsettled hold means looked for by ``--method classical`` alone: a
+    joint result settles its items itself) and the result written of it."""
+    ready = input_ready(data, opts, input_path)
+    fit = classical_fit(ready, a_fixed=opts.a_fixed, unsettled=opts.method == "classical")
+    return ready, fit, classical_written(ready.data, fit, opts, input_path=input_path)

@@ -86,7 +86,7 @@ def first_compile(paths: Sequence[str | Path], options, limit: int = 8) -> bool:
     model first (:func:`chekan.runtime.engine.compiled_before`), judged on the records among
     the first ``limit`` files of distinct sizes (records of one program have about one size
     and one bucket); unreadable files and protocols are left to the calibration."""
-    from chekan.pipeline import kind_of, read_input, with_angle_calibration
+    from chekan.pipeline import input_ready, read_input
     from chekan.runtime.engine import compiled_before
 
     sizes: set[int] = set()
@@ -96,8 +96,8 @@ def first_compile(paths: Sequence[str | Path], options, limit: int = 8) -> bool:
             if size in sizes:
                 continue
             sizes.add(size)
-            data = with_angle_calibration(read_input(p), options, p)
-            if kind_of(data) == "record" and not compiled_before(padded_model(data, options)):
+            ready = input_ready(read_input(p), options, p)
+            if ready.kind == "record" and not compiled_before(padded_model(ready.data, options)):
                 return True
         except Exception:  # the calibration reports a bad file; here it only stays unknown
             continue

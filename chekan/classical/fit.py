@@ -34,13 +34,19 @@ rounds only, so ε comes from them alone.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from chekan.errors import ChekanError
 from chekan.physics.units import ARCMIN_PER_RAD, format_dms
 from chekan.records.holds import HoldTable, segment_record
+
+if TYPE_CHECKING:
+    from chekan.classical.settling import Unsettled
+    from chekan.records.inputs import ReadyInput
 
 FULL_RANGE_MGAL = 5000.0  # Δ₀ = 5 Gal, the upper limit of the measuring range
 
@@ -171,7 +177,7 @@ def increments_of_readings(
             source="record",
             g_local_mgal=g_local_mgal,
             angle_deg=table.angle_deg,
-            angle_label=table.angle_labels(),
+            angle_label=table.angle_labels,
             rounds=tuple(r.number for r in table.rounds),
             da_ref_mgal=da.copy(),  # each table its own arrays (a fit may edit what it holds)
             x_pix=x[d],
@@ -396,26 +402,33 @@ def _axes_word(axes) -> str:
 
 
 def calibrate_record(record, settle_s: float | None = None, a_fixed: float | None = None):
-    """Classical calibration of a record: ``(ClassicalResult, HoldTable)``.
+    """Classical calibration of a record: ``(ClassicalResult, HoldTable)``
+    (:func:`~chekan.records.holds.segment_record`, then :func:`fit_holds`); ``settle_s``
+    None: the record's ``program_settle_s``, else 300 s."""
+    if settle_s is None:
+        settle_s = float(record.meta.get("program_settle_s", 300.0))
+    holds = segment_record(record, settle_s=settle_s)
+    return fit_holds(holds, record, a_fixed), holds
+
+
+def fit_holds(holds: HoldTable, record, a_fixed: float | None = None) -> ClassicalResult:
+    """The classical fit of a record's holds (eqs. 16–25).
 
     Rounds about Y give the result (``a_fixed`` applies to them). A record that also holds
     rounds about X fits those apart, with their own ``a`` (:attr:`ClassicalResult.by_axis`;
     one that cannot be fitted is a note, not an error); a record of X rounds alone gives
     their fit, flagged in ``problems`` (eq. 14 is not the response to tilts about X).
     """
-    if settle_s is None:
-        settle_s = float(record.meta.get("program_settle_s", 300.0))
-    holds = segment_record(record, settle_s=settle_s)
     if not np.any(holds.n_used > 0):
         longest = float(np.max(holds.t_end_s - holds.t_start_s))
         raise ChekanError(
             f"{record.path or '<input>'}: the settling time excluded from each hold "
-            f"({settle_s:g} s) is not shorter than any hold (the longest lasts {longest:.0f} s): "
-            "no reading is left to calibrate; give a smaller --settle-s"
+            f"({holds.settle_s:g} s) is not shorter than any hold (the longest lasts "
+            f"{longest:.0f} s): no reading is left to calibrate; give a smaller --settle-s"
         )
     table = increments_from_holds(holds, record.g_local_mgal)
     try:
-        return fit_by_axis(table, a_fixed), holds
+        return fit_by_axis(table, a_fixed)
     except ChekanError as e:
         raise ChekanError(f"{record.path or '<input>'}: {e}") from None
 
@@ -476,3 +489,49 @@ def _fit_input(table: IncrementTable, a_fixed: float | None, path: str | None) -
         return fit_classical(table, a_fixed=a_fixed)
     except ChekanError as e:
         raise ChekanError(f"{path or '<input>'}: {e}") from None
+
+
+@dataclass(frozen=True)
+class ClassicalFit:
+    """The classical method on one input made ready (:func:`classical_fit`): the input's kind,
+    the fit (its problems include the program's coverage and, where asked, the unsettled
+    hold means), and of a record its holds, what of the program it lacks
+    (:func:`chekan.records.holds.program_coverage`, or None) and its unsettled hold means
+    (or None)."""
+
+    kind: str
+    result: ClassicalResult
+    holds: HoldTable | None = None
+    coverage: dict | None = None
+    unsettled: Unsettled | None = None
+
+
+def classical_fit(
+    ready: ReadyInput, *, a_fixed: float | None = None, unsettled: bool = False
+) -> ClassicalFit:
+    """The classical method on an input made ready (:func:`chekan.records.inputs.ready_input`):
+    :func:`fit_holds` of a record, :func:`calibrate_protocol` of a protocol; every method
+    starts here (the classical fit seeds the MAP and is reported beside it).
+    ``unsettled``: also look for hold means taken unsettled
+    (:func:`chekan.classical.settling.unsettled_hold_means`; a joint result settles its
+    items itself, :func:`chekan.classical.settling.settle`)."""
+    from chekan.classical.settling import unsettled_hold_means
+
+    data, holds, coverage = ready.data, ready.holds, ready.coverage
+    if holds is None:
+        return ClassicalFit(ready.kind, calibrate_protocol(data, a_fixed=a_fixed))
+    cres = fit_holds(holds, data, a_fixed)
+    if coverage is not None:
+        cres = _flagged(cres, coverage["problems"])
+    found = unsettled_hold_means(holds, data, cres, a_fixed=a_fixed) if unsettled else None
+    if found is not None:
+        cres = _flagged(cres, [found.problem])
+    return ClassicalFit(ready.kind, cres, holds, coverage, found)
+
+
+def _flagged(cres: ClassicalResult, problems: list[str]) -> ClassicalResult:
+    """``cres`` with ``problems`` added; its per-axis fits name the certificate's own by
+    identity, so the copy stands for it there too."""
+    flagged = dataclasses.replace(cres, problems=[*cres.problems, *problems])
+    flagged.by_axis = {a: flagged if f is cres else f for a, f in cres.by_axis.items()}
+    return flagged

@@ -307,3 +307,12 @@ def calibration_for(record, option: str | Path | AngleCalibration | None, input_
         where = f"{origin}:{line}" if origin and line else str(origin or "the record")
         raise ChekanError(f"{where}: {HEADER_KEY}: no such file {str(p)!r}")
     return read_angle_calibration(p)
+
+
+def calibrated(record, option: str | Path | AngleCalibration | None, input_path=None):
+    """``record`` with its angle calibration applied (:func:`calibration_for`,
+    :func:`corrected`); unchanged without one, or where one is applied already."""
+    if record.angle_calibration is not None:
+        return record  # already applied
+    cal = calibration_for(record, option, input_path)
+    return record if cal is None else corrected(record, cal)

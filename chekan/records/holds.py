@@ -104,7 +104,9 @@ class HoldTable:
     def n(self) -> int:
         return int(self.step.size)
 
+    @property
     def angle_labels(self) -> list[str]:
+        """Each hold's angle as the protocol prints it (±d°mm′ss″)."""
         return [format_dms(a, sign="pm") for a in self.angle_deg]
 
 

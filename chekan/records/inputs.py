@@ -1,12 +1,19 @@
-"""Open any calibration input by its ``# format:`` line: a record or a legacy protocol."""
+"""Any calibration input, a record or a legacy protocol: opened by its ``# format:`` line
+(:func:`read_input`) and made ready for calibration (:func:`ready_input`: a record's angles
+corrected by the platform's angle calibration, its holds found with what of the tilt
+program they lack; a protocol as it is)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from os import PathLike
+from pathlib import Path
 
-from chekan.errors import FormatError
+from chekan.errors import ChekanError, FormatError
 from chekan.records import FORMAT as RECORD_FORMAT
 from chekan.records import Record, read_record
+from chekan.records.anglecal import AngleCalibration, calibrated
+from chekan.records.holds import HoldTable, program_coverage, segment_record
 from chekan.records.protocol import FORMAT as PROTOCOL_FORMAT
 from chekan.records.protocol import Protocol, read_protocol
 
@@ -44,3 +51,42 @@ def read_input(path: str | PathLike) -> Record | Protocol:
     if input_kind(path) == "record":
         return read_record(path)
     return read_protocol(path)
+
+
+@dataclass(frozen=True)
+class ReadyInput:
+    """One input as every method takes it: ``data`` (a record with its angle calibration
+    applied, or a protocol), its ``kind`` ("record" or "protocol"), and of a record its
+    ``holds`` (:func:`~chekan.records.holds.segment_record`) and what of the tilt program
+    they lack (:func:`~chekan.records.holds.program_coverage`; None where nothing is)."""
+
+    data: Record | Protocol
+    kind: str
+    holds: HoldTable | None = None
+    coverage: dict | None = None
+
+
+def ready_input(
+    data: Record | Protocol,
+    *,
+    angle_calibration: str | Path | AngleCalibration | None = None,
+    settle_s: float | None = None,
+    input_path: str | Path | None = None,
+) -> ReadyInput:
+    """``data`` ready for calibration. ``angle_calibration``: a table (or its file) that
+    overrides the one the record's header names; ``settle_s`` None: the record's
+    ``program_settle_s``, else 300 s; ``input_path``: the file ``data`` was read from (a
+    header's table is found beside it; messages name it)."""
+    if isinstance(data, Protocol):
+        if angle_calibration is not None:
+            raise ChekanError(
+                f"{input_path or 'protocol'}: an angle calibration corrects a record's measured"
+                " angles; a legacy protocol holds only its commanded angles"
+            )
+        return ReadyInput(data, "protocol")
+    if not isinstance(data, Record):
+        raise ChekanError(f"cannot calibrate a {type(data).__name__}: give a Record or a Protocol")
+    record = calibrated(data, angle_calibration, input_path)
+    settle = float(record.meta.get("program_settle_s", 300.0)) if settle_s is None else settle_s
+    holds = segment_record(record, settle_s=settle)
+    return ReadyInput(record, "record", holds, program_coverage(holds, record.meta))

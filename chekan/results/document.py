@@ -21,9 +21,14 @@ import chekan
 from chekan.errors import FormatError
 from chekan.options import METHODS
 from chekan.physics.parameters import PARAMETER_UNITS
+from chekan.records.holds import gaps_entry
+from chekan.records.reader import Record
 
 if TYPE_CHECKING:
+    from chekan.classical.fit import ClassicalFit
     from chekan.classical.settling import Settling
+    from chekan.options import CalibrationOptions
+    from chekan.records.protocol import Protocol
 
 FORMAT = "chekan-result/1"
 REQUIRED_KEYS = ("format", "serial", "record", "method", "g_local_mgal", "parameters")
@@ -70,18 +75,24 @@ def param_entry(
     nu_eff: float | None = None,
     **extra,
 ) -> dict:
-    """A parameter entry; least-squares methods use the symmetric interval mean ± z·sd, z the
-    normal quantile, or Student's t with the sd's effective degrees of freedom ``nu_eff``
-    (then stored as ``nu_eff``: GUM G.4, :mod:`inference.dof`)."""
-    sd_ = float(sd) if sd is not None and np.isfinite(sd) else None
+    """A parameter entry of a least-squares method: :func:`interval_entry` with k the normal
+    quantile :func:`z_for`, or Student's t with the sd's effective degrees of freedom
+    ``nu_eff`` (then stored as ``nu_eff``: GUM G.4, :mod:`inference.dof`)."""
     if nu_eff is not None and np.isfinite(nu_eff):
         from inference.dof import coverage_factor
 
-        z = coverage_factor(float(nu_eff), hdi_prob)
+        k = coverage_factor(float(nu_eff), hdi_prob)
         extra = {**extra, "nu_eff": float(nu_eff)}
     else:
-        z = z_for(hdi_prob)
-    half = z * sd_ if sd_ is not None and np.isfinite(z) else None  # ν_eff < 1: no finite k
+        k = z_for(hdi_prob)
+    return interval_entry(mean, sd, k, unit, **extra)
+
+
+def interval_entry(mean: float, sd: float | None, k: float, unit: str = "", **extra) -> dict:
+    """A parameter entry with the symmetric interval mean ± k·sd (none where sd or k is not
+    finite: ν_eff < 1 has no finite k)."""
+    sd_ = float(sd) if sd is not None and np.isfinite(sd) else None
+    half = k * sd_ if sd_ is not None and np.isfinite(k) else None
     e = {
         "mean": float(mean),
         "sd": sd_,
@@ -151,27 +162,27 @@ def base_result(
 
 def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) -> dict:
     """Fill a result dict from a :class:`chekan.classical.fit.ClassicalResult`."""
-    hp = header["hdi_prob"]
+    z = z_for(header["hdi_prob"])  # the classical method's intervals are normal
     m0 = header["ccd_center_pix"]
     t = cres.table
     out = dict(header)
     params: dict[str, dict] = {}
     for s in range(2):
-        params[f"b{s + 1}"] = param_entry(cres.b_mean[s], cres.b_mean_sd[s], hp, UNITS["b1"])
+        params[f"b{s + 1}"] = interval_entry(cres.b_mean[s], cres.b_mean_sd[s], z, UNITS["b1"])
     fixed: dict[str, float] = {}
     if cres.a_sd is None:
         fixed["a"] = cres.a
     else:
-        params["a"] = param_entry(cres.a, cres.a_sd, hp, UNITS["a"])
+        params["a"] = interval_entry(cres.a, cres.a_sd, z, UNITS["a"])
     b0 = cres.b0(m0)
     if b0 is not None:
         for s in range(2):
             sd0 = cres.b_mean_sd[s]  # the shift 2a(m0 − m_h) is known to far better than b
-            params[f"b{s + 1}_0"] = param_entry(np.nanmean(b0[:, s]), sd0, hp, UNITS["b1_0"])
+            params[f"b{s + 1}_0"] = interval_entry(np.nanmean(b0[:, s]), sd0, z, UNITS["b1_0"])
     if cres.eps_arcmin is not None:
         for s in range(2):
-            params[f"eps{s + 1}_arcmin"] = param_entry(
-                cres.eps_arcmin[s], cres.eps_sd_arcmin[s], hp, "arcmin", source="eq. (17)"
+            params[f"eps{s + 1}_arcmin"] = interval_entry(
+                cres.eps_arcmin[s], cres.eps_sd_arcmin[s], z, "arcmin", source="eq. (17)"
             )
     out["parameters"] = params
     if fixed:
@@ -238,6 +249,64 @@ def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) ->
     return out
 
 
+def classical_written(
+    data: Record | Protocol,
+    fit: ClassicalFit,
+    opts: CalibrationOptions,
+    *,
+    input_path: str | Path | None = None,
+) -> dict:
+    """The ``chekan-result/1`` dict of a classical fit of ``data``: the header
+    (:func:`base_result`), the classical items (:func:`classical_result`), and what the input
+    adds (the unsettled hold means, the program's coverage, the record's gaps, the tilt
+    program, the angle calibration, the sensor's temperature)."""
+    record = data if isinstance(data, Record) else None
+    if isinstance(data, Record):
+        g, m0 = data.g_local_mgal, data.ccd_center_pix
+        b_prior, ccd_range = data.b_prior, data.ccd_range_pix
+    else:
+        g = data.g_local_or_fitted()
+        m0 = float(data.meta.get("ccd_center_pix", 1024.0))
+        b_prior, ccd_range = None, None
+    header = base_result(
+        method=opts.method,
+        serial=data.serial,
+        input_path=input_path,
+        input_kind=fit.kind,
+        g_local_mgal=g,
+        meta=data.meta,
+        hdi_prob=opts.hdi_prob,
+        ccd_center_pix=m0,
+    )
+    if record is not None and "started" in data.meta:
+        header["date"] = data.meta["started"][:10]
+    elif "date" in data.meta:
+        header["date"] = data.meta["date"]
+    cres, holds = fit.result, fit.holds
+    result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
+    if fit.unsettled is not None:
+        result["unsettled_hold_means"] = fit.unsettled.entry()
+    if fit.coverage is not None:
+        result["program_coverage"] = fit.coverage
+    if holds is not None and holds.gaps:
+        result["record_gaps"] = gaps_entry(holds)
+    name = data.meta.get("program") or None
+    if holds is not None:
+        result["tilt_program"] = tilt_program_entry(holds=holds, name=name)
+    else:
+        result["tilt_program"] = tilt_program_entry(table=cres.table, name=name)
+    if record is not None and record.angle_calibration is not None:
+        result["angle_calibration"] = record.angle_calibration.entry()
+    if record is not None and record.temp_c is not None and np.isfinite(record.temp_c).any():
+        temp = record.temp_c[np.isfinite(record.temp_c)]
+        result["sensor_temperature_c"] = {
+            "mean": round(float(temp.mean()), 3),
+            "min": round(float(temp.min()), 3),
+            "max": round(float(temp.max()), 3),
+        }
+    return result
+
+
 def tilt_program_entry(holds=None, table=None, name: str | None = None) -> dict:
     """The tilt program as run, for the certificate: each round's number, axis and angle
     magnitudes, and (from a record's holds) the median dwell and the settling time used.
@@ -245,7 +314,7 @@ def tilt_program_entry(holds=None, table=None, name: str | None = None) -> dict:
     ``table``."""
     out: dict[str, Any] = {"name": name} if name else {}
     if holds is not None:
-        labels = holds.angle_labels()
+        labels = holds.angle_labels
         rounds = []
         for r in holds.rounds:
             idx = sorted({int(holds.angle_index[i]) for i in r.tilt_holds})
