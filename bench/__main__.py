@@ -1,7 +1,8 @@
 """``python -m bench``: every benchmark in one run, one table, ``bench_results.json``.
 
     python -m bench [--quick] [--skip-bayes] [--fresh-cache] [--archive-n N]
-                    [--archive-map-n M] [--jobs J] [--nuts] [--seed S] [--json PATH]
+                    [--archive-map-n M] [--jobs J] [--nuts] [--first-run] [--seed S]
+                    [--json PATH]
 
 Each figure is printed beside its reference measured in the same run (or the issue's goal
 where there is no reference tool):
@@ -27,7 +28,11 @@ where there is no reference tool):
   bulk ESS and ESS/s per parameter; the median and the worst beside a bare JAX start measured
   in the same run (ratio, the issue's targets); ``reanalyze --method bayes`` sessions/s over
   them on ``--jobs`` workers (``--skip-bayes``: map rows only; ``--quick``: 3 h records and a
-  6-round dual-axis one; ``--nuts``: NUTS against emcee on the slowest record).
+  6-round dual-axis one; ``--nuts``: NUTS against emcee on the slowest record);
+- ``bench/first_run.py`` (``--first-run``, a few minutes more): a fresh executable store
+  filled by ``chekan warmup``, then the first ``map`` of three never-seen records (the
+  paper's 9 h program, a 3-angle program, the designer's xy program) beside their warm
+  runs, goal ≤ 2×.
 
 All figures, with their raw numbers and the machine's description (the load average
 matters on a shared machine), go to ``--json``. About 10 minutes on 2 cores with a warm JAX
@@ -48,7 +53,14 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import archive_bench, calibration_bench, cli_bench, nuts_bench, several_records
+from bench import (
+    archive_bench,
+    calibration_bench,
+    cli_bench,
+    first_run,
+    nuts_bench,
+    several_records,
+)
 from bench.table import Row, environment, environment_line, format_table, write_json
 
 
@@ -79,6 +91,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=default_jobs(), help="worker processes")
     ap.add_argument(
         "--nuts", action="store_true", help="NUTS against emcee on the slowest of the records"
+    )
+    ap.add_argument(
+        "--first-run", action="store_true", help="the first map after a fresh warmup (minutes)"
     )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default="bench_results.json", help="where to write the figures")
@@ -115,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
                 nuts=args.nuts,
             ),
         ),
+        ("first-run", lambda: first_run.run(args.seed) if args.first_run else []),
     )
     failed = 0
     for name, fn in sections:
