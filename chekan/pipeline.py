@@ -14,6 +14,7 @@ from chekan.errors import ChekanError
 from chekan.options import METHODS, CalibrationOptions
 from chekan.records import Record
 from chekan.records.framing import count_rows
+from chekan.records.holds import HoldTable
 from chekan.records.inputs import ReadyInput, input_kind, read_input, ready_input
 from chekan.records.protocol import Protocol
 from chekan.results.document import classical_written
@@ -83,22 +84,28 @@ def calibrate(
     store = executable_store()
     label = preload_label(result, opts)
     store.preload(label)
-    out = joint_stage(ready.data, fit.kind, fit.result, result, opts)
+    out = joint_stage(ready.data, fit.kind, fit.result, result, opts, holds=ready.holds)
     store.remember(label)
     return out
 
 
 def joint_stage(
-    data: Record | Protocol, kind: str, cres, result: dict, opts: CalibrationOptions
+    data: Record | Protocol,
+    kind: str,
+    cres,
+    result: dict,
+    opts: CalibrationOptions,
+    *,
+    holds: HoldTable | None = None,
 ) -> dict:
     """The ``map`` or ``bayes`` result of ``data``: the joint fit
-    (:func:`chekan.fit.estimate`), written over its classical ``result`` (not changed) by
-    :func:`chekan.results.joint.joint_result`."""
+    (:func:`chekan.fit.estimate`; ``holds``: a record's, where found already), written over
+    its classical ``result`` (not changed) by :func:`chekan.results.joint.joint_result`."""
     from chekan.fit import estimate
     from chekan.results.joint import joint_result  # heavy imports only when needed
 
     source = str(result.get("record", "record"))  # the input's name, for messages
-    fitted = estimate(data, kind=kind, classical=cres, source=source, options=opts)
+    fitted = estimate(data, kind=kind, classical=cres, source=source, options=opts, holds=holds)
     return joint_result(result, fitted, opts)
 
 

@@ -37,23 +37,39 @@ from chekan.runtime.process import single_threaded_blas
 
 if TYPE_CHECKING:
     from chekan.fit.protocol import ProtocolEstimate
+    from chekan.records.holds import HoldTable
 
 #: What :func:`estimate` returns.
 JointEstimate: TypeAlias = "MapEstimate | PosteriorEstimate | ProtocolEstimate"
 
 
 def estimate(
-    data, *, kind: str, classical, source: str, options: CalibrationOptions
+    data,
+    *,
+    kind: str,
+    classical,
+    source: str,
+    options: CalibrationOptions,
+    holds: HoldTable | None = None,
 ) -> JointEstimate:
     """Run ``map`` or ``bayes`` on a record or protocol (``source``: the input's name, for
-    messages); the typed fit (BLAS on one thread:
-    :func:`chekan.runtime.process.single_threaded_blas`)."""
+    messages; ``holds``: a record's holds where found already, as
+    :func:`chekan.records.inputs.ready_input` finds them); the typed fit (BLAS on one
+    thread: :func:`chekan.runtime.process.single_threaded_blas`)."""
     with single_threaded_blas():
-        return _estimate(data, kind=kind, classical=classical, source=source, options=options)
+        return _estimate(
+            data, kind=kind, classical=classical, source=source, options=options, holds=holds
+        )
 
 
 def _estimate(
-    data, *, kind: str, classical, source: str, options: CalibrationOptions
+    data,
+    *,
+    kind: str,
+    classical,
+    source: str,
+    options: CalibrationOptions,
+    holds: HoldTable | None,
 ) -> JointEstimate:
     if kind == "protocol":
         from chekan.fit.protocol import estimate_protocol
@@ -64,6 +80,7 @@ def _estimate(
     holds, model = prepare(
         record,
         options.settle_s,
+        holds=holds,
         encoder=options.encoder_error,
         angle_spec=options.angle_spec(record.meta, source, record.angle_calibration),
         angle_spec_x=options.angle_spec(record.meta, source, record.angle_calibration, axis="x"),

@@ -30,6 +30,7 @@ def prepare(
     record,
     settle_s: float | None,
     *,
+    holds: HoldTable | None = None,
     encoder: bool = False,
     angle_spec: AngleSensorSpec | None = None,
     angle_spec_x: AngleSensorSpec | None = None,
@@ -37,17 +38,20 @@ def prepare(
 ):
     """Segment the record into holds and lay it out: ``(holds, RecordModel)``.
 
-    ``settle_s`` None: the record's ``program_settle_s``, else 300 s. The level reference
+    ``settle_s`` None: the record's ``program_settle_s``, else 300 s; ``holds``: the
+    record's holds where found already (:func:`chekan.records.inputs.ready_input`; then
+    ``settle_s`` is theirs). The level reference
     starts at the classical m_h (mean of the level holds). ``angle_spec`` None: angle
     errors independent per hold (the model before systematic errors); otherwise the
     systematic part shared by all rounds is modelled with that prior (:mod:`.angles`).
     ``horizontal_u_pix``: the pendulums' horizontal about the CCD centre, standard
     uncertainty (:mod:`.xresponse`; records about X).
     """
-    settle = settle_s
-    if settle is None:
-        settle = float(record.meta.get("program_settle_s", 300.0))
-    holds = segment_record(record, settle_s=settle)
+    if holds is None:
+        settle = settle_s
+        if settle is None:
+            settle = float(record.meta.get("program_settle_s", 300.0))
+        holds = segment_record(record, settle_s=settle)
     m_ref = np.nanmean(holds.m_mean_pix[holds.is_level], axis=0)
     return holds, prepare_record(
         record,
