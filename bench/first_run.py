@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.cli_bench import _entries, _env
 from bench.several_records import bare_start
-from bench.table import Row, environment, environment_line, format_table
+from bench.table import Row, environment, report
 
 TARGET_FIRST_OVER_WARM = 2.0
 SEED = 5200  # record i of seed s: SEED + 10·s + i (the warmup simulates its own seeds)
@@ -142,12 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     env = environment()
     t = time.perf_counter()
     rows = run(args.seed, warmup=not args.skip_warmup)
-    print(format_table(rows, f"first run after set-up ({time.perf_counter() - t:.0f} s)"))
-    print(environment_line(env))
-    if args.json:
-        from bench.table import write_json
-
-        write_json(args.json, rows, environment=env, settings=vars(args))
+    title = f"first run after set-up ({time.perf_counter() - t:.0f} s)"
+    report(rows, title, env, args.json, vars(args))
     return 0
 
 

@@ -57,7 +57,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.cli_bench import _entries, _env, cache_dir
-from bench.table import Row, environment, environment_line, format_table
+from bench.table import Row, environment, report
 from chekan.demo import dual_axis_program  # the designer's xy program
 
 PLATFORM_CASES = ("typical", "misaligned", "slow")
@@ -540,12 +540,7 @@ def main(argv: list[str] | None = None) -> int:
     env = environment()
     t = time.perf_counter()
     rows = run(args.seed, args.quick, args.jobs, args.skip_bayes, args.nuts, args.keep)
-    print(format_table(rows, f"several records ({time.perf_counter() - t:.0f} s)"))
-    print(environment_line(env))
-    if args.json:
-        from bench.table import write_json
-
-        write_json(args.json, rows, environment=env, settings=vars(args))
+    report(rows, f"several records ({time.perf_counter() - t:.0f} s)", env, args.json, vars(args))
     return 0
 
 

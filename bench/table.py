@@ -76,3 +76,17 @@ def write_json(path: str | os.PathLike, rows: list[Row], **extra: Any) -> Path:
     data = {**extra, "rows": [asdict(r) for r in rows]}
     path.write_text(json.dumps(data, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     return path
+
+
+def report(
+    rows: list[Row],
+    title: str,
+    env: dict[str, Any],
+    json_path: str | os.PathLike | None = None,
+    settings: dict[str, Any] | None = None,
+) -> None:
+    """Print a script's table and the machine's line; also write them to ``json_path``."""
+    print(format_table(rows, title))
+    print(environment_line(env))
+    if json_path:
+        write_json(json_path, rows, environment=env, settings=settings or {})
