@@ -42,7 +42,7 @@ import numpy as np
 
 from chekan.errors import ChekanError
 from chekan.physics.units import ARCMIN_PER_RAD, format_dms
-from chekan.records.holds import HoldTable, segment_record
+from chekan.records.holds import HoldTable, segment_record, settle_of
 
 if TYPE_CHECKING:
     from chekan.classical.settling import Unsettled
@@ -405,9 +405,7 @@ def calibrate_record(record, settle_s: float | None = None, a_fixed: float | Non
     """Classical calibration of a record: ``(ClassicalResult, HoldTable)``
     (:func:`~chekan.records.holds.segment_record`, then :func:`fit_holds`); ``settle_s``
     None: the record's ``program_settle_s``, else 300 s."""
-    if settle_s is None:
-        settle_s = float(record.meta.get("program_settle_s", 300.0))
-    holds = segment_record(record, settle_s=settle_s)
+    holds = segment_record(record, settle_s=settle_of(record, settle_s))
     return fit_holds(holds, record, a_fixed), holds
 
 

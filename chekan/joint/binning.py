@@ -21,7 +21,14 @@ from chekan.joint.layout import ModelStructure, RecordData, RecordModel
 from chekan.joint.slews import slew_types, types_about
 from chekan.joint.xresponse import M0_TOLERANCE_PIX, x_response_terms
 from chekan.physics.units import ARCSEC_PER_RAD
-from chekan.records.holds import GAP_PERIODS, HoldTable, gap_before, sample_period_s, segment_record
+from chekan.records.holds import (
+    GAP_PERIODS,
+    HoldTable,
+    gap_before,
+    sample_period_s,
+    segment_record,
+    settle_of,
+)
 
 BIN_EDGES_S = (0.0, 15.0, 40.0, 90.0, 180.0)
 
@@ -48,10 +55,7 @@ def prepare(
     uncertainty (:mod:`.xresponse`; records about X).
     """
     if holds is None:
-        settle = settle_s
-        if settle is None:
-            settle = float(record.meta.get("program_settle_s", 300.0))
-        holds = segment_record(record, settle_s=settle)
+        holds = segment_record(record, settle_s=settle_of(record, settle_s))
     m_ref = np.nanmean(holds.m_mean_pix[holds.is_level], axis=0)
     return holds, prepare_record(
         record,

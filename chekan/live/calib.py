@@ -71,10 +71,9 @@ def classical_snapshot(record: Record, settle_s: float | None = None) -> dict | 
     from chekan.classical import fit as classical
     from chekan.classical.settling import unsettled_hold_means
     from chekan.errors import ChekanError
-    from chekan.records.holds import segment_record
+    from chekan.records.holds import segment_record, settle_of
 
-    if settle_s is None:
-        settle_s = float(record.meta.get("program_settle_s", 300.0))
+    settle_s = settle_of(record, settle_s)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -204,6 +204,12 @@ def _ranges(values: list[int]) -> str:
     return ", ".join(parts)
 
 
+def settle_of(record, settle_s: float | None = None) -> float:
+    """The settling time a calibration excludes from each hold: ``settle_s``, else the
+    record's ``program_settle_s``, else 300 s."""
+    return float(record.meta.get("program_settle_s", 300.0)) if settle_s is None else settle_s
+
+
 def segment_record(
     record,
     settle_s: float = 300.0,

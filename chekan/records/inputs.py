@@ -13,7 +13,7 @@ from chekan.errors import ChekanError, FormatError
 from chekan.records import FORMAT as RECORD_FORMAT
 from chekan.records import Record, read_record
 from chekan.records.anglecal import AngleCalibration, calibrated
-from chekan.records.holds import HoldTable, program_coverage, segment_record
+from chekan.records.holds import HoldTable, program_coverage, segment_record, settle_of
 from chekan.records.protocol import FORMAT as PROTOCOL_FORMAT
 from chekan.records.protocol import Protocol, read_protocol
 
@@ -87,6 +87,5 @@ def ready_input(
     if not isinstance(data, Record):
         raise ChekanError(f"cannot calibrate a {type(data).__name__}: give a Record or a Protocol")
     record = calibrated(data, angle_calibration, input_path)
-    settle = float(record.meta.get("program_settle_s", 300.0)) if settle_s is None else settle_s
-    holds = segment_record(record, settle_s=settle)
+    holds = segment_record(record, settle_s=settle_of(record, settle_s))
     return ReadyInput(record, "record", holds, program_coverage(holds, record.meta))

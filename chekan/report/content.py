@@ -484,7 +484,7 @@ def _record_figures(
         if sha256_file(path) != want:
             return [], None, [Para(t("record_changed", path=str(path)), "warn")]
     try:
-        from chekan.records.holds import segment_record
+        from chekan.records.holds import segment_record, settle_of
         from chekan.records.inputs import read_input
 
         with warnings.catch_warnings():
@@ -492,7 +492,7 @@ def _record_figures(
             rec = read_input(path)
             if hasattr(rec, "dg_mgal"):  # a protocol: no raw readings
                 return [], None, [Para(t("no_record_protocol"), "note")]
-            holds = segment_record(rec, settle_s=float(rec.meta.get("program_settle_s", 300.0)))
+            holds = segment_record(rec, settle_s=settle_of(rec))
     except (ChekanError, OSError, ValueError) as e:
         return [], None, [Para(t("record_unreadable", path=str(path), err=str(e)), "warn")]
     fig_rec = Figure("record", figs.record_figure(rec, holds, t), t("fig_record"))
