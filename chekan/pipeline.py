@@ -84,7 +84,7 @@ def calibrate(
     store = executable_store()
     label = preload_label(result, opts)
     store.preload(label)
-    out = joint_stage(ready.data, fit.kind, fit.result, result, opts, holds=ready.holds)
+    out = joint_stage(ready.data, ready.kind, fit.result, result, opts, holds=ready.holds)
     store.remember(label)
     return out
 
@@ -160,7 +160,7 @@ def classical_stage(path: str | Path, opts: CalibrationOptions):
     """Read ``path`` and run the classical method: ``(data, kind, classical fit, result)``,
     ``data`` as the joint methods take it (:func:`joint_stage`)."""
     ready, fit, result = classical_of(read_input(path), _checked(opts), path)
-    return ready.data, fit.kind, fit.result, result
+    return ready.data, ready.kind, fit.result, result
 
 
 def classical_of(
@@ -171,4 +171,4 @@ def classical_of(
     joint result settles its items itself) and the result written of it."""
     ready = input_ready(data, opts, input_path)
     fit = classical_fit(ready, a_fixed=opts.a_fixed, unsettled=opts.method == "classical")
-    return ready, fit, classical_written(ready.data, fit, opts, input_path=input_path)
+    return ready, fit, classical_written(ready, fit, opts, input_path=input_path)

@@ -491,16 +491,11 @@ def _fit_input(table: IncrementTable, a_fixed: float | None, path: str | None) -
 
 @dataclass(frozen=True)
 class ClassicalFit:
-    """The classical method on one input made ready (:func:`classical_fit`): the input's kind,
-    the fit (its problems include the program's coverage and, where asked, the unsettled
-    hold means), and of a record its holds, what of the program it lacks
-    (:func:`chekan.records.holds.program_coverage`, or None) and its unsettled hold means
-    (or None)."""
+    """The classical method on one input made ready (:func:`classical_fit`): the fit (its
+    problems include the program's coverage and, where asked, the unsettled hold means)
+    and a record's unsettled hold means (or None)."""
 
-    kind: str
     result: ClassicalResult
-    holds: HoldTable | None = None
-    coverage: dict | None = None
     unsettled: Unsettled | None = None
 
 
@@ -517,14 +512,14 @@ def classical_fit(
 
     data, holds, coverage = ready.data, ready.holds, ready.coverage
     if holds is None:
-        return ClassicalFit(ready.kind, calibrate_protocol(data, a_fixed=a_fixed))
+        return ClassicalFit(calibrate_protocol(data, a_fixed=a_fixed))
     cres = fit_holds(holds, data, a_fixed)
     if coverage is not None:
         cres = _flagged(cres, coverage["problems"])
     found = unsettled_hold_means(holds, data, cres, a_fixed=a_fixed) if unsettled else None
     if found is not None:
         cres = _flagged(cres, [found.problem])
-    return ClassicalFit(ready.kind, cres, holds, coverage, found)
+    return ClassicalFit(cres, found)
 
 
 def _flagged(cres: ClassicalResult, problems: list[str]) -> ClassicalResult:

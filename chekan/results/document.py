@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from chekan.classical.fit import ClassicalFit
     from chekan.classical.settling import Settling
     from chekan.options import CalibrationOptions
-    from chekan.records.protocol import Protocol
+    from chekan.records.inputs import ReadyInput
 
 FORMAT = "chekan-result/1"
 REQUIRED_KEYS = ("format", "serial", "record", "method", "g_local_mgal", "parameters")
@@ -250,16 +250,17 @@ def classical_result(cres, *, header: dict, b_prior=None, ccd_range_pix=None) ->
 
 
 def classical_written(
-    data: Record | Protocol,
+    ready: ReadyInput,
     fit: ClassicalFit,
     opts: CalibrationOptions,
     *,
     input_path: str | Path | None = None,
 ) -> dict:
-    """The ``chekan-result/1`` dict of a classical fit of ``data``: the header
+    """The ``chekan-result/1`` dict of the classical fit of an input made ready: the header
     (:func:`base_result`), the classical items (:func:`classical_result`), and what the input
     adds (the unsettled hold means, the program's coverage, the record's gaps, the tilt
     program, the angle calibration, the sensor's temperature)."""
+    data = ready.data
     record = data if isinstance(data, Record) else None
     if isinstance(data, Record):
         g, m0 = data.g_local_mgal, data.ccd_center_pix
@@ -272,7 +273,7 @@ def classical_written(
         method=opts.method,
         serial=data.serial,
         input_path=input_path,
-        input_kind=fit.kind,
+        input_kind=ready.kind,
         g_local_mgal=g,
         meta=data.meta,
         hdi_prob=opts.hdi_prob,
@@ -282,12 +283,12 @@ def classical_written(
         header["date"] = data.meta["started"][:10]
     elif "date" in data.meta:
         header["date"] = data.meta["date"]
-    cres, holds = fit.result, fit.holds
+    cres, holds = fit.result, ready.holds
     result = classical_result(cres, header=header, b_prior=b_prior, ccd_range_pix=ccd_range)
     if fit.unsettled is not None:
         result["unsettled_hold_means"] = fit.unsettled.entry()
-    if fit.coverage is not None:
-        result["program_coverage"] = fit.coverage
+    if ready.coverage is not None:
+        result["program_coverage"] = ready.coverage
     if holds is not None and holds.gaps:
         result["record_gaps"] = gaps_entry(holds)
     name = data.meta.get("program") or None
