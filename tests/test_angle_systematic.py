@@ -23,7 +23,7 @@ from chekan.joint.angles import AngleSensorSpec, commanded_groups, spec_for, sys
 from chekan.physics.program import build_program
 from chekan.physics.units import ARCSEC_PER_RAD
 from chekan.records.simulate import Truth, simulate_session
-from chekan.runtime.padding import padded_for
+from chekan.runtime.padding import DEFAULT_BUCKETS, padded_for
 
 #: A zero bound: the systematic columns are there (the same compiled model as with a bound,
 #: one JAX compilation per program instead of two) with a prior of 1e-12 arcsec².
@@ -81,7 +81,8 @@ def test_commanded_angles_are_grouped_across_rounds():
 
 
 def _per_angle_program(rounds: int):
-    return build_program([2.0, 3.5, 5.0], dwell_s=300, settle_s=200, rounds=rounds)
+    """Two angles: six rounds (36 holds, 216 bins) fit the paper's bucket."""
+    return build_program([2.0, 5.0], dwell_s=300, settle_s=200, rounds=rounds)
 
 
 @functools.cache  # the shape fixture and the tests read the same records
@@ -97,23 +98,28 @@ def _unsettled_record():
     return simulate_session(UNSETTLED_PROGRAM, truth, seed=21)
 
 
+#: (H, N, M, S) of the paper's bucket, which ``chekan warmup`` compiles: the per-angle
+#: test's records and the unsettled program's are padded to it (padding is exact), so
+#: their MAP fits load instead of compiling a structure of their own
+PAPER_SHAPE = tuple(DEFAULT_BUCKETS[0])[:4]
+
+
 @pytest.fixture(scope="module")
-def shared_shape() -> tuple[int, int, int, int]:
+def shared_shape() -> tuple[int, ...]:
     """(H, N, M, S) that holds the per-angle test's longest record and the unsettled
-    program's: their MAP fits share one compiled structure (a cold suite compiles one
-    instead of two; padding is exact)."""
-    shapes = []
+    program's: the paper's bucket (:data:`PAPER_SHAPE`)."""
     for rec, settle in ((_per_angle_record(6), 200), (_unsettled_record()[0], 120)):
         s = joint.prepare(rec, settle, angle_spec=AngleSensorSpec(3.0))[1].structure
-        shapes.append((s.n_holds, s.n_bins, s.n_moves, s.n_systematic))
-    return tuple(int(x) for x in np.max(shapes, axis=0))  # type: ignore[return-value]
+        own = (s.n_holds, s.n_bins, s.n_moves, s.n_systematic)
+        assert all(n <= k for n, k in zip(own, PAPER_SHAPE, strict=True)), own
+    return PAPER_SHAPE
 
 
 SLOW_PROGRAM = build_program([2.0, 3.5, 5.0], dwell_s=150, settle_s=100, rounds=4)
-# six angles in four zigzag rounds of short holds (the Y-only design program's kind): with
+# six angles in two zigzag rounds of short holds (the Y-only design program's kind): with
 # τ = 90 s no hold settles and a hold's terms reach the holds after the next one
 UNSETTLED_PROGRAM = build_program(
-    [1.83, 2.5, 3.17, 3.83, 4.5, 5.17], sequence="zigzag", dwell_s=181, settle_s=120, rounds=4
+    [1.83, 2.5, 3.17, 3.83, 4.5, 5.17], sequence="zigzag", dwell_s=181, settle_s=120, rounds=2
 )
 
 
@@ -134,7 +140,7 @@ def test_pure_scale_error_adds_two_u_over_theta_max_in_quadrature(short_program,
         rec, truth = simulate_session(
             program, Truth(serial="S", angle_systematic_arcsec=0.0, tau_s=30.0), seed=21
         )
-    # the unsettled program padded to the per-angle test's structure (one compile for both)
+    # the unsettled program padded to the paper's bucket, as the per-angle test's records
     shape = request.getfixturevalue("shared_shape") if slow else None
     settle = program.settle_s
     bound = 3.0
