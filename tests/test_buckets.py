@@ -66,7 +66,9 @@ def test_two_short_programs_share_one_bucket():
 def test_a_three_angle_program_runs_in_the_papers_warmed_bucket():
     """A program whose own bucket lies within reach of a default one takes the default:
     three angles in four rounds (32 holds, 160 bins) share the paper's executables, which
-    ``chekan warmup`` stored; a short program keeps the smallest bucket (too far)."""
+    ``chekan warmup`` stored; so does a short program, whose own bucket is the smallest
+    (as the live page's fit of a program's first round), and a short xy program takes the
+    2.6 h xy program's."""
     from chekan.physics.program import build_program
     from chekan.records.simulate import Truth, simulate_session
     from chekan.runtime.padding import DEFAULT_BUCKETS, SMALLEST
@@ -76,8 +78,13 @@ def test_a_three_angle_program_runs_in_the_papers_warmed_bucket():
     assert (m.n_real_holds, m.n_real_bins) == (32, 160)
     assert tuple(bucket_of(m.structure)) == DEFAULT_BUCKETS[0] == (36, 224, 24, 36, 0)
     short = build_program([1.0, 2.0], dwell_s=60, settle_s=20, rounds=1, name="short")
-    s = padded_model(simulate_session(short, Truth(serial="T-1"), seed=7)[0])
-    assert tuple(bucket_of(s.structure)) == (*SMALLEST[:4], 0)
+    short_xy = build_program([2.0, 3.5, 5.0], dwell_s=300, settle_s=120, round_axes=["y", "x"])
+    for program, bucket in ((short, DEFAULT_BUCKETS[0]), (short_xy, DEFAULT_BUCKETS[1])):
+        s = padded_model(simulate_session(program, Truth(serial="T-1"), seed=7)[0])
+        own = (s.n_real_holds, s.n_real_bins)
+        assert own[0] <= SMALLEST.n_holds and own[1] <= SMALLEST.n_bins, own
+        assert tuple(bucket_of(s.structure)) == bucket, own
+    assert DEFAULT_BUCKETS[1] == (48, 256, 24, 32, 24)
 
 
 @pytest.mark.parametrize(
@@ -280,7 +287,7 @@ def test_warmup_keeps_what_each_method_compiled(monkeypatch):
     assert [s.method for s in steps] == ["map", "bayes"]
     assert [s.compiled + s.loaded for s in steps] == [2, 1]  # map and Newton; bayes
     assert [tuple(bucket_of(s)) for s in newton] == [steps[0].bucket]  # once, on the bucket
-    assert steps[0].bucket == (16, 96, 24, 24, 0)  # the smallest bucket
+    assert steps[0].bucket == (36, 224, 24, 36, 0)  # a short program: the paper's bucket
     assert said[0].startswith("[1/1] short") and "compiled" in said[-1]
     if store.folder is not None:  # kept for the next process
         assert all(store.stored(f"tiny_{n}", arg) for n in ("map", "newton", "bayes"))

@@ -16,8 +16,10 @@ columns are reported (the drift coefficients, the drift curve), so they stay in 
 Two rules make more programs share: every size is at least :data:`SMALLEST`'s (short
 programs share one small bucket), and a record whose own bucket lies within
 :data:`DEFAULT_REACH` of one of the :data:`DEFAULT_BUCKETS` (the ones ``chekan warmup``
-compiles) takes that one: a 3-angle program of 32 holds and 160 bins runs in the paper's
-bucket, so its first run after the set-up loads instead of compiling.
+compiles), or is the smallest, takes that one: a 3-angle program of 32 holds and 160 bins
+runs in the paper's bucket, and so do a short program and the first round of the paper's
+program that the live page fits, so that their first run after the set-up loads instead of
+compiling.
 """
 
 from __future__ import annotations
@@ -82,25 +84,31 @@ DEFAULT_BUCKETS = (
 #: a record: a warm run costs at most about twice its own (tenths of a second), a first
 #: run's compile a minute or more (measured in ``docs/commands.md``)
 DEFAULT_REACH = 2.0
-#: The smallest bucket: short programs (a few holds, tens of bins) all share it; a size of
-#: 0 stays 0 (no systematic or X terms is a different model)
+#: The smallest bucket: short programs (a few holds, tens of bins) whose kinds of terms no
+#: default bucket has all share it; a size of 0 stays 0 (no systematic or X terms is a
+#: different model)
 SMALLEST = Bucket(16, 96, 24, 24, 24)
 
 
 def bucket_of(structure: ModelStructure) -> Bucket:
     """The bucket that ``structure`` is padded to: the smallest of :data:`DEFAULT_BUCKETS`
     that holds it, has its terms (systematic, X) or lacks them as it does and has at most
-    :data:`DEFAULT_REACH` times its own bucket's holds and bins; else its own bucket (each
-    size at its rung, and at least :data:`SMALLEST`'s)."""
+    :data:`DEFAULT_REACH` times its own bucket's holds and bins (any, where its own bucket
+    has :data:`SMALLEST`'s: a short record's warm run costs about twice its own, its
+    compile 50–60 s); else its own bucket (each size at its rung, and at least
+    :data:`SMALLEST`'s)."""
     s = structure
     sizes = (s.n_holds, s.n_bins, s.n_moves, s.n_systematic, s.n_x_response)
     own = Bucket(*(max(rung(n), low) if n else 0 for n, low in zip(sizes, SMALLEST, strict=True)))
+    short = (own.n_holds, own.n_bins) == (SMALLEST.n_holds, SMALLEST.n_bins)
     for b in DEFAULT_BUCKETS:
         fits = all(x >= y for x, y in zip(b, own, strict=True))
         same_terms = (b.n_systematic > 0) == (own.n_systematic > 0) and (b.n_x_response > 0) == (
             own.n_x_response > 0
         )
-        near = b.n_holds <= DEFAULT_REACH * own.n_holds and b.n_bins <= DEFAULT_REACH * own.n_bins
+        near = short or (
+            b.n_holds <= DEFAULT_REACH * own.n_holds and b.n_bins <= DEFAULT_REACH * own.n_bins
+        )
         if fits and same_terms and near:
             return b
     return own
