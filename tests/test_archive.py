@@ -264,6 +264,21 @@ def test_map_reanalysis(tree, run1, tmp_path):
     assert sorted(chosen.values()).count("map") == 1  # map preferred over classical
 
 
+def test_reanalyze_workers_load_what_the_store_holds():
+    """A worker's key of the executable store is its parent's (``XLA_FLAGS`` are part of
+    it): ``reanalyze``'s workers load what ``chekan warmup`` stored. With XLA's intra-op
+    threads switched off there, each worker compiled its bucket again (≈ 1 min)."""
+    import multiprocessing as mp
+
+    from chekan.archive.reanalyze import configure_worker_env
+    from chekan.runtime import store
+
+    ctx = mp.get_context("spawn")
+    with cf.ProcessPoolExecutor(1, mp_context=ctx, initializer=configure_worker_env) as ex:
+        theirs = ex.submit(store._machine).result(timeout=120)
+    assert theirs == store._machine()
+
+
 class CrashingPool(cf.Executor):
     """In-process stand-in for a process pool whose worker dies on a file named poison*:
     like BrokenProcessPool, every task of the pool from then on fails."""

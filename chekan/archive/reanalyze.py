@@ -10,11 +10,12 @@
 2. *Skip* inputs whose content (SHA-256) is already archived with this method and software
    version, and second copies of the same content within DIR.
 3. *Analyse* the rest in chunks on an executor: local worker processes (spawn context, one
-   XLA host device and one thread each) or a Dask cluster. A malformed input fails on its
-   own (``file:line: problem``); a crashed worker process gets its files retried once, one
-   file per task, so only the culprit fails. Classical fits are cheap (~10 ms): when
-   starting the workers would cost more than it saves (:func:`run_in_process`), they run
-   in this process, chunk by chunk, with the same per-file failure isolation.
+   BLAS thread each, loading what the executable store holds) or a Dask cluster. A
+   malformed input fails on its own (``file:line: problem``); a crashed worker process gets
+   its files retried once, one file per task, so only the culprit fails. Classical fits
+   are cheap (~10 ms): when starting the workers would cost more than it saves
+   (:func:`run_in_process`), they run in this process, chunk by chunk, with the same
+   per-file failure isolation.
 4. *Archive*: each result JSON is written to the results folder (default
    ``<archive dir>/results``) and added to the archive; the summary lists failures.
 
@@ -40,10 +41,6 @@ from chekan.errors import ChekanError, FormatError
 
 INPUT_FORMATS = {"chekan-record/1": "record", "chekan-protocol/1": "protocol"}
 EXECUTORS = ("local", "dask")
-_WORKER_XLA_FLAGS = (
-    "--xla_force_host_platform_device_count=1",
-    "--xla_cpu_multi_thread_eigen=false",
-)
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 _SNIFF_BYTES = 1 << 16
 #: Measured on the benchmark's short records (bench/archive_bench.py): one classical fit,
@@ -139,15 +136,13 @@ def find_inputs(root: str | os.PathLike) -> tuple[list[tuple[Path, str]], list[F
 
 # ---------------------------------------------------------------------------- workers
 def configure_worker_env() -> None:
-    """One XLA host device and one compute thread: call before JAX/NumPy initialise. The
-    worker also ends when its parent does (:func:`exit_with_parent`)."""
+    """One BLAS thread a worker: call before JAX/NumPy initialise. ``XLA_FLAGS`` stay the
+    parent's: they are part of every stored executable's key
+    (:mod:`chekan.runtime.store`), so a worker of other flags would compile again what
+    ``chekan warmup`` stored (XLA's intra-op threads off changed no warm run:
+    docs/development/tuning.md). The worker also ends when its parent does
+    (:func:`exit_with_parent`)."""
     exit_with_parent()
-    keep = [
-        f
-        for f in os.environ.get("XLA_FLAGS", "").split()
-        if not f.startswith(tuple(x.split("=")[0] for x in _WORKER_XLA_FLAGS))
-    ]
-    os.environ["XLA_FLAGS"] = " ".join([*keep, *_WORKER_XLA_FLAGS])
     for v in _THREAD_VARS:
         os.environ[v] = "1"
 
@@ -309,7 +304,7 @@ def run_in_process(method: str, executor: str, n: int, jobs: int) -> bool:
 
     Only the classical method on the local executor: ``n`` fits in this process cost
     ``n·t``; on the workers ``WORKER_START_S + n·t/jobs``. MAP and Bayes keep their
-    workers (each configures its own XLA device and threads, and compiles once).
+    workers (each sets its BLAS threads and loads its bucket's executables once).
     """
     if method != "classical" or executor != "local":
         return False

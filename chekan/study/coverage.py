@@ -41,7 +41,7 @@ summary and settings), ``validation.md`` (the tables), ``coverage.png`` (nominal
 empirical coverage per case), ``z_hist.png`` (z-scores against N(0, 1) per case) and
 ``errors.png`` (error against truth, RMS error per case). Sessions are independent and
 seeded by their index (``seed·100000 + i``), so the rows do not depend on ``--jobs``;
-worker processes are spawned (JAX does not survive ``fork``) with one XLA thread each.
+worker processes are spawned (JAX does not survive ``fork``) with one BLAS thread each.
 
 The scenario and the sessions' instruments: :mod:`chekan.study.scenario`; the summary and
 its report: :mod:`chekan.study.summary`; the figures: :mod:`chekan.study.plots`.
