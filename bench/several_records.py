@@ -29,7 +29,7 @@ parameter's bulk ESS; ESS per second is that bulk ESS over the process's wall
 seconds (the user's wait). Printed: one row per record, then the median and the worst record
 (the slowest; for ESS/s the lowest) beside the bare start and the issue's targets (bayes
 ≤ 6× the bare start on the worst record, converged, bulk ESS ≥ 1 000 for every parameter;
-map ≤ 2×).
+map ≤ 2.5×, issue 56).
 
 ``reanalyze --method bayes --jobs J`` (a new process, a fresh archive) over the same records:
 sessions per second, worker start-up included (few sessions: start-up weighs), beside the
@@ -68,7 +68,7 @@ BARE_JAX = (
 )
 #: ``bayes`` with emcee always (``--sampler emcee``): the reference beside the default
 EMCEE = "bayes --sampler emcee"
-TARGET_RATIO = {"bayes": 6.0, "map": 2.0, EMCEE: 6.0}
+TARGET_RATIO = {"bayes": 6.0, "map": 2.5, EMCEE: 6.0}
 TARGET_ESS = 1000.0
 TARGET_REANALYZE_PER_S = 1.0
 SEED_BASE = 3100  # record i of seed s is simulated with seed SEED_BASE + 10·s + i
