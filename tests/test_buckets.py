@@ -67,7 +67,7 @@ def test_a_three_angle_program_runs_in_the_papers_warmed_bucket():
     """A program whose own bucket lies within reach of a default one takes the default:
     three angles in four rounds (32 holds, 160 bins) share the paper's executables, which
     ``chekan warmup`` stored; so does a short program, whose own bucket is the smallest
-    (as the live page's fit of a program's first round), and a short xy program takes the
+    (as the live page's fit of the xy program's first round), and a short xy program takes the
     2.6 h xy program's."""
     from chekan.physics.program import build_program
     from chekan.records.simulate import Truth, simulate_session
@@ -85,6 +85,26 @@ def test_a_three_angle_program_runs_in_the_papers_warmed_bucket():
         assert own[0] <= SMALLEST.n_holds and own[1] <= SMALLEST.n_bins, own
         assert tuple(bucket_of(s.structure)) == bucket, own
     assert DEFAULT_BUCKETS[1] == (48, 256, 24, 32, 24)
+
+
+def test_the_live_pages_early_rounds_run_in_a_default_bucket():
+    """The live page fits the completed rounds in a worker while the acquisition runs
+    (:func:`chekan.live.calib.partial_record`): after the first round of the paper's program
+    (19 holds) and of the designer's 9 h xy program (9 holds, about Y only) that record is
+    in a default bucket, so its first MAP loads what ``chekan warmup`` stored."""
+    from chekan.demo import demo_program, dual_axis_program
+    from chekan.live.calib import partial_record
+    from chekan.records.simulate import Truth, simulate_session
+    from chekan.runtime.padding import DEFAULT_BUCKETS
+
+    columns = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "temp_c", "step")
+    for program, holds in ((demo_program(False), 19), (dual_axis_program(False), 9)):
+        rec, _ = simulate_session(program, Truth(serial="L-1"), seed=2)
+        first = set(range(program.n_steps // program.rounds + 1))  # with the next level
+        part = partial_record(dict(rec.meta), {c: getattr(rec, c) for c in columns}, first)
+        m = padded_model(part)
+        assert m.n_real_holds == holds
+        assert tuple(bucket_of(m.structure)) == DEFAULT_BUCKETS[0]
 
 
 @pytest.mark.parametrize(

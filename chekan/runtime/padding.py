@@ -17,9 +17,9 @@ Two rules make more programs share: every size is at least :data:`SMALLEST`'s (s
 programs share one small bucket), and a record whose own bucket lies within
 :data:`DEFAULT_REACH` of one of the :data:`DEFAULT_BUCKETS` (the ones ``chekan warmup``
 compiles), or is the smallest, takes that one: a 3-angle program of 32 holds and 160 bins
-runs in the paper's bucket, and so do a short program and the first round of the paper's
-program that the live page fits, so that their first run after the set-up loads instead of
-compiling.
+runs in the paper's bucket, and so do a short program and the first round of the
+designer's xy program (9 holds about Y) that the live page fits, so that their first run
+after the set-up loads instead of compiling.
 """
 
 from __future__ import annotations
