@@ -94,14 +94,14 @@ def test_the_live_pages_early_rounds_run_in_a_default_bucket():
     in a default bucket, so its first MAP loads what ``chekan warmup`` stored."""
     from chekan.demo import demo_program, dual_axis_program
     from chekan.live.calib import partial_record
+    from chekan.records import DEFAULT_COLUMNS
     from chekan.records.simulate import Truth, simulate_session
     from chekan.runtime.padding import DEFAULT_BUCKETS
 
-    columns = ("t_s", "m1_pix", "m2_pix", "tilt_x_arcsec", "tilt_y_arcsec", "temp_c", "step")
     for program, holds in ((demo_program(False), 19), (dual_axis_program(False), 9)):
         rec, _ = simulate_session(program, Truth(serial="L-1"), seed=2)
         first = set(range(program.n_steps // program.rounds + 1))  # with the next level
-        part = partial_record(dict(rec.meta), {c: getattr(rec, c) for c in columns}, first)
+        part = partial_record(dict(rec.meta), {c: getattr(rec, c) for c in DEFAULT_COLUMNS}, first)
         m = padded_model(part)
         assert m.n_real_holds == holds
         assert tuple(bucket_of(m.structure)) == DEFAULT_BUCKETS[0]
