@@ -42,6 +42,25 @@ def test_every_table_of_the_summary_says_what_it_is(proto, tmp_path, capsys):
     assert text.index("classical method (Calibr.exe), shown beside") < text.index("δg = da_ref")
 
 
+@pytest.mark.parametrize(
+    ("sampler", "named"), [("importance", "importance sampling"), ("emcee", "emcee")]
+)
+def test_the_posteriors_heading_names_the_sampler_that_ran(
+    proto, tmp_path, capsys, sampler, named
+):
+    from chekan.results.document import read_result
+
+    out = tmp_path / "r.json"
+    assert main(["calibrate", str(proto), "-q", "-o", str(out)]) == 0
+    res = read_result(out)
+    res["method"] = "bayes"
+    res.setdefault("diagnostics", {})["sampler"] = sampler
+    text = format_summary(res)
+    assert f"estimates — joint model, posterior ({named}): mean, sd" in text
+    other = "emcee" if sampler == "importance" else "importance sampling"
+    assert f"posterior ({other})" not in text
+
+
 def test_reanalyze_of_a_folder_without_inputs_says_so(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     (tmp_path / "empty" / "notes.txt").write_text("no record here\n", encoding="utf-8")

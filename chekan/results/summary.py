@@ -9,8 +9,10 @@ ORDER = ("b1", "b2", "a", "b1_0", "b2_0", "eps1_arcmin", "eps2_arcmin", "dgamma_
 ESTIMATES = {
     "classical": "classical method (Calibr.exe): least squares of eq. (21), all rounds",
     "map": "joint model, MAP with Laplace sds (hyperparameters at their EM values: no sd)",
-    "bayes": "joint model, posterior (emcee): mean, sd and highest-density interval",
+    "bayes": "joint model, posterior ({sampler}): mean, sd and highest-density interval",
 }
+#: the sampler that drew the posterior, as the heading names it (``diagnostics.sampler``)
+SAMPLER_NAMES = {"importance": "importance sampling", "emcee": "emcee"}
 
 
 def _f(x, fmt: str) -> str:
@@ -61,6 +63,9 @@ def format_summary(res: dict) -> str:
     lines.append("")
     method = res.get("method", "classical")
     scope = ESTIMATES.get(method, method)
+    if method == "bayes":
+        ran = res.get("diagnostics", {}).get("sampler", "emcee")
+        scope = scope.format(sampler=SAMPLER_NAMES.get(ran, ran))
     if res.get("classical_by_axis") and method == "classical":
         scope = scope.replace("all rounds", "the rounds about Y")
     lines.append(f"estimates — {scope}:")
