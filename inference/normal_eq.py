@@ -257,9 +257,10 @@ def banded_factor_blocks(
     _, (diag, sub, Yall) = jax.lax.scan(step, first, (Bd, sub, rhs), unroll=unroll)
     Yall = Yall.reshape(H * k, -1)
     Y, y = Yall[:, :-1], Yall[:, -1]
+    YtY = Yall.T @ Yall  # [YᵀY Yᵀy; yᵀY yᵀy] in one product (slicing Y first copies it)
     D = b.dense + jnp.diag(1.0 / prior_dense)
-    L_S = jnp.linalg.cholesky(D - Y.T @ Y)
-    c = jsl.solve_triangular(L_S, b.g_dense - Y.T @ y, lower=True)
+    L_S = jnp.linalg.cholesky(D - YtY[:m, :m])
+    c = jsl.solve_triangular(L_S, b.g_dense - YtY[:m, m], lower=True)
     return BandedFactor(diag, sub, Y, y, L_S, c)
 
 

@@ -44,7 +44,7 @@ def sampler_config(options: CalibrationOptions, **overrides):
     :func:`sample_posterior`), and n ≥ 10 τ (checked every 5 steps; tuning:
     ``docs/tuning.md``).
     """
-    from inference.sampling import SamplerConfig
+    from inference.sampler_config import SamplerConfig  # not via inference.sampling: emcee
 
     kw: dict[str, Any] = {
         "n_chains": 4,

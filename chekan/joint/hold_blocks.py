@@ -164,11 +164,14 @@ class BinDesign(NamedTuple):
     U: jax.Array | None  # (H, L, 2) the slews' share of the angle columns, per hold
     r: jax.Array  # (N, 2) residual y − f (0 where masked)
     trans: jax.Array  # (N, 2) the transient left in each bin (what κ scales)
+    x_hold: jax.Array | None  # (H, 3, X) what the X-response columns of hold k's bins mix
 
 
 def bin_design(v: dict, structure: ModelStructure, data: RecordData) -> BinDesign:
     """:class:`BinDesign` at θ (values ``v``): aᵢ = 1 − wᵢ, bᵢ = wᵢ·wₚᵣₑᵥ,ₖᵢ (0 in the first
-    hold), cᵢ = wᵢ and fᵢ = aᵢEₖᵢ + bᵢEₖᵢ₋₁ + cᵢ(Mv + R)ₖᵢ (module docstring)."""
+    hold), cᵢ = wᵢ and fᵢ = aᵢEₖᵢ + bᵢEₖᵢ₋₁ + cᵢ(Mv + R)ₖᵢ (module docstring). The
+    X-response columns mix per-hold terms the same way, Φᵢ = aᵢΦₖᵢ + bᵢΦₖᵢ₋₁ + cᵢΦ⁺ₖᵢ (Φ⁺:
+    their share of the lag state after the slew); ``x_hold`` keeps (Φₖ, Φₖ₋₁, Φ⁺ₖ)."""
     (E, s, state, jump, wprev), U, x_state = _hold_terms(v, structure, data)
     k = data.bin_hold
     kp = jnp.maximum(k - 1, 0)
@@ -178,12 +181,16 @@ def bin_design(v: dict, structure: ModelStructure, data: RecordData) -> BinDesig
     f = a[:, None] * E[k] + b[:, None] * E[kp] + w[:, None] * state[k]
     r = jnp.where(data.mask, data.y - f, 0.0)
     cols = [jnp.ones((k.shape[0], 1)), data.drift_basis]
+    x_hold = None
     if structure.n_x_response:
         xb = data.x_basis
         cols.append(a[:, None] * xb[k] + b[:, None] * xb[kp] + w[:, None] * x_state[k])
+        x_hold = jnp.stack([xb, _prev(xb), x_state], axis=1)
     slew_U = U if (structure.n_systematic or structure.n_x_response) else None
     trans = w[:, None] * jump[k]
-    return BinDesign(k, a, b, w, jnp.concatenate(cols, axis=1), s, slew_U, r, trans)
+    Q = jnp.concatenate(cols, axis=1)
+    # materialised: fused into the segment sums' products, XLA recomputed them per column
+    return fusion_barrier(BinDesign(k, a, b, w, Q, s, slew_U, r, trans, x_hold))
 
 
 class _HoldSums(NamedTuple):
@@ -202,8 +209,13 @@ class _HoldSums(NamedTuple):
 
 def _hold_sums(t: BinDesign, W, Wr, H: int) -> _HoldSums:
     """One segment sum over the bins of each hold of the weighted per-bin products
-    (module docstring), and GᵀWG's tridiagonal from them."""
-    a, b, c, Q = t.a, t.b, t.c, t.Q
+    (module docstring), and GᵀWG's tridiagonal from them. The X-response columns' sums
+    come from the holds' 3 × 3 sums of (a, b, c) and ``x_hold``:
+    Σₖ W a Φ = Σₖ W a² Φₖ + Σₖ W a b Φₖ₋₁ + Σₖ W a c Φ⁺ₖ, likewise for b and c (a segment sum
+    of 3 + D columns per system instead of 3 + D + X)."""
+    a, b, c = t.a, t.b, t.c
+    X = 0 if t.x_hold is None else t.x_hold.shape[-1]
+    Q = t.Q[:, : t.Q.shape[1] - X]  # the columns that are the bin's own: c and d
     nq = Q.shape[1]
     abc = jnp.stack([a, b, c], axis=1)  # (N, 3)
     per_bin = jnp.concatenate(
@@ -219,6 +231,15 @@ def _hold_sums(t: BinDesign, W, Wr, H: int) -> _HoldSums:
     S = jax.ops.segment_sum(per_bin, t.hold, num_segments=H)  # (H, 9 + 3nq, 2)
     Sa2, Sb2, Sab, Sca, Scb, Scc, Sar, Sbr, Scr = (S[:, i] for i in range(9))
     SaQ, SbQ, ScQ = (S[:, 9 + i * nq : 9 + (i + 1) * nq] for i in range(3))
+    if t.x_hold is not None:  # (H, 3, 3, 2): Σ W (a, b, c)(a, b, c)ᵀ per hold and system
+        M3 = jnp.stack(
+            [jnp.stack(r, axis=1) for r in ((Sa2, Sab, Sca), (Sab, Sb2, Scb), (Sca, Scb, Scc))],
+            axis=1,
+        )
+        SxQ = jnp.einsum("hrsj,hsx->hrxj", M3, t.x_hold)  # (H, 3, X, 2)
+        SaQ, SbQ, ScQ = (
+            jnp.concatenate([q, SxQ[:, i]], axis=1) for i, q in enumerate((SaQ, SbQ, ScQ))
+        )
     d = Sa2 + _next(Sb2)
     return _HoldSums(d, Sab, Sar + _next(Sbr), SaQ + _next(SbQ), Sca, Scb, Scc, Scr, ScQ)
 
