@@ -31,12 +31,18 @@ seconds (the user's wait). Printed: one row per record, then the median and the 
 ≤ 6× the bare start on the worst record, converged, bulk ESS ≥ 1 000 for every parameter;
 map ≤ 2.5×, issue 56).
 
+Where both ran, the default ``bayes`` (importance sampling where reliable) against
+``--sampler emcee`` on every record: the largest |Δmean| in emcee's sds and |sd ratio − 1|
+over the reported parameters, against the agreement of ``tests/test_posterior_paths.py``
+(certified b, a: 0.1 sd and 10 %; the rest 0.2 sd and 15 %).
+
 ``reanalyze --method bayes --jobs J`` (a new process, a fresh archive) over the same records:
 sessions per second, worker start-up included (few sessions: start-up weighs), beside the
 goal ≥ 1/s; the note gives the warm-worker estimate J / median in-process seconds.
 
 ``--nuts``: blackjax NUTS on the slowest record's posterior, as ``calibrate`` builds it
-(the record's angle-sensor model), against emcee: means within 0.1 sd, sds within 10 %
+(the record's angle-sensor model), against the posterior ``calibrate`` draws (importance
+sampling where reliable, else emcee): means within 0.1 sd, sds within 10 %
 (:mod:`bench.nuts_bench`).
 """
 
@@ -92,6 +98,7 @@ class Run:
     ess: dict[str, float] = field(default_factory=dict)
     sampler: str | None = None  # "importance" (the fast path) or "emcee"
     pareto_k: float | None = None  # where importance sampling was tried
+    moments: dict[str, tuple[float, float]] = field(default_factory=dict)  # mean, sd
 
     @property
     def ess_per_s(self) -> dict[str, float]:
@@ -189,7 +196,51 @@ def timed_calibrate(case: str, rec: Path, method: str, tmp: Path, env: dict[str,
             for k, v in res.get("parameters", {}).items()
             if v.get("ess_bulk") is not None
         }
+        run.moments = {
+            k: (float(v["mean"]), float(v["sd"]))
+            for k, v in res.get("parameters", {}).items()
+            if v.get("mean") is not None and v.get("sd")
+        }
     return run
+
+
+#: the agreement of the default path with emcee (tests/test_posterior_paths.py's): means
+#: within 0.1 sd and sds within 10 % for the certified quantities, 0.2 sd and 15 % else
+CERTIFIED = ("b1", "b2", "a", "b1_0", "b2_0")
+
+
+def paths_agreement(fast: Run, ref: Run) -> Row:
+    """The default ``bayes`` (importance sampling where reliable) against
+    ``--sampler emcee`` on one record: the largest |Δmean|/sd and |sd ratio − 1| over the
+    reported parameters, certified ones and the rest apart, against their tolerances."""
+    worst = {True: [0.0, 0.0], False: [0.0, 0.0]}
+    agree = True
+    for name, (m_ref, sd_ref) in ref.moments.items():
+        if name not in fast.moments:
+            continue
+        m, sd = fast.moments[name]
+        cert = name in CERTIFIED
+        dm, ds = abs(m - m_ref) / sd_ref, abs(sd / sd_ref - 1.0)
+        worst[cert] = [max(worst[cert][0], dm), max(worst[cert][1], ds)]
+        tol_m, tol_s = (0.1, 0.1) if cert else (0.2, 0.15)
+        agree = agree and dm <= tol_m and ds <= tol_s
+    (cm, cs), (om, os_) = worst[True], worst[False]
+    return Row(
+        f"{fast.sampler} vs emcee, {fast.case}",
+        f"certified |Δmean| ≤ {cm:.3f} sd, |Δsd| ≤ {cs * 100:.1f} %",
+        "tol. 0.1 sd, 10 % (others 0.2 sd, 15 %)",
+        ("AGREE" if agree else "DISAGREE (beyond the tolerances)")
+        + f"; the others ≤ {om:.3f} sd, {os_ * 100:.1f} %",
+        {
+            "case": fast.case,
+            "sampler": fast.sampler,
+            "certified_dmean_over_sd": cm,
+            "certified_dsd": cs,
+            "other_dmean_over_sd": om,
+            "other_dsd": os_,
+            "agree": agree,
+        },
+    )
 
 
 def _reanalyze_once(folder: Path, tmp: Path, jobs: int, env: dict[str, str]) -> dict[str, Any]:
@@ -443,6 +494,12 @@ def run(
             rows += [_record_row(r, bare, hours) for r in runs[m]] + failed[m]
             if runs[m]:
                 rows += _summary_rows(runs[m], bare, [r.values["case"] for r in failed[m]])
+        emcee_of = {r.case: r for r in runs.get(EMCEE, [])}
+        rows += [
+            paths_agreement(r, emcee_of[r.case])
+            for r in runs.get("bayes", [])
+            if r.case in emcee_of
+        ]
         if not skip_bayes:
             rows.append(_reanalyze_row(timed_reanalyze(recs_dir, tmp, jobs, env), len(recs)))
             if nuts and runs["bayes"]:

@@ -185,6 +185,12 @@ def test_several_records_table_from_stubbed_runs(monkeypatch):
             run.sampler, run.pareto_k = "importance", 0.3
         if method != "map":
             run.ess = {n: 1000.0 + 10 * i for i, n in enumerate(PARAMETER_UNITS)}
+            # the slow record's b₁ 0.15 sd apart between the paths (beyond 0.1 sd); τ's sd 12 %
+            # apart everywhere (within the 15 % of the uncertified)
+            off = 0.15 if (case == "slow" and method == "bayes") else 0.0
+            run.moments = {"b1": (7.0 + off * 0.01, 0.01), "tau_s": (40.0, 1.0)}
+            if method == "bayes":
+                run.moments["tau_s"] = (40.05, 1.12)
         return run
 
     monkeypatch.setattr(sr, "write_records", lambda d, s, q: {c: d / c for c in sr.CASES})
@@ -202,6 +208,17 @@ def test_several_records_table_from_stubbed_runs(monkeypatch):
     assert summ.values["worst_ratio_to_bare"] == pytest.approx(30.0 / bare)
     assert summ.values["median_seconds"] == 13.0
     assert summ.values["target_met"] is False  # 30 s is beyond 6× a ~1 s start
+    agreement = {
+        r.values["case"]: r
+        for r in rows
+        if r.label.endswith(tuple("vs emcee, " + c for c in sr.CASES))
+    }
+    assert sorted(agreement) == sorted(sr.CASES)
+    assert [c for c, r in agreement.items() if not r.values["agree"]] == ["slow"]
+    assert agreement["slow"].note.startswith("DISAGREE")
+    assert agreement["slow"].values["certified_dmean_over_sd"] == pytest.approx(0.15)
+    assert agreement["typical"].values["other_dsd"] == pytest.approx(0.12)
+    assert agreement["typical"].values["other_dmean_over_sd"] == pytest.approx(0.05)
     (re,) = [r for r in rows if r.label.startswith("`reanalyze")]
     assert re.values["sessions_per_s"] == 0.5
     assert re.values["warm_sessions_per_s_estimate"] == 2 / 4.5
