@@ -144,6 +144,19 @@ def test_the_warmup_stores_the_em_newton_step(short_session):
     assert engine_for(model.structure).store.stored(EM_NEWTON, *em_newton_args(model))
 
 
+@pytest.mark.parametrize("n", [1, 13, 2048, 3360, 8192, 8193])
+def test_keys_split_at_a_bucketed_count_are_the_keys_of_their_own_count(n):
+    """The posterior's β keys: one compiled split for every number of draws, the same keys."""
+    import jax
+
+    from chekan.runtime.padding import split_keys
+
+    key = jax.random.fold_in(jax.random.PRNGKey(7), 3)
+    got = np.asarray(split_keys(key, n))
+    assert got.shape == (n, 2)
+    np.testing.assert_array_equal(got, np.asarray(jax.random.split(key, n)))
+
+
 def test_x_response_padding_keeps_the_level_angle_last():
     """Padded X-response columns are zero, unit prior variance, before the last column
     (the level angle Δm₀ⱼ that the derived quantities read)."""

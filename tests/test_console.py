@@ -45,9 +45,7 @@ def test_every_table_of_the_summary_says_what_it_is(proto, tmp_path, capsys):
 @pytest.mark.parametrize(
     ("sampler", "named"), [("importance", "importance sampling"), ("emcee", "emcee")]
 )
-def test_the_posteriors_heading_names_the_sampler_that_ran(
-    proto, tmp_path, capsys, sampler, named
-):
+def test_the_posteriors_heading_names_the_sampler_that_ran(proto, tmp_path, capsys, sampler, named):
     from chekan.results.document import read_result
 
     out = tmp_path / "r.json"

@@ -20,6 +20,7 @@ from chekan.fit.map import MapFit
 from chekan.joint.layout import RecordModel
 from chekan.options import CalibrationOptions
 from chekan.runtime.engine import problem_for
+from chekan.runtime.padding import split_keys
 
 if TYPE_CHECKING:
     from chekan.fit.reported import ReportedDraws
@@ -119,7 +120,7 @@ def reported_draws(fit: MapFit, seed: int, draws: np.ndarray) -> ReportedDraws:
     from chekan.fit.reported import ReportedDraws, posterior_draws
 
     C, Dn = draws.shape[:2]
-    keys = jax.random.split(jax.random.PRNGKey(seed), C * Dn)
+    keys = split_keys(jax.random.PRNGKey(seed), C * Dn)
     flat = real_part(fit.model, posterior_draws(fit, draws.reshape(C * Dn, -1), keys))
 
     def per_chain(v: np.ndarray) -> np.ndarray:
@@ -143,7 +144,7 @@ def weighed_draws(
     from chekan.fit.reported import ReportedDraws, posterior_draws
 
     base = jax.random.fold_in(jax.random.PRNGKey(seed), 1 + block)
-    keys = jax.random.split(base, points.shape[0])
+    keys = split_keys(base, points.shape[0])
     flat = real_part(fit.model, posterior_draws(fit, points, keys))
     assert flat.log_density is not None
     one = ReportedDraws(

@@ -38,6 +38,7 @@ __all__ = [
     "padded_for",
     "padded_shape",
     "rung",
+    "split_keys",
 ]
 
 #: the rungs below 32; above it 2ᵏ·(8, 9, 10, 12, 14)/8
@@ -125,3 +126,21 @@ def padded_for(model: RecordModel) -> RecordModel:
     (exact: the padding carries zero weight; the per-hold and per-bin outputs of ``bayes``
     are cut back to the real holds and bins, :func:`chekan.fit.sampling.reported_draws`)."""
     return model.pad(*bucket_of(model.structure))
+
+
+#: The fewest keys :func:`split_keys` splits at once (the importance path's most points)
+KEYS_AT_ONCE = 8192
+
+
+def split_keys(key, n: int):
+    """``jax.random.split(key, n)``, split at a bucketed count (:data:`KEYS_AT_ONCE`, doubled
+    until it holds ``n``) and cut to ``n``: the same keys (JAX's partitionable threefry, its
+    default, splits key i alike for any count ≥ i; a test shows it) from one compiled split,
+    where a count of its own compiled one for every number of draws (0.16 s each, and an
+    entry in the persistent cache for every count ever drawn)."""
+    import jax
+
+    size = KEYS_AT_ONCE
+    while size < n:
+        size *= 2
+    return jax.random.split(key, size)[:n]
