@@ -165,7 +165,7 @@ def _check_several_records_rows(rows, methods=None):
             assert all(np.isfinite(x) for x in worst.values())
             assert worst["b1"] == min(r.values["ess_per_s"]["b1"] for r in per)
     if "bayes" in methods:
-        (re,) = [r for r in rows if r.label.startswith("`reanalyze --method bayes`")]
+        (re,) = [r for r in rows if r.label.startswith("`reanalyze --method bayes` over the 4")]
         assert 1 <= re.values["sessions"] <= 4 and np.isfinite(re.values["sessions_per_s"])
 
 
@@ -194,6 +194,8 @@ def test_several_records_table_from_stubbed_runs(monkeypatch):
         return run
 
     monkeypatch.setattr(sr, "write_records", lambda d, s, q: {c: d / c for c in sr.CASES})
+    written = []
+    monkeypatch.setattr(sr, "write_archive_records", lambda d, s, q, n: written.append(n))
     monkeypatch.setattr(sr, "timed_calibrate", fake_calibrate)
     monkeypatch.setattr(
         sr,
@@ -219,9 +221,12 @@ def test_several_records_table_from_stubbed_runs(monkeypatch):
     assert agreement["slow"].values["certified_dmean_over_sd"] == pytest.approx(0.15)
     assert agreement["typical"].values["other_dsd"] == pytest.approx(0.12)
     assert agreement["typical"].values["other_dmean_over_sd"] == pytest.approx(0.05)
-    (re,) = [r for r in rows if r.label.startswith("`reanalyze")]
+    (re,) = [r for r in rows if r.label.startswith("`reanalyze --method bayes` over the 4")]
     assert re.values["sessions_per_s"] == 0.5
     assert re.values["warm_sessions_per_s_estimate"] == 2 / 4.5
+    # the rate: many paper-program records (3 h with quick), one more reanalyze
+    (many,) = [r for r in rows if r.label.startswith("`reanalyze --method bayes` over 16 3 h")]
+    assert written == [16] and many.values["sessions_per_s"] == 0.5
 
     def failing(case, rec, method, tmp, env):
         if case == "slow" and method == "bayes":
