@@ -133,16 +133,16 @@ KEYS_AT_ONCE = 8192
 
 
 def split_keys(key, n: int):
-    """``jax.random.split(key, n)`` as a NumPy array, split at a bucketed count (:data:`KEYS_AT_ONCE`, doubled
-    until it holds ``n``) and cut to ``n``: the same keys (JAX's partitionable threefry, its
-    default, splits key i alike for any count ≥ i; a test shows it) from one compiled split,
-    where a count of its own compiled one for every number of draws (0.16 s each, and an
-    entry in the persistent cache for every count ever drawn)."""
+    """``jax.random.split(key, n)`` as a NumPy array, split at a bucketed count
+    (:data:`KEYS_AT_ONCE`, doubled until it holds ``n``) and cut to ``n``: the same keys
+    (JAX's partitionable threefry, its default, splits key i alike for any count ≥ i; a
+    test shows it) from one compiled split, where a count of its own compiled one for every
+    number of draws (0.16 s each, and an entry in the persistent cache for every count ever
+    drawn)."""
     import jax
+    import numpy as np
 
     size = KEYS_AT_ONCE
     while size < n:
         size *= 2
-    import numpy as np
-
     return np.asarray(jax.random.split(key, size))[:n]  # cut on the host: no slice to compile
