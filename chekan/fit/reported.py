@@ -126,7 +126,7 @@ def map_derived(fit: MapFit) -> MapDerived:
     )
 
 
-def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 256) -> ReportedDraws:
+def posterior_draws(fit: MapFit, zs: np.ndarray, keys, chunk: int = 64) -> ReportedDraws:
     """Every reported quantity for each posterior draw ``zs`` (n, 12), β drawn given θ
     with ``keys``, and the pointwise log-likelihood; in fixed-size chunks on both cores
     (one compile, bounded memory; the size: ``docs/tuning.md``)."""
