@@ -7,17 +7,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.several_records import paths_tolerance  # the agreement, as the bench's
 from chekan.pipeline import CalibrationOptions, calibrate_file
-
-#: the issue's agreement: means within 0.1 sd and sds within 10 % for the certified
-#: quantities; the rest (angles, τ, drifts, hyperparameters), within 0.2 sd and 15 %
-CERTIFIED = ("b1", "b2", "a", "b1_0", "b2_0")
 
 
 def _agree(fast: dict, ref: dict) -> None:
     for name, e in ref["parameters"].items():
         f = fast["parameters"][name]
-        tol_mean, tol_sd = (0.1, 0.1) if name in CERTIFIED else (0.2, 0.15)
+        tol_mean, tol_sd = paths_tolerance(name)
         assert abs(f["mean"] - e["mean"]) <= tol_mean * e["sd"], (name, f, e)
         assert abs(f["sd"] / e["sd"] - 1) <= tol_sd, (name, f["sd"], e["sd"])
 
